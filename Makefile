@@ -1,0 +1,39 @@
+# omnispectral: `make demo` runs the main job on the built-in default, `make test` runs the tests.
+# Both create (or reuse) the virtual environment .venv and install what is needed from PyPI.
+
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.omnispectral-installed
+DEMO_OUT ?= demo-output
+
+.PHONY: demo test lint bench clean venv
+
+venv: $(STAMP)
+
+$(STAMP): pyproject.toml
+	@$(PYTHON) -c 'import sys; assert sys.version_info >= (3, 11), "omnispectral needs Python >= 3.11"'
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV) || { \
+		echo "python3 -m venv failed: installing Debian's python3-venv"; \
+		apt-get update -qq && apt-get install -y -qq python3-venv && $(PYTHON) -m venv $(VENV); }
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	@touch $(STAMP)
+
+demo: $(STAMP)
+	@mkdir -p $(DEMO_OUT)
+	$(BIN)/omnispectral spectral evaluate --plot $(DEMO_OUT)/spectral_evaluation.png \
+		--json-out $(DEMO_OUT)/spectral_evaluation.json
+
+test: $(STAMP)
+	$(BIN)/ruff check src tests benchmarks scripts
+	$(BIN)/python -m pytest -q
+
+lint: $(STAMP)
+	$(BIN)/ruff check src tests benchmarks scripts
+
+bench: $(STAMP)
+	$(BIN)/python benchmarks/bench_spectral.py
+
+clean:
+	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache build src/*.egg-info

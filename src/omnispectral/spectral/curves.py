@@ -1,0 +1,301 @@
+"""Spectral curves: loading, validation and resampling on a wavelength grid.
+
+A :class:`SpectralSet` is a set of curves sampled on one wavelength axis: camera
+sensitivities (paper Eq. (5), :math:`R_i(\\lambda)`), filter transmittances, illuminant spectral
+power distributions (:math:`E(\\lambda)`) or surface reflectances.  The default grid is
+400-700 nm every 5 nm (61 samples), the grid on which the paper's NRMSE is defined.
+
+User curves come from CSV files with a header row ``wavelength_nm,<name>,<name>...`` and one
+row per wavelength.  Lines starting with ``#`` are comments.  Malformed files raise
+:class:`~omnispectral.errors.InputFileError` naming the file, the line and the problem.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import colour
+import numpy as np
+
+from omnispectral.errors import ConfigurationError, InputFileError
+
+DEFAULT_WAVELENGTH_NM = np.arange(400.0, 700.0 + 1e-9, 5.0)
+"""The default wavelength grid: 400-700 nm every 5 nm (61 samples)."""
+
+KINDS = ("sensitivity", "transmittance", "illuminant", "reflectance", "signal")
+"""What a curve measures.  Transmittances and reflectances are fractions in [0, 1]."""
+
+_FRACTION_KINDS = ("transmittance", "reflectance")
+_WAVELENGTH_HEADERS = ("wavelength_nm", "wavelength", "nm", "lambda_nm", "wl_nm")
+# Measured curves carry small negative values from noise; beyond this share of the column
+# maximum a negative value is an error, below it the value is clipped to zero.
+_NEGATIVE_TOLERANCE = 5e-3
+
+
+def default_wavelength_nm() -> np.ndarray:
+    """Return a fresh copy of the default 400-700 nm / 5 nm grid."""
+    return DEFAULT_WAVELENGTH_NM.copy()
+
+
+@dataclass(frozen=True)
+class SpectralSet:
+    """Curves sampled on a common wavelength axis.
+
+    Attributes
+    ----------
+    wavelength_nm
+        Strictly increasing sample wavelengths, shape ``(n,)``.
+    values
+        One curve per row, shape ``(m, n)``.
+    names
+        One name per curve.
+    kind
+        One of :data:`KINDS`.
+    source
+        Where the curves came from (file path or data set name), used in messages.
+    notes
+        Anything done to the data on loading that a user should know (e.g. percent scaling).
+    """
+
+    wavelength_nm: np.ndarray
+    values: np.ndarray
+    names: tuple[str, ...]
+    kind: str
+    source: str
+    notes: tuple[str, ...] = field(default=())
+
+    def __post_init__(self) -> None:
+        wl = np.asarray(self.wavelength_nm, dtype=np.float64)
+        v = np.atleast_2d(np.asarray(self.values, dtype=np.float64))
+        object.__setattr__(self, "wavelength_nm", wl)
+        object.__setattr__(self, "values", v)
+        object.__setattr__(self, "names", tuple(str(n) for n in self.names))
+        if self.kind not in KINDS:
+            raise ConfigurationError(f"{self.source}: unknown spectral kind {self.kind!r}; expected {KINDS}")
+        if wl.ndim != 1 or v.shape[1] != wl.size:
+            raise ConfigurationError(
+                f"{self.source}: {v.shape[1]} samples per curve but {wl.size} wavelengths"
+            )
+        if len(self.names) != v.shape[0]:
+            raise ConfigurationError(f"{self.source}: {v.shape[0]} curves but {len(self.names)} names")
+        if wl.size > 1 and np.any(np.diff(wl) <= 0):
+            raise ConfigurationError(f"{self.source}: wavelengths are not strictly increasing")
+
+    def __len__(self) -> int:
+        return self.values.shape[0]
+
+    def covers(self, wavelength_nm: np.ndarray) -> bool:
+        """Whether this set's wavelength range contains all of ``wavelength_nm``."""
+        wl = np.asarray(wavelength_nm, dtype=np.float64)
+        return bool(wl.min() >= self.wavelength_nm[0] - 1e-6 and wl.max() <= self.wavelength_nm[-1] + 1e-6)
+
+    def resample(self, wavelength_nm: np.ndarray | None = None, method: str = "linear") -> SpectralSet:
+        """Resample every curve onto ``wavelength_nm`` (default: 400-700 nm / 5 nm).
+
+        Interpolation uses colour-science's interpolators: ``"linear"`` (no overshoot on the
+        sharp edges of filter curves, the default) or ``"sprague"`` (CIE 167:2005's recommended
+        interpolator for uniformly sampled smooth data).  Extrapolation is refused: a range
+        that does not cover the grid raises :class:`InputFileError` naming the source.
+        """
+        wl = DEFAULT_WAVELENGTH_NM if wavelength_nm is None else np.asarray(wavelength_nm, dtype=np.float64)
+        if not self.covers(wl):
+            raise InputFileError(
+                self.source,
+                f"wavelength range {self.wavelength_nm[0]:g}-{self.wavelength_nm[-1]:g} nm does not cover "
+                f"the grid {wl.min():g}-{wl.max():g} nm",
+            )
+        if self.wavelength_nm.size == wl.size and np.allclose(self.wavelength_nm, wl):
+            return self
+        interpolators = {"linear": colour.LinearInterpolator, "sprague": colour.SpragueInterpolator}
+        if method not in interpolators:
+            raise ConfigurationError(f"unknown interpolation {method!r}; expected one of {list(interpolators)}")
+        interpolator = interpolators[method]
+        if method == "sprague" and (
+            self.wavelength_nm.size < 6 or not np.allclose(np.diff(self.wavelength_nm), np.diff(self.wavelength_nm)[0])
+        ):
+            interpolator = colour.LinearInterpolator
+        out = np.empty((len(self), wl.size))
+        for i, row in enumerate(self.values):
+            out[i] = interpolator(self.wavelength_nm, row)(np.clip(wl, self.wavelength_nm[0], self.wavelength_nm[-1]))
+        if self.kind != "signal":
+            out = np.maximum(out, 0.0)
+        return SpectralSet(wl, out, self.names, self.kind, self.source, self.notes)
+
+    def select(self, names: list[str] | tuple[str, ...]) -> SpectralSet:
+        """Return the curves called ``names`` (case-insensitive), in that order."""
+        lookup = {n.lower(): i for i, n in enumerate(self.names)}
+        missing = [n for n in names if n.lower() not in lookup]
+        if missing:
+            raise ConfigurationError(f"{self.source}: no curve named {missing}; available: {list(self.names)}")
+        idx = [lookup[n.lower()] for n in names]
+        return SpectralSet(self.wavelength_nm, self.values[idx], [self.names[i] for i in idx], self.kind,
+                           self.source, self.notes)
+
+    def subset(self, mask: np.ndarray) -> SpectralSet:
+        """Return the curves where boolean ``mask`` is true."""
+        mask = np.asarray(mask, dtype=bool)
+        return SpectralSet(self.wavelength_nm, self.values[mask],
+                           [n for n, keep in zip(self.names, mask, strict=True) if keep],
+                           self.kind, self.source, self.notes)
+
+    def to_msds(self) -> colour.MultiSpectralDistributions:
+        """The same curves as colour-science ``MultiSpectralDistributions``."""
+        return colour.MultiSpectralDistributions(
+            self.values.T, self.wavelength_nm, labels=list(self.names), name=self.source
+        )
+
+    @classmethod
+    def from_colour(cls, data, kind: str, source: str, names=None) -> SpectralSet:
+        """Build from a colour-science spectral distribution, multi-distribution or mapping of them."""
+        if isinstance(data, colour.MultiSpectralDistributions):
+            return cls(data.wavelengths, data.values.T, names or data.labels, kind, source)
+        if isinstance(data, colour.SpectralDistribution):
+            return cls(data.wavelengths, data.values[None, :], names or [data.name], kind, source)
+        # a mapping name -> SpectralDistribution, possibly on different grids
+        items = list(data.items())
+        wl = items[0][1].wavelengths
+        for _, sd in items:
+            lo, hi = max(wl[0], sd.wavelengths[0]), min(wl[-1], sd.wavelengths[-1])
+            wl = wl[(wl >= lo) & (wl <= hi)]
+        values = np.array([sd.copy().align(colour.SpectralShape(wl[0], wl[-1], wl[1] - wl[0])).values
+                           for _, sd in items])
+        return cls(wl, values, names or [k for k, _ in items], kind, source)
+
+
+def concatenate(sets: list[SpectralSet], wavelength_nm: np.ndarray | None = None, source: str | None = None,
+                method: str = "linear") -> SpectralSet:
+    """Resample several sets onto one grid and stack their curves (names prefixed by source)."""
+    if not sets:
+        raise ConfigurationError("no spectral sets to concatenate")
+    wl = DEFAULT_WAVELENGTH_NM if wavelength_nm is None else np.asarray(wavelength_nm, dtype=np.float64)
+    parts = [s.resample(wl, method=method) for s in sets]
+    kinds = {s.kind for s in parts}
+    if len(kinds) != 1:
+        raise ConfigurationError(f"cannot concatenate spectral sets of different kinds {sorted(kinds)}")
+    names = [f"{s.source}:{n}" for s in parts for n in s.names]
+    return SpectralSet(wl, np.vstack([s.values for s in parts]), names, parts[0].kind,
+                       source or "+".join(s.source for s in parts))
+
+
+def _parse_float(text: str, path: Path, line: int, column: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise InputFileError(path, f"column {column!r}: {text.strip()!r} is not a number", line) from None
+    if math.isnan(value) or math.isinf(value):
+        raise InputFileError(path, f"column {column!r}: value is {text.strip()} (NaN or infinite)", line)
+    return value
+
+
+def read_spectral_csv(path: str | Path, kind: str, percent: bool | None = None) -> SpectralSet:
+    """Read curves from a CSV file ``wavelength_nm,<name>,<name>...``.
+
+    Parameters
+    ----------
+    path
+        The CSV file. Lines beginning with ``#`` and blank lines are ignored.
+    kind
+        One of :data:`KINDS`; transmittances and reflectances may be given in percent.
+    percent
+        ``True``/``False`` to state the unit of a transmittance or reflectance table;
+        ``None`` detects it (a maximum above 1.5 means percent) and says so in ``notes``.
+
+    Raises
+    ------
+    InputFileError
+        On a missing or unreadable file, a wrong header, a short row, a value that is not a
+        number, NaN, wavelengths that are not strictly increasing, or a negative value
+        (beyond 0.5 % of the curve's maximum, which is clipped as measurement noise).
+    """
+    path = Path(path)
+    if kind not in KINDS:
+        raise ConfigurationError(f"unknown spectral kind {kind!r}; expected one of {KINDS}")
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise InputFileError(path, "file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputFileError(path, f"cannot read file ({exc})") from None
+
+    rows: list[tuple[int, list[str]]] = []
+    for line_no, row in enumerate(csv.reader(text.splitlines()), start=1):
+        if not row or not "".join(row).strip() or row[0].lstrip().startswith("#"):
+            continue
+        rows.append((line_no, row))
+    if not rows:
+        raise InputFileError(path, "no header row and no data")
+    header_line, header = rows[0]
+    header = [h.strip() for h in header]
+    if header[0].lower() not in _WAVELENGTH_HEADERS:
+        raise InputFileError(path, f"first header column is {header[0]!r}; expected 'wavelength_nm'", header_line)
+    if len(header) < 2:
+        raise InputFileError(path, "header names no curve after 'wavelength_nm'", header_line)
+    names = header[1:]
+    if any(not n for n in names):
+        raise InputFileError(path, "a curve column has an empty name", header_line)
+    if len(set(names)) != len(names):
+        raise InputFileError(path, "duplicate curve names in header", header_line)
+    if len(rows) < 2:
+        raise InputFileError(path, "header only, no data rows")
+
+    wl = np.empty(len(rows) - 1)
+    values = np.empty((len(names), len(rows) - 1))
+    lines = np.empty(len(rows) - 1, dtype=int)
+    for j, (line_no, row) in enumerate(rows[1:]):
+        if len(row) != len(header):
+            raise InputFileError(path, f"{len(row)} fields, expected {len(header)} as in the header", line_no)
+        wl[j] = _parse_float(row[0], path, line_no, header[0])
+        for i, name in enumerate(names):
+            values[i, j] = _parse_float(row[i + 1], path, line_no, name)
+        lines[j] = line_no
+        if j > 0 and wl[j] <= wl[j - 1]:
+            raise InputFileError(
+                path, f"wavelengths not strictly increasing ({wl[j - 1]:g} nm then {wl[j]:g} nm)", line_no
+            )
+    if wl[0] <= 0:
+        raise InputFileError(path, f"wavelength {wl[0]:g} nm is not positive", int(lines[0]))
+
+    notes: list[str] = []
+    for i, name in enumerate(names):
+        peak = max(float(values[i].max()), 0.0)
+        j = int(np.argmin(values[i]))
+        if values[i, j] < -_NEGATIVE_TOLERANCE * max(peak, 1e-12):
+            raise InputFileError(path, f"column {name!r}: negative {kind} {values[i, j]:g}", int(lines[j]))
+    if np.any(values < 0):
+        notes.append("small negative values (measurement noise) clipped to 0")
+        values = np.maximum(values, 0.0)
+
+    if kind in _FRACTION_KINDS:
+        peak = float(values.max())
+        is_percent = peak > 1.5 if percent is None else percent
+        if is_percent:
+            if peak > 100.0 + 1e-6:
+                i, j = np.unravel_index(int(np.argmax(values)), values.shape)
+                raise InputFileError(path, f"column {names[i]!r}: {kind} {peak:g} % exceeds 100 %", int(lines[j]))
+            values = values / 100.0
+            notes.append(f"{kind} read as percent (maximum {peak:g}) and converted to fraction")
+        else:
+            if peak > 1.5:
+                i, j = np.unravel_index(int(np.argmax(values)), values.shape)
+                raise InputFileError(path, f"column {names[i]!r}: {kind} {peak:g} exceeds 1 (fraction)", int(lines[j]))
+            notes.append(f"{kind} read as fraction (maximum {peak:g})")
+    return SpectralSet(wl, values, names, kind, str(path), tuple(notes))
+
+
+def write_spectral_csv(spectral_set: SpectralSet, path: str | Path, comment: str | None = None) -> Path:
+    """Write curves as ``wavelength_nm,<name>...`` CSV, atomically (temporary name, then rename)."""
+    import io
+
+    from omnispectral.io import atomic_write_text
+
+    buf = io.StringIO()
+    for c in (comment or "").splitlines():
+        buf.write(f"# {c}\n")
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(["wavelength_nm", *spectral_set.names])
+    for j, wl in enumerate(spectral_set.wavelength_nm):
+        writer.writerow([f"{wl:g}", *(f"{v:.6g}" for v in spectral_set.values[:, j])])
+    return atomic_write_text(path, buf.getvalue())

@@ -1,0 +1,86 @@
+"""Accuracy metrics for estimated spectra (paper Sec. 5.2).
+
+NRMSE (as in paper Sec. 5.2 and Fig. 11): both spectra are scaled to unit L2 norm over the
+wavelength grid (61 samples for 400-700 nm / 5 nm), then the RMS difference is taken over
+wavelengths; a set's figure is the mean over its spectra.  Colour differences use CIE 1931 2°
+XYZ, with the light source as the white (a perfect reflecting diffuser under it has Y = 100),
+and colour-science's CIELAB, ΔE*ab (CIE 1976) and ΔE00 (CIE 2000).
+"""
+
+from __future__ import annotations
+
+import colour
+import numpy as np
+
+from omnispectral.spectral.curves import SpectralSet
+
+NRMSE_DEFINITION = (
+    "NRMSE: estimated and true spectra each scaled to unit L2 norm over the wavelength grid "
+    "({n} samples, {lo:g}-{hi:g} nm), RMS difference over wavelengths, mean over targets. "
+    "Delta E: CIE 1931 2 deg XYZ of the colour signals with the illuminant as white (Y=100), "
+    "CIELAB, CIE 1976 (Delta E*ab) and CIE 2000 (Delta E00), mean over targets."
+)
+
+
+def nrmse(estimated: np.ndarray, true: np.ndarray) -> np.ndarray:
+    """Normalised RMSE per spectrum: unit-L2-norm spectra, RMS over wavelengths. Shapes ``(..., n)``."""
+    e = np.asarray(estimated, dtype=np.float64)
+    t = np.asarray(true, dtype=np.float64)
+    en = e / np.maximum(np.linalg.norm(e, axis=-1, keepdims=True), 1e-300)
+    tn = t / np.maximum(np.linalg.norm(t, axis=-1, keepdims=True), 1e-300)
+    return np.sqrt(np.mean((en - tn) ** 2, axis=-1))
+
+
+def spectral_angle_deg(estimated: np.ndarray, true: np.ndarray) -> np.ndarray:
+    """Spectral angle (degrees) between spectra ``(..., n)`` (Kruse et al. 1993, SAM)."""
+    e = np.asarray(estimated, dtype=np.float64)
+    t = np.asarray(true, dtype=np.float64)
+    cos = (e * t).sum(-1) / np.maximum(np.linalg.norm(e, axis=-1) * np.linalg.norm(t, axis=-1), 1e-300)
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def cmfs_on_grid(wavelength_nm: np.ndarray,
+                 observer: str = "CIE 1931 2 Degree Standard Observer") -> np.ndarray:
+    """Colour-matching functions ``(3, n)`` resampled onto ``wavelength_nm`` (colour-science data)."""
+    cmfs = colour.MSDS_CMFS[observer]
+    return SpectralSet(cmfs.wavelengths, cmfs.values.T, ["x", "y", "z"], "sensitivity", observer).resample(
+        wavelength_nm).values
+
+
+def signal_to_XYZ(signals: np.ndarray, white_spd: np.ndarray, wavelength_nm: np.ndarray) -> np.ndarray:
+    """Tristimulus values of colour signals ``(..., n)`` relative to a white ``(n,)`` with ``Y_white = 100``.
+
+    For a reflectance ``r`` under illuminant ``S`` (signal ``r S``, white ``S``) this is CIE 015's
+    :math:`X = k\\sum r S \\bar x\\,\\Delta\\lambda`, :math:`k = 100/\\sum S \\bar y\\,\\Delta\\lambda`,
+    which colour-science computes as ``sd_to_XYZ(r, illuminant=S, method="Integration")``.
+    """
+    cmfs = cmfs_on_grid(wavelength_nm)
+    k = 100.0 / float(np.asarray(white_spd) @ cmfs[1])
+    return k * (np.asarray(signals, dtype=np.float64) @ cmfs.T)
+
+
+def colour_differences(estimated: np.ndarray, true: np.ndarray, white_spd: np.ndarray,
+                       wavelength_nm: np.ndarray) -> dict[str, np.ndarray]:
+    """ΔE*ab and ΔE00 between estimated and true colour signals, viewed under ``white_spd``."""
+    white_XYZ = signal_to_XYZ(white_spd, white_spd, wavelength_nm)
+    white_xy = colour.XYZ_to_xy(white_XYZ)
+    lab_e = colour.XYZ_to_Lab(signal_to_XYZ(estimated, white_spd, wavelength_nm) / 100.0, white_xy)
+    lab_t = colour.XYZ_to_Lab(signal_to_XYZ(true, white_spd, wavelength_nm) / 100.0, white_xy)
+    return {
+        "delta_e_ab": np.asarray(colour.delta_E(lab_t, lab_e, method="CIE 1976")),
+        "delta_e_2000": np.asarray(colour.delta_E(lab_t, lab_e, method="CIE 2000")),
+    }
+
+
+def spectral_report(estimated: np.ndarray, true: np.ndarray, white_spd: np.ndarray,
+                    wavelength_nm: np.ndarray) -> dict:
+    """All metrics, per target and averaged: ``nrmse``, ``delta_e_ab``, ``delta_e_2000``, ``spectral_angle_deg``."""
+    per = {
+        "nrmse": nrmse(estimated, true),
+        "spectral_angle_deg": spectral_angle_deg(estimated, true),
+        **colour_differences(estimated, true, white_spd, wavelength_nm),
+    }
+    summary = {k: float(np.mean(v)) for k, v in per.items()}
+    summary["delta_e_ab_max"] = float(np.max(per["delta_e_ab"]))
+    summary["per_target"] = {k: [float(x) for x in v] for k, v in per.items()}
+    return summary

@@ -133,6 +133,20 @@ def tune_sigma2(system: MultibandSystem, prior: SpectralPrior, calibration: Cali
                   "best_nrmse": float(min(res.fun, losses[i]))}
 
 
+def sigma2_grid(calibration: CalibrationData, normalized: bool = True) -> np.ndarray:
+    """Candidate noise variances from the measured noise floor of the calibration chart up to 1.
+
+    sigma^2 is a noise variance (Eq. (7)); it should not go below the variance actually present in
+    the measurements (relative to squared brightness in the normalized form), otherwise tuning on
+    averaged chart patches would drive it to zero and the estimator would trust noisy pixels.
+    """
+    var = calibration.variance
+    if normalized:
+        var = var / np.maximum(calibration.rho.mean(-1, keepdims=True), 1e-300) ** 2
+    floor = max(float(np.median(var)), float(SIGMA2_GRID[0]))
+    return np.logspace(np.log10(floor), 0.0, 41)
+
+
 def fit_for_protocol(system: MultibandSystem, protocol: Protocol, held_out: list[SpectralSet],
                      prior: SpectralPrior | None = None,
                      rng: np.random.Generator | None = None) -> tuple[WienerEstimator, dict]:
@@ -145,7 +159,8 @@ def fit_for_protocol(system: MultibandSystem, protocol: Protocol, held_out: list
     if protocol.sigma2 is None:
         calib_refl, calib_illum = calibration_signals(held_out[:1], wavelength_nm=wl)
         calibration = measure_calibration(system, calib_refl, calib_illum, protocol, rng)
-        sigma2, curve = tune_sigma2(system, prior, calibration, protocol.normalized, protocol.mixture)
+        sigma2, curve = tune_sigma2(system, prior, calibration, protocol.normalized, protocol.mixture,
+                                    sigma2_grid(calibration, protocol.normalized))
         info["calibration"] = {"n_reflectances": len(calib_refl), "illuminants": list(calib_illum.names),
                                "curve": curve}
     else:

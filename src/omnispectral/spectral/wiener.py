@@ -193,8 +193,7 @@ class WienerEstimator:
             var = np.broadcast_to(np.asarray(noise_variance, dtype=np.float64), rho.shape).reshape(-1, self.n_bands)
         out = np.empty((flat.shape[0], width), dtype=dtype)
         for s in range(0, flat.shape[0], chunk_pixels):
-            out[s:s + chunk_pixels] = fn(flat[s:s + chunk_pixels].astype(np.float64),
-                                         None if var is None else var[s:s + chunk_pixels])
+            out[s:s + chunk_pixels] = fn(flat[s:s + chunk_pixels], None if var is None else var[s:s + chunk_pixels])
         return out.reshape(*lead, width)
 
     def estimate(self, rho: np.ndarray, noise_variance: np.ndarray | float | None = None,
@@ -215,13 +214,16 @@ class WienerEstimator:
         """
         if self.n_components == 1 and noise_variance is None:
             M, b = self.linear_map()
-            Mt = M.T
+            # the fast path: one matrix product, in single precision for float32 output
+            work = np.float32 if np.dtype(dtype) == np.float32 else np.float64
+            Mt, b = M.T.astype(work), b.astype(work)
 
-            def fn(r, v):  # the fast path: one matrix product
-                return r @ Mt + b
+            def fn(r, v):
+                out = r.astype(work, copy=False) @ Mt
+                return out + b if b.any() else out
         else:
             def fn(r, v):
-                return self._solve(r, v, want_std=False)[0]
+                return self._solve(r.astype(np.float64), v, want_std=False)[0]
 
         out = self._run(rho, noise_variance, chunk_pixels, fn, self.means.shape[1], dtype)
         return np.maximum(out, 0, out=out) if nonnegative else out
@@ -233,14 +235,23 @@ class WienerEstimator:
         The square root of the diagonal of the posterior covariance (for a mixture: the
         weighted within-component covariances plus the spread of the component estimates).
         """
-        return self._run(rho, noise_variance, chunk_pixels, lambda r, v: self._solve(r, v, want_std=True)[1],
+        if self.n_components == 1 and noise_variance is None:  # constant covariance, scaled by brightness
+            base = np.sqrt(np.clip(np.diag(self.posterior_covariance(0)), 0.0, None))
+            if self.normalization is None:
+                return self._run(rho, None, chunk_pixels, lambda r, v: np.broadcast_to(base, (r.shape[0], base.size)),
+                                 base.size, dtype)
+            a = self.normalization
+            return self._run(rho, None, chunk_pixels, lambda r, v: np.abs(r.astype(np.float64) @ a)[:, None] * base,
+                             base.size, dtype)
+        return self._run(rho, noise_variance, chunk_pixels,
+                         lambda r, v: self._solve(r.astype(np.float64), v, want_std=True)[1],
                          self.means.shape[1], dtype)
 
     def component_posterior(self, rho: np.ndarray, noise_variance: np.ndarray | float | None = None,
                             chunk_pixels: int = DEFAULT_CHUNK_PIXELS, dtype=np.float32) -> np.ndarray:
         """Posterior probability of each prior component (light source) per pixel, ``(..., K)``."""
-        return self._run(rho, noise_variance, chunk_pixels, lambda r, v: self._solve(r, v, want_std=False)[2],
-                         self.n_components, dtype)
+        return self._run(rho, noise_variance, chunk_pixels,
+                         lambda r, v: self._solve(r.astype(np.float64), v, want_std=False)[2], self.n_components, dtype)
 
     def _solve(self, rho: np.ndarray, var: np.ndarray | None, want_std: bool):
         """Eq. (7) per component with noise covariance ``sigma2 I (+ diag(var))``; mixture by posterior weights."""

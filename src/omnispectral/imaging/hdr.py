@@ -69,7 +69,7 @@ def _check_inputs(frames: Sequence[np.ndarray], exposure_s: Sequence[float], bit
         if np.shape(f) != shape:
             raise ConfigurationError(f"exposure {k} has shape {np.shape(f)}, exposure 0 has {shape}")
         if not np.issubdtype(np.asarray(f).dtype, np.integer):
-            raise ConfigurationError(f"exposure {k} has dtype {np.asarray(f).dtype}; expected uint8 or uint16 raw values")
+            raise ConfigurationError(f"exposure {k} has dtype {np.asarray(f).dtype}; expected uint8 or uint16 raw")
     return times
 
 

@@ -56,3 +56,16 @@ def test_list_json(capsys):
     assert main(["spectral", "list", "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
     assert "Nikon 5100 (NPL)" in data["cameras"] and "wratten-34a" in data["filters"]
+
+
+def test_user_prior_sets(tmp_path, capsys):
+    from omnispectral.spectral.curves import write_spectral_csv
+    from omnispectral.spectral.library import load_reflectances
+
+    mine = write_spectral_csv(load_reflectances("vrhel-dupont"), tmp_path / "mine.csv")
+    assert main(["spectral", "evaluate", "--json", "--plot", "none", "--prior-set", str(mine),
+                 "--prior-illuminant", "D65", "--prior-illuminant", "A"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    prior = out["six_band"]["prior"]
+    assert prior["reflectance_sets"] == [str(mine)] and prior["illuminants"] == ["D65", "A"]
+    assert prior["n_reflectances"] + prior["n_excluded_as_held_out"] == 120

@@ -34,6 +34,8 @@ def _protocol_from_args(args):
         noise=CMV2000 if args.noise == "on" else None, patch_px=args.patch_px, seed=args.seed,
         normalized=not args.absolute, mixture=args.estimator == "mixture", nonnegative=args.nonnegative,
         noise_aware=args.noise_aware, sigma2=args.sigma2,
+        **({"prior_reflectances": tuple(args.prior_set)} if args.prior_set else {}),
+        **({"prior_illuminants": tuple(args.prior_illuminant)} if args.prior_illuminant else {}),
     )
 
 
@@ -55,6 +57,10 @@ def _add_protocol_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--absolute", action="store_true",
                    help="Eq. (7) in absolute units instead of the exposure-equivariant normalized form")
     p.add_argument("--sigma2", type=float, default=None, help="fix the noise variance instead of tuning it")
+    p.add_argument("--prior-set", action="append", default=None, metavar="NAME|FILE.csv",
+                   help="reflectance set for the prior (repeat; replaces the built-in list; see 'spectral list')")
+    p.add_argument("--prior-illuminant", action="append", default=None, metavar="NAME|FILE.csv",
+                   help="light source for the prior (repeat; replaces the built-in nine)")
 
 
 def cmd_spectral_evaluate(args) -> int:

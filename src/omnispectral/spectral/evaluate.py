@@ -150,14 +150,18 @@ def sigma2_grid(calibration: CalibrationData, normalized: bool = True) -> np.nda
 def fit_for_protocol(system: MultibandSystem, protocol: Protocol, held_out: list[SpectralSet],
                      prior: SpectralPrior | None = None,
                      rng: np.random.Generator | None = None) -> tuple[WienerEstimator, dict]:
-    """Build the prior (unless given), tune sigma^2 on the calibration set and fit the estimator."""
+    """Build the prior (unless given), tune sigma^2 on the calibration set and fit the estimator.
+
+    ``held_out`` are the spectra judged later (the target): they are removed from the calibration
+    set, and both are removed from the prior.
+    """
     wl = system.wavelength_nm
+    calib_refl, calib_illum = calibration_signals(held_out, wavelength_nm=wl)
     if prior is None:
-        prior = build_prior(protocol.prior_reflectances, protocol.prior_illuminants, held_out, wl)
+        prior = build_prior(protocol.prior_reflectances, protocol.prior_illuminants, [*held_out, calib_refl], wl)
     rng = np.random.default_rng(protocol.seed + 1) if rng is None else rng
     info: dict = {"prior": prior.summary()}
     if protocol.sigma2 is None:
-        calib_refl, calib_illum = calibration_signals(held_out[:1], wavelength_nm=wl)
         calibration = measure_calibration(system, calib_refl, calib_illum, protocol, rng)
         sigma2, curve = tune_sigma2(system, prior, calibration, protocol.normalized, protocol.mixture,
                                     sigma2_grid(calibration, protocol.normalized))
@@ -174,8 +178,7 @@ def evaluate_system(system: MultibandSystem, protocol: Protocol, prior: Spectral
     wl = system.wavelength_nm
     target = load_reflectances(protocol.target).resample(wl)
     held_out = [target, *[load_reflectances(n).resample(wl) for n in protocol.extra_held_out]]
-    calib_refl, _ = calibration_signals(wavelength_nm=wl)
-    estimator, info = fit_for_protocol(system, protocol, [*held_out, calib_refl], prior)
+    estimator, info = fit_for_protocol(system, protocol, held_out, prior)
     illum = load_illuminant(protocol.illuminant)
     if not illum.covers(wl):
         raise ConfigurationError(f"illuminant {protocol.illuminant} does not cover {wl[0]:g}-{wl[-1]:g} nm")

@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml
 		echo "python3 -m venv failed: installing Debian's python3-venv"; \
 		apt-get update -qq && apt-get install -y -qq python3-venv && $(PYTHON) -m venv $(VENV); }
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test]'
+	$(BIN)/python -m pip install --quiet -e '.[test,bench]'
 	@touch $(STAMP)
 
 demo: $(STAMP)
@@ -34,6 +34,7 @@ lint: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_spectral.py
+	for b in benchmarks/bench_*.py; do [ "$$b" = benchmarks/bench_spectral.py ] || $(BIN)/python $$b; done
 
 clean:
 	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache build src/*.egg-info

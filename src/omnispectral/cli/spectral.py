@@ -1,27 +1,13 @@
-"""Command-line interface: thin argument parsing over the library.
-
-Every command has ``--help``; commands that report numbers have ``--json``.  Errors derived from
-:class:`~omnispectral.errors.OmnispectralError` are printed as one line (exit status 2).
-"""
+"""``omnispectral spectral …``: six-band system, Wiener estimation, accuracy, filter selection."""
 
 from __future__ import annotations
 
 import argparse
-import json
-import sys
 
-from rich.console import Console
 from rich.table import Table
 
-from omnispectral import __version__
+from omnispectral.cli._common import console, print_json
 from omnispectral.errors import OmnispectralError
-
-console = Console(stderr=False)
-err_console = Console(stderr=True)
-
-
-def _print_json(data) -> None:
-    sys.stdout.write(json.dumps(data, indent=2) + "\n")
 
 
 # --------------------------------------------------------------------------------- spectral
@@ -67,6 +53,10 @@ def cmd_spectral_evaluate(args) -> int:
     from omnispectral.spectral.evaluate import PAPER_FIGURES, evaluate, public
     from omnispectral.spectral.plots import plot_estimates
 
+    if args.filter is None:
+        from omnispectral.spectral.library import DEFAULT_FILTERS
+
+        args.filter = list(DEFAULT_FILTERS)
     if len(args.filter) != 2:
         raise OmnispectralError("--filter must be given twice (camera A's and camera B's filter) or not at all")
     result = evaluate(_protocol_from_args(args))
@@ -80,7 +70,7 @@ def cmd_spectral_evaluate(args) -> int:
 
         atomic_write_json(args.json_out, out)
     if args.json:
-        _print_json(out)
+        print_json(out)
         return 0
     table = Table(title=f"Spectral accuracy: {out['n_targets']} {out['target']} targets under {out['illuminant']}")
     for col in ("system", "estimator", "NRMSE", "ΔE*ab", "ΔE00", "max ΔE*ab", "angle°", "paper NRMSE",
@@ -129,7 +119,7 @@ def cmd_spectral_select(args) -> int:
                             mixture=args.estimator == "mixture",
                             progress=not args.json)
     if args.json:
-        _print_json(result)
+        print_json(result)
         return 0
     console.print(f"[dim]{result['candidates']['note']}[/dim]")
     table = Table(title=f"Best filter pairs of {result['n_pairs']} ({result['candidates']['n_filters']} filters), "
@@ -155,23 +145,17 @@ def cmd_spectral_list(args) -> int:
             "prior_illuminants": list(lib.PRIOR_ILLUMINANTS),
             "prior_reflectance_sets": list(lib.PRIOR_REFLECTANCE_SETS)}
     if args.json:
-        _print_json(data)
+        print_json(data)
     else:
         for k, v in data.items():
             console.print(f"[bold]{k}[/bold]: {', '.join(v)}")
     return 0
 
 
-# ---------------------------------------------------------------------------------- parser
-def build_parser() -> argparse.ArgumentParser:
+def add_commands(sub) -> None:
+    """Register ``spectral evaluate | select-filters | list``."""
     from omnispectral.spectral.library import DEFAULT_FILTERS
 
-    parser = argparse.ArgumentParser(
-        prog="omnispectral",
-        description="HDR spectral imaging of omnidirectional scenes with a six-band two-camera rig "
-                    "(Hirai et al. 2018).")
-    parser.add_argument("--version", action="version", version=f"omnispectral {__version__}")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
     spectral = sub.add_parser("spectral", help="six-band system, Wiener estimation, accuracy, filter selection",
                               description="Spectral core: six-band system, Wiener estimation (paper Eq. (7)).")
@@ -213,27 +197,3 @@ def build_parser() -> argparse.ArgumentParser:
     ls = ssub.add_parser("list", help="list built-in cameras, filters, illuminants and reflectance sets")
     ls.add_argument("--json", action="store_true", help="print as JSON")
     ls.set_defaults(func=cmd_spectral_list)
-    return parser
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if getattr(args, "filter", "absent") is None:
-        from omnispectral.spectral.library import DEFAULT_FILTERS
-
-        args.filter = list(DEFAULT_FILTERS)
-    try:
-        return args.func(args)
-    except OmnispectralError as exc:
-        err_console.print(f"[bold red]error:[/bold red] {exc}")
-        return 2
-    except KeyboardInterrupt:
-        err_console.print("interrupted")
-        return 130
-
-
-if __name__ == "__main__":
-    sys.exit(main())
-
-

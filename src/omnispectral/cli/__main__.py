@@ -1,0 +1,5 @@
+import sys
+
+from omnispectral.cli import main
+
+sys.exit(main())

@@ -11,21 +11,35 @@ Weights:
     exposure's radiance estimate ``I/t``.  The triangle weight gives 1-DN values of short exposures
     as much say as well-exposed long ones in dark regions; this one does not.
 
-Saturated values (``I >= saturation_dn``) get zero weight.  A pixel saturated in every exposure
-takes the shortest exposure's value and is flagged; one that is dark (zero weight) in every
-exposure takes the longest exposure's value and is flagged.  The merge also returns each pixel's
-variance (for the Wiener estimator's signal-dependent noise).  Work is done in row chunks in
-float32: no per-exposure float64 image is ever formed.
+Saturated values (``I >= saturation_dn``) and zeros (clipped at the bottom, or a masked code) get
+zero weight.  A pixel saturated in every exposure
+takes the shortest exposure's value and is flagged; one that is dark (zero in every exposure, or
+zero weight everywhere) takes the longest exposure's value and is flagged.  The merge also returns
+each pixel's variance (for the Wiener estimator's signal-dependent noise).
+
+Non-linear inputs (8-bit JPEG/PNG) are linearised through a :class:`~.response.CameraResponse`
+(Debevec & Malik 1997) before Eq. (1); the weight stays a function of the code.
+
+Ghosts (the paper's future work): with ``deghost=True`` a pixel whose usable exposures disagree
+with the merged value beyond their noise (``|I_k/t_k - I| > z sigma``, with a relative tolerance for
+model error) is re-merged from one reference exposure and the exposures consistent with it.
+
+Speed: the work is fused per row chunk in float32 (weights computed arithmetically for linear
+sensors, by table lookup for recovered responses), chunks run on a thread pool; no per-exposure
+float64 image is ever formed.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
 
 import numpy as np
+from scipy import ndimage
 
 from omnispectral.errors import ConfigurationError
+from omnispectral.imaging.response import CameraResponse
 from omnispectral.spectral.noise import CMV2000, SensorNoiseModel
 
 WEIGHTS = ("triangle", "noise")
@@ -39,6 +53,7 @@ class HDRResult:
     variance: np.ndarray
     saturated: np.ndarray
     dark: np.ndarray
+    ghost: np.ndarray | None = field(default=None)
 
     @property
     def valid(self) -> np.ndarray:
@@ -73,9 +88,174 @@ def _check_inputs(frames: Sequence[np.ndarray], exposure_s: Sequence[float], bit
     return times
 
 
+
+
+@dataclass(frozen=True)
+class _Model:
+    """Per-code linearisation, variance and weight of one merge, shared by all chunks."""
+
+    times: np.ndarray  # (N,) float64 seconds
+    bit_depth: int
+    weight: str
+    saturation_dn: float
+    var_a: float  # variance of a linear code: var_a * code + var_b (DN^2)
+    var_b: float
+    lin_table: np.ndarray | None  # (L*C,) float32 for a recovered response, else None (identity)
+    var_table: np.ndarray | None
+    channels: int
+
+    @property
+    def top(self) -> float:
+        return float((1 << self.bit_depth) - 1)
+
+    def linear_and_variance(self, z: np.ndarray):
+        """Linear value and its variance (code units) of raw codes ``z`` (rows, W, C), float32."""
+        x = z.astype(np.float32)
+        if self.lin_table is None:
+            return x, x, x * np.float32(self.var_a) + np.float32(self.var_b)
+        idx = z.astype(np.intp) * self.channels + np.arange(self.channels)
+        return x, np.take(self.lin_table, idx), np.take(self.var_table, idx)
+
+    def weight_of(self, k: int, x: np.ndarray, var: np.ndarray) -> np.ndarray:
+        """Eq. (2) weight (triangle) or inverse variance of ``I/t`` (noise), zero where saturated."""
+        if self.weight == "triangle":
+            w = np.minimum(x, np.float32(self.top) - x)
+        else:
+            w = np.float32(self.times[k] ** 2) / var
+        w *= (x < np.float32(self.saturation_dn)) & (x > 0)
+        return w
+
+
+def _build_model(times, bit_depth, weight, noise, saturation_dn, response, channels) -> _Model:
+    top = (1 << bit_depth) - 1
+    sat = float(saturation_dn) if saturation_dn is not None else 0.99 * top
+    if noise is None:
+        noise = CMV2000 if bit_depth == CMV2000.bit_depth else SensorNoiseModel(bit_depth=bit_depth)
+    g = noise.gain_e_per_dn
+    var_a, var_b = 1.0 / g, noise.read_noise_e**2 / g**2 + 1.0 / 12.0
+    lin_table = var_table = None
+    if response is not None and not response.is_identity:
+        if response.n_codes != top + 1:
+            raise ConfigurationError(f"response has {response.n_codes} codes but the frames are {bit_depth}-bit")
+        lin = response.linear
+        if lin.shape[1] == 1:
+            lin = np.repeat(lin, channels, axis=1)
+        if lin.shape[1] != channels:
+            raise ConfigurationError(f"response has {lin.shape[1]} channels, frames have {channels}")
+        deriv = CameraResponse(lin, response.kind).derivative
+        code_var = var_a * np.arange(top + 1)[:, None] + var_b
+        lin_table = np.ascontiguousarray(lin, np.float32).ravel()
+        var_table = np.ascontiguousarray(deriv**2 * code_var, np.float32).ravel()
+    return _Model(times, bit_depth, weight, sat, var_a, var_b, lin_table, var_table, channels)
+
+
+def _merge_rows(model: _Model, frames: list[np.ndarray], rows: slice):
+    """Eq. (1) on one row chunk: radiance, variance, sum of weights, max |z| disagreement."""
+    num = den = vnum = None
+    for k, frame in enumerate(frames):
+        x, lin, var = model.linear_and_variance(frame[rows])
+        w = model.weight_of(k, x, var)
+        inv_t = np.float32(1.0 / model.times[k])
+        if num is None:
+            num, den = np.zeros_like(x), np.zeros_like(x)
+            vnum = np.zeros_like(x) if model.weight == "triangle" else None
+        den += w
+        lin *= inv_t
+        num += w * lin
+        if vnum is not None:
+            w *= w
+            w *= var
+            vnum += w * np.float32(inv_t * inv_t)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rad = num / den
+        var = vnum / (den * den) if vnum is not None else 1.0 / den
+    return rad, var, den
+
+
+def _disagreement(model: _Model, frames, rows, rad, var, rel_tol):
+    """Largest |I_k/t_k - I| / sigma over the usable exposures of each pixel (ghost statistic)."""
+    zmax = np.zeros_like(rad)
+    for k, frame in enumerate(frames):
+        x, lin, lvar = model.linear_and_variance(frame[rows])
+        usable = model.weight_of(k, x, lvar) > 0
+        inv_t = np.float32(1.0 / model.times[k])
+        sigma2 = lvar * inv_t * inv_t + var + (np.float32(rel_tol) * rad) ** 2
+        z = np.abs(lin * inv_t - rad) / np.sqrt(sigma2)
+        np.maximum(zmax, np.where(usable, z, 0.0), out=zmax)
+    return zmax
+
+
+def _fallbacks(model, frames, rows, rad, var, den, out, shortest, longest):
+    """Saturated-everywhere and dark-everywhere pixels: flags and the shortest/longest exposure's value."""
+    z_short = frames[shortest][rows]
+    z_long = frames[longest][rows]
+    saturated = z_short >= model.saturation_dn
+    dark = ((z_long <= 0) | ~(den > 0)) & ~saturated
+    for flag, k, z in ((saturated, shortest, z_short), (dark, longest, z_long)):
+        if flag.any():
+            _, lin, lvar = model.linear_and_variance(z)
+            inv_t = np.float32(1.0 / model.times[k])
+            np.copyto(rad, lin * inv_t, where=flag)
+            np.copyto(var, lvar * inv_t * inv_t, where=flag)
+    out.radiance[rows] = rad
+    out.variance[rows] = var
+    out.saturated[rows] = saturated
+    out.dark[rows] = dark
+
+
+def _remerge_from_reference(model, frames, pix, reference, z_thresh, rel_tol):
+    """Radiance at ghost pixels ``pix`` from one reference exposure and the exposures consistent with it.
+
+    The reference of a pixel is the given exposure or, where it is saturated or dark in every
+    channel, the nearest (in exposure time) exposure usable in some channel.  An exposure is
+    consistent when it agrees with the reference (within ``z_thresh`` sigma plus ``rel_tol``) in every
+    channel where both are usable, and is not clipped where the reference predicts a value well below
+    clipping: motion changes all channels, so one disagreeing channel excludes
+    the exposure in all of them.  Channels the reference cannot see (dark or saturated there) are
+    then merged from the consistent exposures only, so every value comes from one moment in time.
+    """
+    order = np.argsort(model.times)
+    rank_ref = int(np.flatnonzero(order == reference)[0])
+    by_distance = [int(order[r]) for r in sorted(range(len(order)), key=lambda r: (abs(r - rank_ref), r))]
+    vals = []
+    sat_code = np.full((1, 1, frames[0].shape[-1]), np.ceil(model.saturation_dn), frames[0].dtype)
+    sat_lin = 0.7 * model.linear_and_variance(sat_code)[1][0]  # linear value where clipping begins, margin
+    for k, frame in enumerate(frames):
+        z = frame.reshape(-1, frame.shape[-1])[pix][None]  # (1, n, C)
+        x, lin, lvar = (a[0] for a in model.linear_and_variance(z))
+        inv_t = np.float32(1.0 / model.times[k])
+        saturated = x >= np.float32(model.saturation_dn)
+        vals.append((model.weight_of(k, x, lvar), lin * inv_t, lvar * inv_t * inv_t, saturated))
+    n, c = vals[0][0].shape
+    ref_k = np.full(n, -1)
+    for k in by_distance:
+        ref_k[(ref_k < 0) & (vals[k][0] > 0).any(axis=-1)] = k
+    stack = np.stack([np.stack(v[:3]) for v in vals])  # (N, 3, n, C): weight, radiance, variance
+    chosen = stack[np.maximum(ref_k, 0), :, np.arange(n)]  # (n, 3, C)
+    ref_ok = (chosen[:, 0] > 0) & (ref_k >= 0)[:, None]
+    ref, ref_var = np.where(ref_ok, chosen[:, 1], np.nan), chosen[:, 2]
+    num = np.zeros((n, c), np.float32)
+    den = np.zeros_like(num)
+    for k, (w, e, v, saturated) in enumerate(vals):
+        tol2 = z_thresh**2 * (v + ref_var + (rel_tol * ref) ** 2)
+        with np.errstate(invalid="ignore"):
+            inconsistent = (w > 0) & ref_ok & ((e - ref) ** 2 > tol2)
+            # clipped although the reference says the value is well below clipping: another moment
+            inconsistent |= saturated & ref_ok & (ref * np.float32(model.times[k]) < sat_lin)
+        inconsistent = inconsistent.any(axis=-1, keepdims=True)
+        w = np.where(inconsistent, 0.0, w)
+        num += w * e
+        den += w
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rad = np.where(den > 0, num / den, np.nan_to_num(ref))
+    return rad
+
+
 def merge_exposures(frames: Sequence[np.ndarray], exposure_s: Sequence[float], bit_depth: int = 12,
                     weight: str = "triangle", noise: SensorNoiseModel | None = None,
-                    saturation_dn: float | None = None, chunk_rows: int = 64) -> HDRResult:
+                    saturation_dn: float | None = None, response: CameraResponse | None = None,
+                    deghost: bool = False, reference: int | None = None, ghost_z: float = 5.0,
+                    ghost_rel_tol: float = 0.05, chunk_rows: int = 32, workers: int = 1) -> HDRResult:
     """Merge an exposure bracket into linear radiance per second (Eqs. (1)-(2)).
 
     Parameters
@@ -88,62 +268,63 @@ def merge_exposures(frames: Sequence[np.ndarray], exposure_s: Sequence[float], b
         ``"triangle"`` (paper) or ``"noise"`` (inverse variance, Granados et al. 2010).
     noise
         Sensor model for the variance estimate and the noise weight (default CMV2000 with
-        ``bit_depth`` bits).
+        ``bit_depth`` bits).  For a recovered response it describes the code noise before linearisation.
     saturation_dn
         Values at or above this are saturated (default: the largest code minus 1 %).
+    response
+        Camera response of non-linear frames (:func:`~.response.recover_response`); ``None`` = linear.
+    deghost
+        Re-merge pixels whose exposures disagree beyond ``ghost_z`` standard deviations (plus a
+        relative tolerance ``ghost_rel_tol``) from the ``reference`` exposure (default: the middle
+        one by exposure time) and the exposures consistent with it; such pixels are flagged in
+        ``ghost`` (dilated by one pixel).
+    chunk_rows, workers
+        Rows per work unit and threads (one thread is fastest on 2 cores: the merge is memory-bound).
 
     Returns
     -------
     HDRResult
-        ``radiance`` float32 ``(H, W, C)`` in DN/s, ``variance`` of it (DN/s)^2, ``saturated`` and
-        ``dark`` flags.
+        ``radiance`` float32 ``(H, W, C)`` in DN/s (or response units per second), ``variance`` of
+        it, ``saturated`` / ``dark`` flags and, with ``deghost``, the ``ghost`` mask ``(H, W)``.
     """
     if weight not in WEIGHTS:
         raise ConfigurationError(f"unknown weight {weight!r}; expected one of {WEIGHTS}")
     times = _check_inputs(frames, exposure_s, bit_depth)
-    top = (1 << bit_depth) - 1
-    sat = float(saturation_dn) if saturation_dn is not None else 0.99 * top
-    if noise is None:
-        noise = CMV2000 if bit_depth == CMV2000.bit_depth else SensorNoiseModel(bit_depth=bit_depth)
-    frames = [f if np.ndim(f) == 3 else np.asarray(f)[..., None] for f in frames]
+    frames = [np.asarray(f) if np.ndim(f) == 3 else np.asarray(f)[..., None] for f in frames]
     h, w, c = frames[0].shape
+    model = _build_model(times, bit_depth, weight, noise, saturation_dn, response, c)
     order = np.argsort(times)
     shortest, longest = int(order[0]), int(order[-1])
     out = HDRResult(np.empty((h, w, c), np.float32), np.empty((h, w, c), np.float32),
-                    np.zeros((h, w, c), bool), np.zeros((h, w, c), bool))
-    inv_t = (1.0 / times).astype(np.float32)
-    for r0 in range(0, h, chunk_rows):
+                    np.zeros((h, w, c), bool), np.zeros((h, w, c), bool),
+                    np.zeros((h, w), bool) if deghost else None)
+    zmax = np.zeros((h, w), np.float32) if deghost else None
+
+    def work(r0: int) -> None:
         rows = slice(r0, min(r0 + chunk_rows, h))
-        num = np.zeros((rows.stop - r0, w, c), np.float32)
-        den = np.zeros_like(num)
-        var_num = np.zeros_like(num)
-        any_unsat = np.zeros(num.shape, bool)
-        for k, frame in enumerate(frames):
-            dn = frame[rows].astype(np.float32)
-            unsat = dn < sat
-            any_unsat |= unsat
-            var_dn = noise.variance_dn2(dn).astype(np.float32)
-            if weight == "triangle":
-                wk = triangle_weight(dn, bit_depth)
-            else:
-                wk = (times[k] ** 2 / var_dn).astype(np.float32)
-            wk *= unsat
-            num += wk * dn * inv_t[k]
-            den += wk
-            var_num += wk * wk * var_dn * inv_t[k] ** 2
-        ok = den > 0
-        with np.errstate(invalid="ignore", divide="ignore"):
-            rad = np.where(ok, num / den, 0.0)
-            var = np.where(ok, var_num / den**2, 0.0)
-        saturated = ~any_unsat
-        dark = ~ok & ~saturated
-        for flag, k in ((saturated, shortest), (dark, longest)):
-            if flag.any():
-                dn = frames[k][rows].astype(np.float32)
-                rad = np.where(flag, dn * inv_t[k], rad)
-                var = np.where(flag, noise.variance_dn2(dn).astype(np.float32) * inv_t[k] ** 2, var)
-        out.radiance[rows] = rad
-        out.variance[rows] = var
-        out.saturated[rows] = saturated
-        out.dark[rows] = dark
+        rad, var, den = _merge_rows(model, frames, rows)
+        if zmax is not None:
+            ok = den > 0
+            z = _disagreement(model, frames, rows, np.where(ok, rad, 0), np.where(ok, var, 0), ghost_rel_tol)
+            zmax[rows] = z.max(axis=-1)
+        _fallbacks(model, frames, rows, rad, var, den, out, shortest, longest)
+
+    n_workers = max(1, int(workers))
+    starts = range(0, h, chunk_rows)
+    if n_workers > 1 and h > chunk_rows:
+        with ThreadPoolExecutor(n_workers) as pool:
+            list(pool.map(work, starts))
+    else:
+        for r0 in starts:
+            work(r0)
+    if deghost:
+        ref = int(order[len(order) // 2]) if reference is None else int(reference)
+        if not 0 <= ref < len(frames):
+            raise ConfigurationError(f"reference exposure {ref} is outside 0-{len(frames) - 1}")
+        ghost = ndimage.binary_dilation(zmax > ghost_z, iterations=1)
+        pix = np.flatnonzero(ghost)
+        if pix.size:
+            rad = _remerge_from_reference(model, frames, pix, ref, ghost_z, ghost_rel_tol)
+            out.radiance.reshape(-1, c)[pix] = rad
+        out.ghost[...] = ghost
     return out

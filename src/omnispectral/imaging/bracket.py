@@ -1,0 +1,293 @@
+"""Exposure brackets on disk: reading frames and exposure times, writing float images.
+
+Frames are read unchanged (8- or 16-bit integers, RGB channel order) with OpenCV, or tifffile for
+TIFF; a truncated or unreadable file is an :class:`~omnispectral.errors.InputFileError` naming it.
+Exposure times come, in this order of precedence, from the caller (``--times``), from a list file
+(Debevec's ``hdr_image_list.txt`` format: ``name seconds`` per line, ``1/1024`` allowed), or from
+the EXIF ``ExposureTime`` tag.  Float results are written atomically as OpenEXR (float32, any
+channel count), Radiance ``.hdr`` (3 channels), float TIFF or ``.npy``.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+
+import numpy as np
+
+from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.imaging.response import CameraResponse
+from omnispectral.io import atomic_path
+
+#: EXIF tag numbers (EXIF 2.32, CIPA DC-008): the Exif sub-IFD pointer and ExposureTime in it.
+EXIF_IFD_POINTER = 0x8769
+EXIF_EXPOSURE_TIME = 0x829A
+
+FLOAT_IMAGE_SUFFIXES = (".exr", ".hdr", ".tif", ".tiff", ".npy")
+
+
+@dataclass(frozen=True)
+class Bracket:
+    """Frames of one exposure bracket with their exposure times and where each time came from."""
+
+    paths: tuple[Path, ...]
+    frames: tuple[np.ndarray, ...]
+    exposure_s: np.ndarray
+    time_sources: tuple[str, ...]
+
+    @property
+    def dtype(self) -> np.dtype:
+        return self.frames[0].dtype
+
+
+def parse_exposure_s(text: str) -> float:
+    """Seconds from ``"0.004"``, ``"1/250"``, ``"1/250s"`` or ``"32"``; positive, finite."""
+    t = str(text).strip().lower().removesuffix("s").strip()
+    try:
+        value = float(Fraction(t))
+    except (ValueError, ZeroDivisionError):
+        raise ConfigurationError(f"exposure time {text!r} is not a number of seconds (e.g. 0.004 or 1/250)") from None
+    if not np.isfinite(value) or value <= 0:
+        raise ConfigurationError(f"exposure time {text!r} is not positive")
+    return value
+
+
+def read_frame(path: str | Path) -> np.ndarray:
+    """One raw or LDR frame, unchanged: ``(H, W)`` or ``(H, W, C)`` uint8/uint16 in RGB(A) order."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputFileError(path, "file not found")
+    suffix = path.suffix.lower()
+    if suffix in (".tif", ".tiff"):
+        import tifffile
+
+        try:
+            img = tifffile.imread(path)
+        except Exception as exc:  # tifffile raises many types for damaged files
+            raise InputFileError(path, f"cannot read TIFF ({exc})") from None
+    else:
+        import cv2
+
+        if suffix in (".jpg", ".jpeg"):
+            _check_jpeg_complete(path)
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise InputFileError(path, "not a readable image (truncated or unknown format)")
+        if img.ndim == 3 and img.shape[2] in (3, 4):
+            img = img[..., [2, 1, 0, 3][: img.shape[2]]]
+    if not np.issubdtype(img.dtype, np.integer) or img.dtype.itemsize > 2:
+        raise InputFileError(path, f"pixel type {img.dtype} is not an 8- or 16-bit integer frame")
+    return np.ascontiguousarray(img)
+
+
+def _check_jpeg_complete(path: Path) -> None:
+    """OpenCV decodes a truncated JPEG with a warning; Pillow's strict loader refuses it."""
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            im.load()
+    except OSError as exc:
+        raise InputFileError(path, f"damaged JPEG ({exc})") from None
+
+
+def exif_exposure_s(path: str | Path) -> float | None:
+    """EXIF ``ExposureTime`` in seconds, or ``None`` when the file has none."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            exif = im.getexif()
+            value = exif.get_ifd(EXIF_IFD_POINTER).get(EXIF_EXPOSURE_TIME, exif.get(EXIF_EXPOSURE_TIME))
+    except (OSError, UnidentifiedImageError):
+        return None
+    if value is None:
+        return None
+    try:
+        seconds = float(value)
+    except (TypeError, ValueError, ZeroDivisionError):
+        return None
+    return seconds if np.isfinite(seconds) and seconds > 0 else None
+
+
+def read_times_list(path: str | Path) -> dict[str, float]:
+    """Exposure times by file stem from a list file (``name seconds`` per line, ``#`` comments).
+
+    This is the format of Debevec's ``hdr_image_list.txt``; a first line holding only the image
+    count is accepted.  Stems are matched, so ``memorial0061.ppm`` in the list matches a PNG.
+    """
+    path = Path(path)
+    try:
+        lines = path.read_text(encoding="utf-8", errors="replace").splitlines()
+    except OSError as exc:
+        raise InputFileError(path, f"cannot read ({exc.strerror})") from None
+    times: dict[str, float] = {}
+    for n, line in enumerate(lines, 1):
+        text = line.split("#", 1)[0].strip()
+        if not text or re.fullmatch(r"\d+", text):
+            continue
+        parts = text.split()
+        if len(parts) < 2:
+            raise InputFileError(path, f"expected 'filename seconds', got {line.strip()!r}", line=n)
+        try:
+            times[Path(parts[0]).stem] = parse_exposure_s(parts[1])
+        except ConfigurationError as exc:
+            raise InputFileError(path, str(exc), line=n) from None
+    if not times:
+        raise InputFileError(path, "no 'filename seconds' lines")
+    return times
+
+
+def exposure_times_for(paths: Sequence[Path], times: Sequence[str | float] | None = None,
+                       times_list: Mapping[str, float] | None = None) -> tuple[np.ndarray, tuple[str, ...]]:
+    """Exposure time of each path (explicit > list file > EXIF) and where each came from."""
+    if times is not None:
+        if len(times) != len(paths):
+            raise ConfigurationError(f"{len(paths)} files but {len(times)} exposure times")
+        return np.array([parse_exposure_s(str(t)) for t in times]), ("given",) * len(paths)
+    values, sources, missing = [], [], []
+    for p in paths:
+        t = None if times_list is None else times_list.get(p.stem)
+        src = "list"
+        if t is None:
+            t, src = exif_exposure_s(p), "exif"
+        if t is None:
+            missing.append(p.name)
+        values.append(t)
+        sources.append(src)
+    if missing:
+        raise ConfigurationError(f"no exposure time for {', '.join(missing)}: no EXIF ExposureTime"
+                                 + ("" if times_list is None else " and not in the list file")
+                                 + "; pass --times or --times-list")
+    return np.array(values, dtype=np.float64), tuple(sources)
+
+
+def load_bracket(paths: Sequence[str | Path], times: Sequence[str | float] | None = None,
+                 times_list: str | Path | None = None) -> Bracket:
+    """Read a bracket: every frame (same size, type and channels) and its exposure time."""
+    paths = tuple(Path(p) for p in paths)
+    if len(paths) < 2:
+        raise ConfigurationError("an exposure bracket needs at least two frames")
+    table = read_times_list(times_list) if times_list is not None else None
+    exposure_s, sources = exposure_times_for(paths, times, table)
+    frames = []
+    for p in paths:
+        f = read_frame(p)
+        if frames and (f.shape != frames[0].shape or f.dtype != frames[0].dtype):
+            raise InputFileError(p, f"is {f.shape} {f.dtype} but {paths[0].name} is "
+                                    f"{frames[0].shape} {frames[0].dtype}; a bracket must match")
+        frames.append(f)
+    if np.unique(exposure_s).size < 2:
+        raise ConfigurationError("all frames have the same exposure time; nothing to merge")
+    return Bracket(paths, tuple(frames), exposure_s, sources)
+
+
+def write_float_image(path: str | Path, image: np.ndarray, channel_names: Sequence[str] | None = None,
+                      attributes: Mapping[str, str] | None = None) -> Path:
+    """Write a float32 ``(H, W[, C])`` image atomically; the format follows the suffix.
+
+    ``.exr``: OpenEXR float32, ZIP, one part, channels ``R,G,B`` (3 channels), ``Y`` (1) or
+    ``channel_names``; ``attributes`` become string header attributes.  ``.hdr``: Radiance RGBE
+    (3 channels only).  ``.tif``: float32 TIFF (tifffile).  ``.npy``: NumPy.
+    """
+    path = Path(path)
+    img = np.asarray(image, dtype=np.float32)
+    if img.ndim == 2:
+        img = img[..., None]
+    suffix = path.suffix.lower()
+    if suffix not in FLOAT_IMAGE_SUFFIXES:
+        raise ConfigurationError(f"{path}: unknown output format; use one of {', '.join(FLOAT_IMAGE_SUFFIXES)}")
+    c = img.shape[2]
+    with atomic_path(path) as tmp:
+        if suffix == ".exr":
+            _write_exr(tmp, img, channel_names, attributes)
+        elif suffix == ".hdr":
+            import cv2
+
+            if c != 3:
+                raise ConfigurationError(f"{path}: Radiance .hdr holds 3 channels, the image has {c}")
+            if not cv2.imwrite(str(tmp), np.ascontiguousarray(img[..., ::-1])):
+                raise InputFileError(path, "OpenCV could not write the Radiance file")
+        elif suffix in (".tif", ".tiff"):
+            import tifffile
+
+            tifffile.imwrite(tmp, img, photometric="rgb" if c == 3 else "minisblack",
+                             compression="zlib", metadata=None)
+        else:
+            np.save(tmp, img)
+    return path
+
+
+def _default_channel_names(c: int) -> list[str]:
+    return {1: ["Y"], 3: ["R", "G", "B"], 4: ["R", "G", "B", "A"]}.get(c, [f"C{i}" for i in range(c)])
+
+
+def _write_exr(path: Path, img: np.ndarray, names: Sequence[str] | None, attributes) -> None:
+    import OpenEXR
+
+    names = list(names) if names is not None else _default_channel_names(img.shape[2])
+    if len(names) != img.shape[2]:
+        raise ConfigurationError(f"{len(names)} channel names for {img.shape[2]} channels")
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    for k, v in (attributes or {}).items():
+        header[k] = str(v)
+    channels = {n: np.ascontiguousarray(img[..., i]) for i, n in enumerate(names)}
+    with OpenEXR.File(header, channels) as f:
+        f.write(str(path))
+
+
+def read_exr(path: str | Path) -> tuple[np.ndarray, list[str]]:
+    """Read every channel of a single-part OpenEXR file as float32 ``(H, W, C)`` and the channel names.
+
+    Channel order is R, G, B, A first (when present), then the rest alphabetically.
+    """
+    import OpenEXR
+
+    path = Path(path)
+    try:
+        with OpenEXR.File(str(path), separate_channels=True) as f:
+            chans = {n: np.asarray(c.pixels, dtype=np.float32) for n, c in f.channels().items()}
+    except Exception as exc:  # OpenEXR raises RuntimeError/OSError for damaged files
+        raise InputFileError(path, f"cannot read OpenEXR ({exc})") from None
+    first = [n for n in ("R", "G", "B", "A") if n in chans]
+    names = first + sorted(n for n in chans if n not in first)
+    return np.stack([chans[n] for n in names], axis=-1), names
+
+
+def guess_bit_depth(frames: Sequence[np.ndarray]) -> int:
+    """8 for uint8; for uint16 the smallest of 10, 12, 14, 16 bits that holds the largest value."""
+    if frames[0].dtype == np.uint8:
+        return 8
+    top = max(int(np.max(f)) for f in frames)
+    return next(b for b in (10, 12, 14, 16) if top < (1 << b))
+
+
+def merge_bracket(bracket: Bracket, bit_depth: int | None = None, weight: str = "triangle",
+                  response: str | CameraResponse = "auto", deghost: bool = False,
+                  reference: int | None = None, samples: int = 400, smoothness: float = 50.0):
+    """Merge a bracket read from disk: choose the bit depth and the response, then Eqs. (1)-(2).
+
+    ``response``: ``"auto"`` (Debevec-Malik recovery for 8-bit frames, linear otherwise),
+    ``"linear"``, ``"debevec"`` or a :class:`CameraResponse`.  Returns ``(HDRResult, response, bit_depth)``.
+    """
+    from omnispectral.imaging.hdr import merge_exposures
+    from omnispectral.imaging.response import recover_response
+
+    depth = bit_depth or guess_bit_depth(bracket.frames)
+    top = (1 << depth) - 1
+    for p, f in zip(bracket.paths, bracket.frames, strict=True):
+        if int(f.max()) > top:
+            raise InputFileError(p, f"holds values up to {int(f.max())}, more than {depth} bits allow")
+    if isinstance(response, str):
+        if response not in ("auto", "linear", "debevec"):
+            raise ConfigurationError(f"unknown response {response!r}; expected auto, linear, debevec or a file")
+        if response == "debevec" or (response == "auto" and depth == 8):
+            response = recover_response(bracket.frames, bracket.exposure_s, samples, smoothness)
+        else:
+            response = CameraResponse.identity(depth)
+    result = merge_exposures(bracket.frames, bracket.exposure_s, depth, weight=weight, response=response,
+                             deghost=deghost, reference=reference)
+    return result, response, depth

@@ -74,3 +74,18 @@ def test_saturated_everywhere_and_dark_everywhere_are_flagged():
 def test_bad_input(frames, times, msg):
     with pytest.raises(ConfigurationError, match=msg):
         merge_exposures(frames, times, 12)
+
+
+def test_fused_merge_equals_eq1_in_float64(scene):
+    """The chunked float32 merge is Eq. (1) with the Eq. (2) weight (saturated and zero codes excluded)."""
+    _, frames = scene
+    num = np.zeros(frames[0].shape)
+    den = np.zeros(frames[0].shape)
+    for f, t in zip(frames, PAPER_TIMES_S, strict=True):
+        z = f.astype(np.float64)
+        w = np.minimum(z, 4095 - z) * ((z < 0.99 * 4095) & (z > 0))
+        num += w * z / t
+        den += w
+    ok = den > 0
+    fused = merge_exposures(frames, PAPER_TIMES_S, 12, chunk_rows=7, workers=2).radiance
+    np.testing.assert_allclose(fused[ok], (num / np.where(ok, den, 1))[ok], rtol=2e-6)

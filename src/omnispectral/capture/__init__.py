@@ -1,0 +1,1 @@
+"""Capture: rig description, planning, sessions on disk, devices (simulated and real), time-lapse."""

@@ -1,0 +1,201 @@
+"""Acquisition planning: the direction grid, its overlap, and the acquisition time (paper Sec. 4.5, 5.5, Table 2).
+
+Grid.  ``n_tilt`` rows cover latitude -90..90 with centres ``-90 + (i + 1/2) 180 / n_tilt``; each row has
+``n_pan`` directions ``-180 + (j + 1/2) 360 / n_pan`` (monotonic within a row, no wrap).  Rows are visited bottom to top and the
+pan direction alternates (serpentine), so the head never swings back across the circle.
+
+Overlap.  ``overlap`` is the fraction of the frame, on each side, shared with the neighbour's margin: the
+step between directions is ``fov (1 - 2 overlap)`` and the counts are
+``n_pan = ceil(360 / (pan_fov (1 - 2 overlap)))``, ``n_tilt = ceil(180 / (tilt_fov (1 - 2 overlap)))``.
+This reading reproduces the paper's Sec. 5.5 figures: the telephoto lens (14.5 x 10.8 deg) without overlap
+needs 25 x 17 = 425 directions (~46 min) and with 12 % overlap 33 x 22 = 726 (~1 h 19 min).
+
+Timing model, per direction: head move ``max(|d pan| / pan speed, |d tilt| / tilt speed)``, settle time,
+then the bracket on both cameras at once (sum of the exposure times plus one read-out per frame).
+The presets' head speed and settle time reproduce Table 2 (36 directions ~180 s; 1260 ~2 h 17 min).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from omnispectral.capture.rig import Rig
+from omnispectral.errors import ConfigurationError
+
+
+@dataclass(frozen=True)
+class Direction:
+    """One viewing direction of the head: its index in capture order, grid row/column, pan and tilt."""
+
+    index: int
+    row: int
+    col: int
+    pan_deg: float
+    tilt_deg: float
+
+    def to_dict(self) -> dict:
+        return {"index": self.index, "row": self.row, "col": self.col, "pan_deg": self.pan_deg,
+                "tilt_deg": self.tilt_deg}
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A capture plan: directions in order, the overlap they give, and the estimated acquisition time."""
+
+    rig_name: str
+    n_pan: int
+    n_tilt: int
+    overlap: float
+    overlap_pan: float
+    overlap_tilt: float
+    directions: tuple[Direction, ...]
+    exposures_s: tuple[float, ...]
+    timing_s: dict
+
+    @property
+    def n_directions(self) -> int:
+        return len(self.directions)
+
+    @property
+    def estimated_s(self) -> float:
+        return float(self.timing_s["total"])
+
+    def to_dict(self) -> dict:
+        return {"rig": self.rig_name, "n_directions": self.n_directions, "n_pan": self.n_pan, "n_tilt": self.n_tilt,
+                "overlap": self.overlap, "overlap_pan": self.overlap_pan, "overlap_tilt": self.overlap_tilt,
+                "estimated_s": self.estimated_s, "estimated_hms": format_duration(self.estimated_s),
+                "timing_s": self.timing_s, "exposures_s": list(self.exposures_s),
+                "directions": [d.to_dict() for d in self.directions]}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> Plan:
+        dirs = tuple(Direction(int(x["index"]), int(x["row"]), int(x["col"]), float(x["pan_deg"]),
+                               float(x["tilt_deg"])) for x in d["directions"])
+        return cls(d["rig"], int(d["n_pan"]), int(d["n_tilt"]), float(d["overlap"]), float(d["overlap_pan"]),
+                   float(d["overlap_tilt"]), dirs, tuple(d["exposures_s"]), dict(d["timing_s"]))
+
+
+def format_duration(seconds: float) -> str:
+    """``2 h 17 min``, ``3 min 05 s`` or ``42.0 s``."""
+    if seconds >= 3600:
+        h, rem = divmod(round(seconds / 60), 60)
+        return f"{h} h {rem:02d} min"
+    if seconds >= 60:
+        m, s = divmod(round(seconds), 60)
+        return f"{m} min {s:02d} s"
+    return f"{seconds:.1f} s"
+
+
+def grid_counts(pan_fov_deg: float, tilt_fov_deg: float, overlap: float) -> tuple[int, int]:
+    """Directions per row and rows for a given per-side overlap (module docstring)."""
+    if not 0 <= overlap < 0.5:
+        raise ConfigurationError(f"overlap must be in [0, 0.5), got {overlap}")
+    keep = 1.0 - 2.0 * overlap
+    n_pan = math.ceil(360.0 / (pan_fov_deg * keep) - 1e-9)
+    n_tilt = math.ceil(180.0 / (tilt_fov_deg * keep) - 1e-9)
+    return n_pan, n_tilt
+
+
+def overlap_of(fov_deg: float, n: int, span_deg: float) -> float:
+    """Per-side overlap that ``n`` directions over ``span_deg`` give a lens of ``fov_deg`` (may be < 0: gaps)."""
+    return 0.5 * (1.0 - span_deg / (n * fov_deg))
+
+
+def direction_grid(n_pan: int, n_tilt: int) -> tuple[Direction, ...]:
+    """Serpentine grid, rows bottom to top (module docstring)."""
+    if n_pan < 1 or n_tilt < 1:
+        raise ConfigurationError(f"the grid needs at least one direction, got {n_pan} x {n_tilt}")
+    dirs = []
+    for row in range(n_tilt):
+        tilt = -90.0 + (row + 0.5) * 180.0 / n_tilt
+        cols = range(n_pan) if row % 2 == 0 else range(n_pan - 1, -1, -1)
+        for col in cols:
+            pan = -180.0 + (col + 0.5) * 360.0 / n_pan
+            dirs.append(Direction(len(dirs), row, col, round(pan, 9), round(tilt, 9)))
+    return tuple(dirs)
+
+
+def move_time_s(rig: Rig, from_deg: tuple[float, float], to_deg: tuple[float, float]) -> float:
+    """Head travel time between two (pan, tilt) positions, both axes moving together."""
+    dpan = abs(to_deg[0] - from_deg[0])
+    dtilt = abs(to_deg[1] - from_deg[1])
+    return max(dpan / rig.head.pan_speed_deg_s, dtilt / rig.head.tilt_speed_deg_s)
+
+
+def estimate_time(rig: Rig, directions: tuple[Direction, ...], exposures_s: tuple[float, ...]) -> dict:
+    """Timing model of the module docstring, in seconds per component and in total."""
+    readout = max(c.readout_s for c in rig.cameras.values())
+    capture = float(sum(exposures_s)) + len(exposures_s) * readout
+    moves = 0.0
+    pos = (0.0, 0.0)
+    for d in directions:
+        moves += move_time_s(rig, pos, (d.pan_deg, d.tilt_deg))
+        pos = (d.pan_deg, d.tilt_deg)
+    n = len(directions)
+    total = moves + n * (rig.head.settle_s + capture)
+    return {"total": total, "moves": moves, "settle": n * rig.head.settle_s, "exposures": n * sum(exposures_s),
+            "readout": n * len(exposures_s) * readout, "per_direction": total / n if n else 0.0}
+
+
+def make_plan(rig: Rig, overlap: float | None = None, exposures_s: tuple[float, ...] | None = None) -> Plan:
+    """The capture plan of a rig: its grid (or the one ``overlap`` implies), order and time estimate."""
+    cam = rig.camera_a
+    if overlap is None and rig.grid.overlap is None:
+        n_pan, n_tilt = rig.grid.n_pan, rig.grid.n_tilt
+    else:
+        n_pan, n_tilt = grid_counts(cam.pan_fov_deg, cam.tilt_fov_deg,
+                                    overlap if overlap is not None else rig.grid.overlap)
+    o_pan = overlap_of(cam.pan_fov_deg, n_pan, 360.0)
+    o_tilt = overlap_of(cam.tilt_fov_deg, n_tilt, 180.0)
+    if o_pan < 0 or o_tilt < 0:
+        raise ConfigurationError(f"{n_pan} x {n_tilt} directions leave gaps for a {cam.pan_fov_deg} x "
+                                 f"{cam.tilt_fov_deg} deg field of view (overlap {o_pan:.3f} / {o_tilt:.3f} < 0)")
+    exposures = tuple(exposures_s) if exposures_s is not None else rig.bracket.exposures_s
+    dirs = direction_grid(n_pan, n_tilt)
+    return Plan(rig.name, n_pan, n_tilt, min(o_pan, o_tilt) if overlap is None else float(overlap),
+                o_pan, o_tilt, dirs, exposures, estimate_time(rig, dirs, exposures))
+
+
+def tradeoff(rig: Rig, overlaps=None) -> list[dict]:
+    """Overlap vs directions vs acquisition time (paper Fig. 15a), relative to the rig's own grid."""
+    reference = make_plan(rig)
+    rows = []
+    for o in np.round(np.arange(0.0, 0.401, 0.01) if overlaps is None else np.asarray(overlaps), 6):
+        p = make_plan(rig, overlap=float(o))
+        rows.append({"overlap": float(o), "n_directions": p.n_directions, "n_pan": p.n_pan, "n_tilt": p.n_tilt,
+                     "estimated_s": p.estimated_s, "relative_time": p.estimated_s / reference.estimated_s})
+    return rows
+
+
+def plot_tradeoff(rig: Rig, rows: list[dict], path) -> None:
+    """Fig. 15a-style plot: relative acquisition time and directions against the overlap."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from omnispectral.io import atomic_path
+
+    ref = make_plan(rig)
+    fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)
+    o = [100 * r["overlap"] for r in rows]
+    ax.plot(o, [r["relative_time"] for r in rows], "-", color="k", label="relative acquisition time")
+    ax.plot([100 * ref.overlap], [1.0], "o", color="red", label=f"rig grid ({ref.n_directions} directions, "
+                                                                 f"{format_duration(ref.estimated_s)})")
+    for r in rows:
+        if r["overlap"] in (0.0, 0.12):
+            ax.plot([100 * r["overlap"]], [r["relative_time"]], "o", color="blue" if r["overlap"] == 0 else "green",
+                    label=f"{100 * r['overlap']:.0f} % ({r['n_directions']} directions, "
+                          f"{format_duration(r['estimated_s'])})")
+    ax.set_xlabel("overlap per side (% of the frame)")
+    ax.set_ylabel("acquisition time relative to the rig grid")
+    ax.set_title(f"{rig.name}: overlap vs acquisition time (paper Fig. 15a)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)

@@ -1,0 +1,329 @@
+"""Rig description: two cameras, their mounting, the pan/tilt head, the exposure bracket, the grid.
+
+A rig is written in TOML (see ``src/omnispectral/data/rigs/*.toml`` for the built-in presets of the
+paper: ``paper-timelapse``, ``paper-gigapixel`` and the small ``small``).  Every value is validated
+on load, and an error names the file, the table and the key.  Lens fields of view are the angles
+across the sensor's long side (``hfov_deg``, along ``width_px``) and short side (``vfov_deg``);
+``orientation = "portrait"`` rolls the camera by 90° on the head, as in the paper, so the long side
+then spans tilt.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import asdict, dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from omnispectral.errors import ConfigurationError, InputFileError
+
+PRESETS = ("paper-timelapse", "paper-gigapixel", "small")
+HEAD_DRIVERS = ("simulated", "rodeon", "merlin")
+CAMERA_DRIVERS = ("simulated", "genicam")
+ORIENTATIONS = {"landscape": 0.0, "portrait": 90.0}
+
+
+class _Reader:
+    """Typed access to one TOML table with errors that say where the bad value is."""
+
+    def __init__(self, data: dict, where: str, source: str):
+        if not isinstance(data, dict):
+            raise ConfigurationError(f"{source}: [{where}] must be a table")
+        self.data, self.where, self.source = data, where, source
+
+    def fail(self, key: str, problem: str):
+        raise ConfigurationError(f"{self.source}: [{self.where}] {key}: {problem}")
+
+    def get(self, key: str, kind: type, default: Any = ..., positive: bool = False, minimum: float | None = None):
+        if key not in self.data:
+            if default is ...:
+                self.fail(key, "missing")
+            return default
+        v = self.data[key]
+        if kind is float and isinstance(v, int) and not isinstance(v, bool):
+            v = float(v)
+        if not isinstance(v, kind) or isinstance(v, bool) and kind is not bool:
+            self.fail(key, f"expected {kind.__name__}, got {v!r}")
+        if kind in (int, float):
+            if not math.isfinite(v):
+                self.fail(key, f"{v!r} is not finite")
+            if positive and v <= 0:
+                self.fail(key, f"must be positive, got {v!r}")
+            if minimum is not None and v < minimum:
+                self.fail(key, f"must be >= {minimum}, got {v!r}")
+        return v
+
+    def table(self, key: str, default: dict | None = None) -> _Reader:
+        if key not in self.data and default is not None:
+            return _Reader(default, f"{self.where}.{key}", self.source)
+        if key not in self.data:
+            self.fail(key, "missing table")
+        return _Reader(self.data[key], f"{self.where}.{key}", self.source)
+
+
+@dataclass(frozen=True)
+class LensSpec:
+    """Angular field of view across the sensor's long and short sides, OpenCV distortion, or a calibration."""
+
+    hfov_deg: float
+    vfov_deg: float
+    distortion: tuple[float, ...] = ()
+    calibration: str | None = None  # lens.json from ``omnispectral calibrate lens`` (overrides the above)
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """One of the two cameras: sensor, lens, spectral sensitivity, filter, noise, orientation, device."""
+
+    name: str
+    model: str
+    width_px: int
+    height_px: int
+    bit_depth: int
+    pixel_pitch_um: float
+    readout_s: float
+    orientation: str
+    roll_deg: float
+    sensitivity: str
+    filter: str
+    lens: LensSpec
+    full_well_e: float
+    read_noise_e: float
+    device: dict = field(default_factory=dict)
+
+    @property
+    def max_dn(self) -> int:
+        return (1 << self.bit_depth) - 1
+
+    @property
+    def pan_fov_deg(self) -> float:
+        """Field of view across pan (horizontal on the head) after the mounting roll."""
+        return self.lens.vfov_deg if self.orientation == "portrait" else self.lens.hfov_deg
+
+    @property
+    def tilt_fov_deg(self) -> float:
+        return self.lens.hfov_deg if self.orientation == "portrait" else self.lens.vfov_deg
+
+    def noise_model(self):
+        from omnispectral.spectral.noise import SensorNoiseModel
+
+        return SensorNoiseModel(self.full_well_e, self.read_noise_e, self.bit_depth, self.model)
+
+
+@dataclass(frozen=True)
+class MountingSpec:
+    """Camera B relative to camera A in the head frame: translation (mm) and a small rotation (deg)."""
+
+    baseline_mm: tuple[float, float, float] = (60.0, 0.0, 0.0)
+    yaw_deg: float = 0.0
+    pitch_deg: float = 0.0
+    roll_deg: float = 0.0
+
+
+@dataclass(frozen=True)
+class HeadSpec:
+    """The pan/tilt head: driver, port, speeds, settle time, tolerances and retry policy."""
+
+    driver: str = "simulated"
+    model: str = ""
+    port: str = ""
+    pan_speed_deg_s: float = 20.0
+    tilt_speed_deg_s: float = 20.0
+    settle_s: float = 2.0
+    position_tolerance_deg: float = 0.05
+    timeout_s: float = 30.0
+    retries: int = 3
+
+
+@dataclass(frozen=True)
+class BracketSpec:
+    """Exposure times of one direction's bracket, longest first."""
+
+    exposures_s: tuple[float, ...]
+
+    @property
+    def total_s(self) -> float:
+        return float(sum(self.exposures_s))
+
+
+@dataclass(frozen=True)
+class GridSpec:
+    """Direction grid: explicit counts, or an overlap from which the counts follow (see ``plan``)."""
+
+    n_pan: int | None = None
+    n_tilt: int | None = None
+    overlap: float | None = None
+
+
+@dataclass(frozen=True)
+class Rig:
+    """Everything about the hardware a capture needs; ``source`` is where it was read from."""
+
+    name: str
+    description: str
+    cameras: dict[str, CameraSpec]
+    mounting: MountingSpec
+    head: HeadSpec
+    bracket: BracketSpec
+    grid: GridSpec
+    source: str = ""
+    toml_text: str = ""
+
+    @property
+    def camera_a(self) -> CameraSpec:
+        return self.cameras["A"]
+
+    @property
+    def camera_b(self) -> CameraSpec:
+        return self.cameras["B"]
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d.pop("toml_text")
+        return d
+
+
+def _camera(r: _Reader, name: str) -> CameraSpec:
+    orientation = r.get("orientation", str, "landscape")
+    if orientation not in ORIENTATIONS:
+        r.fail("orientation", f"expected one of {sorted(ORIENTATIONS)}, got {orientation!r}")
+    lens = r.table("lens")
+    hfov, vfov = lens.get("hfov_deg", float, positive=True), lens.get("vfov_deg", float, positive=True)
+    if hfov >= 180 or vfov >= 180:
+        lens.fail("hfov_deg", f"fields of view must be below 180 deg, got {hfov} x {vfov}")
+    dist = lens.get("distortion", list, [])
+    if len(dist) not in (0, 4, 5, 8, 12, 14) or not all(isinstance(v, int | float) for v in dist):
+        lens.fail("distortion", f"expected 4, 5, 8, 12 or 14 numbers (OpenCV order), got {dist!r}")
+    calib = lens.get("calibration", str, None)
+    if calib is not None and not Path(calib).is_absolute() and r.source and Path(r.source).exists():
+        calib = str(Path(r.source).parent / calib)
+    noise = r.table("noise", {})
+    device = r.table("device", {"driver": "simulated"})
+    driver = device.get("driver", str, "simulated")
+    if driver not in CAMERA_DRIVERS:
+        device.fail("driver", f"expected one of {CAMERA_DRIVERS}, got {driver!r}")
+    bit_depth = r.get("bit_depth", int, positive=True)
+    if not 8 <= bit_depth <= 16:
+        r.fail("bit_depth", f"must be 8-16, got {bit_depth}")
+    return CameraSpec(
+        name=name, model=r.get("model", str, "camera"), width_px=r.get("width_px", int, positive=True),
+        height_px=r.get("height_px", int, positive=True), bit_depth=bit_depth,
+        pixel_pitch_um=r.get("pixel_pitch_um", float, 5.5, positive=True),
+        readout_s=r.get("readout_s", float, 0.01, minimum=0.0), orientation=orientation,
+        roll_deg=ORIENTATIONS[orientation], sensitivity=r.get("sensitivity", str, "Nikon 5100 (NPL)"),
+        filter=r.get("filter", str, "none"),
+        lens=LensSpec(hfov, vfov, tuple(float(v) for v in dist), calib),
+        full_well_e=noise.get("full_well_e", float, 13500.0, positive=True),
+        read_noise_e=noise.get("read_noise_e", float, 13.0, minimum=0.0), device=dict(device.data))
+
+
+def _bracket(r: _Reader) -> BracketSpec:
+    if "exposures_s" in r.data:
+        times = r.get("exposures_s", list)
+        if len(times) < 1 or not all(isinstance(t, int | float) and not isinstance(t, bool) and t > 0 for t in times):
+            r.fail("exposures_s", f"expected a list of positive seconds, got {times!r}")
+        return BracketSpec(tuple(sorted((float(t) for t in times), reverse=True)))
+    longest = r.get("longest_s", float, positive=True)
+    shortest = r.get("shortest_s", float, positive=True)
+    count = r.get("count", int, positive=True)
+    if shortest > longest:
+        r.fail("shortest_s", f"{shortest} s is longer than longest_s {longest} s")
+    if count == 1:
+        return BracketSpec((longest,))
+    return BracketSpec(tuple(float(t) for t in np.geomspace(longest, shortest, count)))
+
+
+def rig_from_dict(data: dict, source: str = "<rig>", toml_text: str = "") -> Rig:
+    """Validate a parsed rig description (see the module docstring for the layout)."""
+    top = _Reader(data, "rig", source)
+    cams = top.table("cameras")
+    for key in cams.data:
+        if key not in ("A", "B"):
+            cams.fail(key, "cameras are named A and B")
+    cameras = {n: _camera(cams.table(n), n) for n in ("A", "B")}
+    a, b = cameras["A"], cameras["B"]
+    if (a.width_px, a.height_px) != (b.width_px, b.height_px):
+        raise ConfigurationError(f"{source}: cameras A and B have different sensor sizes "
+                                 f"{a.width_px}x{a.height_px} and {b.width_px}x{b.height_px}")
+    m = top.table("mounting", {})
+    baseline = m.get("baseline_mm", list, [60.0, 0.0, 0.0])
+    if len(baseline) != 3 or not all(isinstance(v, int | float) for v in baseline):
+        m.fail("baseline_mm", f"expected [x, y, z] in mm, got {baseline!r}")
+    mounting = MountingSpec(tuple(float(v) for v in baseline), m.get("yaw_deg", float, 0.0),
+                            m.get("pitch_deg", float, 0.0), m.get("roll_deg", float, 0.0))
+    for key in ("yaw_deg", "pitch_deg", "roll_deg"):
+        if abs(getattr(mounting, key)) > 10:
+            m.fail(key, f"{getattr(mounting, key)} deg is not a small misalignment (|angle| <= 10)")
+    h = top.table("head", {})
+    driver = h.get("driver", str, "simulated")
+    if driver not in HEAD_DRIVERS:
+        h.fail("driver", f"expected one of {HEAD_DRIVERS}, got {driver!r}")
+    head = HeadSpec(driver, h.get("model", str, ""), h.get("port", str, ""),
+                    h.get("pan_speed_deg_s", float, 20.0, positive=True),
+                    h.get("tilt_speed_deg_s", float, 20.0, positive=True),
+                    h.get("settle_s", float, 2.0, minimum=0.0),
+                    h.get("position_tolerance_deg", float, 0.05, positive=True),
+                    h.get("timeout_s", float, 30.0, positive=True), h.get("retries", int, 3, minimum=0))
+    if driver != "simulated" and not head.port:
+        h.fail("port", f"the {driver} driver needs a serial port")
+    g = top.table("grid", {})
+    grid = GridSpec(g.get("n_pan", int, None, positive=True), g.get("n_tilt", int, None, positive=True),
+                    g.get("overlap", float, None, minimum=0.0))
+    if grid.overlap is not None and grid.overlap >= 0.5:
+        g.fail("overlap", f"must be below 0.5 (a fraction of the frame per side), got {grid.overlap}")
+    if grid.overlap is None and (grid.n_pan is None or grid.n_tilt is None):
+        g.fail("n_pan", "give n_pan and n_tilt, or overlap")
+    return Rig(top.get("name", str, Path(source).stem), top.get("description", str, ""), cameras, mounting, head,
+               _bracket(top.table("bracket")), grid, source, toml_text)
+
+
+def load_rig(path: str | Path) -> Rig:
+    """Read and validate a rig TOML file; errors name the file and the key."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputFileError(path, "rig file not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputFileError(path, f"cannot read ({exc})") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise InputFileError(path, f"not valid TOML ({exc})") from None
+    return rig_from_dict(data, str(path), text)
+
+
+def load_preset(name: str) -> Rig:
+    """A built-in rig of the paper (``paper-timelapse``, ``paper-gigapixel``) or the test rig ``small``."""
+    if name not in PRESETS:
+        raise ConfigurationError(f"unknown preset {name!r}; built-in presets are {', '.join(PRESETS)}")
+    text = resources.files("omnispectral").joinpath("data", "rigs", f"{name}.toml").read_text(encoding="utf-8")
+    return rig_from_dict(tomllib.loads(text), f"preset:{name}", text)
+
+
+def resolve_rig(preset: str | None = None, rig_path: str | Path | None = None) -> Rig:
+    """The rig named on a command line: exactly one of a preset name or a TOML file."""
+    if (preset is None) == (rig_path is None):
+        raise ConfigurationError("give either --preset NAME or --rig FILE")
+    return load_preset(preset) if preset is not None else load_rig(rig_path)
+
+
+def rig_toml(rig: Rig) -> str:
+    """TOML text of a rig (its original text when it was read from TOML, else a faithful rendering)."""
+    if rig.toml_text:
+        return rig.toml_text
+    import tomli_w
+
+    def drop_none(x):
+        if isinstance(x, dict):
+            return {k: drop_none(v) for k, v in x.items() if v is not None}
+        return [drop_none(v) for v in x] if isinstance(x, list | tuple) else x
+
+    d = drop_none(rig.to_dict())
+    d.pop("source", None)
+    d["bracket"] = {"exposures_s": list(rig.bracket.exposures_s)}
+    return tomli_w.dumps(d)

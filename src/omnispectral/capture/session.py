@@ -1,0 +1,289 @@
+"""Capture sessions on disk: crash-safe frames, an append-only journal, resume and verification.
+
+Layout of a session directory::
+
+    SESSION/
+      session.json      format version, kind (capture | simulation), rig name, created (UTC)
+      rig.toml          snapshot of the rig description used
+      plan.json         the plan (directions, exposures, timing estimate)
+      journal.jsonl     one JSON line per frame, appended, flushed and fsynced
+      events.jsonl      start / resume / stop / complete events with reasons
+      frames/dNNNN/{A,B}_eKK.tif   16-bit raw frames (tifffile), metadata as JSON in the description
+      ground_truth/     simulated sessions only (see omnispectral.capture.simulate)
+
+A frame is first written to a temporary name, fsynced and renamed; only then is its journal line
+appended.  A process killed at any moment therefore leaves (a) complete frames with journal lines,
+(b) at most one frame file without a line (rewritten on resume), and (c) at most one partial last
+journal line (ignored and cut on resume).  Nothing already written is modified.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from omnispectral.capture.plan import Plan
+from omnispectral.capture.rig import Rig, rig_from_dict, rig_toml
+from omnispectral.errors import InputFileError
+from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text
+
+FORMAT_VERSION = 1
+CAMERAS = ("A", "B")
+
+
+def frame_relpath(direction: int, camera: str, exposure_index: int) -> str:
+    """Path of a frame relative to the session directory."""
+    return f"frames/d{direction:04d}/{camera}_e{exposure_index:02d}.tif"
+
+
+def sha256_of(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def utc_now_iso() -> str:
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="milliseconds")
+
+
+@dataclass
+class JournalReadout:
+    """What a journal holds: the complete frame records by key, and any damage found."""
+
+    records: dict[tuple[int, str, int], dict]
+    bad_lines: list[tuple[int, str]]
+    partial_tail: bool
+    valid_bytes: int
+
+
+def read_journal(path: Path) -> JournalReadout:
+    """Parse ``journal.jsonl``; a last line without newline or unparsable is a cut write (``partial_tail``)."""
+    records: dict[tuple[int, str, int], dict] = {}
+    bad: list[tuple[int, str]] = []
+    if not path.exists():
+        return JournalReadout(records, bad, False, 0)
+    data = path.read_bytes()
+    lines = data.split(b"\n")
+    partial = False
+    valid = 0
+    offset = 0
+    for n, raw in enumerate(lines, 1):
+        is_last = n == len(lines)
+        if is_last and raw == b"":
+            break
+        end = offset + len(raw) + (0 if is_last else 1)
+        try:
+            rec = json.loads(raw.decode("utf-8"))
+            key = (int(rec["direction"]), str(rec["camera"]), int(rec["exposure_index"]))
+        except (ValueError, KeyError, TypeError, UnicodeDecodeError):
+            if is_last:
+                partial = True
+            else:
+                bad.append((n, "not a frame record"))
+            offset = end
+            continue
+        if is_last:  # a complete JSON object without its newline: the write was cut after the object
+            partial = True
+        else:
+            records[key] = rec
+            valid = end
+        offset = end
+    return JournalReadout(records, bad, partial, valid)
+
+
+class Session:
+    """A session directory (create with :meth:`create`, open with :meth:`open`)."""
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+
+    # ------------------------------------------------------------------ create / open
+    @classmethod
+    def create(cls, path: str | Path, rig: Rig, plan: Plan, kind: str = "capture", extra: dict | None = None):
+        """Start a new session, or return the existing one at ``path`` if it was made for the same plan."""
+        s = cls(path)
+        if (s.path / "session.json").exists():
+            existing = s.plan()
+            if existing.to_dict()["directions"] != plan.to_dict()["directions"] or \
+                    list(existing.exposures_s) != list(plan.exposures_s):
+                raise InputFileError(s.path, "holds a session with a different plan; choose another output directory")
+            return s
+        if s.path.exists() and any(s.path.iterdir()):
+            raise InputFileError(s.path, "exists and is not an omnispectral session; choose an empty directory")
+        (s.path / "frames").mkdir(parents=True, exist_ok=True)
+        atomic_write_text(s.path / "rig.toml", rig_toml(rig))
+        atomic_write_json(s.path / "plan.json", plan.to_dict())
+        meta = {"format": "omnispectral-session", "format_version": FORMAT_VERSION, "kind": kind, "rig": rig.name,
+                "created_utc": utc_now_iso(), "n_frames_planned": s.n_planned(plan)}
+        meta.update(extra or {})
+        atomic_write_json(s.path / "session.json", meta)  # written last: its presence marks a session
+        return s
+
+    @classmethod
+    def open(cls, path: str | Path) -> Session:
+        s = cls(path)
+        if not (s.path / "session.json").is_file():
+            raise InputFileError(s.path, "not a session directory (no session.json)")
+        return s
+
+    def metadata(self) -> dict:
+        return self._json("session.json")
+
+    def plan(self) -> Plan:
+        data = self._json("plan.json")
+        try:
+            return Plan.from_dict(data)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise InputFileError(self.path / "plan.json", f"not a valid plan ({exc})") from None
+
+    def rig(self) -> Rig:
+        import tomllib
+
+        p = self.path / "rig.toml"
+        try:
+            text = p.read_text(encoding="utf-8")
+            return rig_from_dict(tomllib.loads(text), str(p), text)
+        except (OSError, tomllib.TOMLDecodeError) as exc:
+            raise InputFileError(p, f"cannot read the rig snapshot ({exc})") from None
+
+    def _json(self, name: str) -> dict:
+        p = self.path / name
+        try:
+            return json.loads(p.read_text(encoding="utf-8"))
+        except FileNotFoundError:
+            raise InputFileError(p, "missing from the session") from None
+        except (OSError, ValueError) as exc:
+            raise InputFileError(p, f"unreadable ({exc})") from None
+
+    @staticmethod
+    def n_planned(plan: Plan) -> int:
+        return plan.n_directions * len(CAMERAS) * len(plan.exposures_s)
+
+    # ------------------------------------------------------------------ journal
+    @property
+    def journal_path(self) -> Path:
+        return self.path / "journal.jsonl"
+
+    def repair_journal(self) -> bool:
+        """Cut a partial last journal line left by a killed process; True if something was cut."""
+        j = read_journal(self.journal_path)
+        if j.partial_tail:
+            with open(self.journal_path, "r+b") as fh:
+                fh.truncate(j.valid_bytes)
+                fh.flush()
+                os.fsync(fh.fileno())
+            return True
+        return False
+
+    def completed(self) -> dict[tuple[int, str, int], dict]:
+        """Frames recorded in the journal, by (direction, camera, exposure index)."""
+        return read_journal(self.journal_path).records
+
+    def _append_line(self, path: Path, record: dict) -> None:
+        line = json.dumps(record, separators=(",", ":")) + "\n"
+        with open(path, "a", encoding="utf-8") as fh:
+            fh.write(line)
+            fh.flush()
+            os.fsync(fh.fileno())
+
+    def log_event(self, event: str, **fields) -> None:
+        self._append_line(self.path / "events.jsonl", {"event": event, "time_utc": utc_now_iso(), **fields})
+
+    def events(self) -> list[dict]:
+        p = self.path / "events.jsonl"
+        if not p.exists():
+            return []
+        out = []
+        for line in p.read_text(encoding="utf-8").splitlines():
+            try:
+                out.append(json.loads(line))
+            except ValueError:
+                continue
+        return out
+
+    # ------------------------------------------------------------------ frames
+    def write_frame(self, frame: np.ndarray, *, direction: int, camera: str, exposure_index: int, exposure_s: float,
+                    pan_deg_commanded: float, tilt_deg_commanded: float, pan_deg_reported: float,
+                    tilt_deg_reported: float, timestamp: str, bit_depth: int, extra: dict | None = None) -> dict:
+        """Write one raw frame (atomic) and then its journal line (fsynced); returns the record."""
+        import tifffile
+
+        if frame.dtype != np.uint16 or frame.ndim not in (2, 3):
+            raise ValueError(f"raw frames are (H, W[, C]) uint16, got {frame.shape} {frame.dtype}")
+        rel = frame_relpath(direction, camera, exposure_index)
+        record = {"direction": direction, "camera": camera, "exposure_index": exposure_index,
+                  "exposure_s": exposure_s, "pan_deg_commanded": pan_deg_commanded,
+                  "tilt_deg_commanded": tilt_deg_commanded, "pan_deg_reported": pan_deg_reported,
+                  "tilt_deg_reported": tilt_deg_reported, "timestamp": timestamp, "bit_depth": bit_depth,
+                  "shape": list(frame.shape), "file": rel, **(extra or {})}
+        target = self.path / rel
+        target.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(target) as tmp:
+            tifffile.imwrite(tmp, frame, photometric="rgb" if frame.ndim == 3 else "minisblack",
+                             description=json.dumps(record), metadata=None)
+        record["sha256"] = sha256_of(target)
+        self._append_line(self.journal_path, record)
+        return record
+
+    def read_frame(self, direction: int, camera: str, exposure_index: int) -> tuple[np.ndarray, dict]:
+        """A raw frame and the metadata stored inside it; a damaged file is named in the error."""
+        import tifffile
+
+        p = self.path / frame_relpath(direction, camera, exposure_index)
+        if not p.exists():
+            raise InputFileError(p, f"frame missing (direction {direction}, camera {camera}, exposure {exposure_index})")
+        try:
+            with tifffile.TiffFile(p) as tf:
+                data = tf.pages[0].asarray()
+                meta = json.loads(tf.pages[0].description)
+        except Exception as exc:  # tifffile raises several types for truncated files
+            raise InputFileError(p, f"damaged frame ({type(exc).__name__}: {exc})") from None
+        return data, meta
+
+
+def verify_session(path: str | Path, check_pixels: bool = False) -> dict:
+    """Completeness and integrity of a session against its plan; names every missing or damaged frame.
+
+    Checks: every planned frame has a journal line, its file exists and its SHA-256 matches; journal
+    lines that do not parse; a cut last line.  ``check_pixels`` also decodes each TIFF.
+    """
+    s = Session.open(path)
+    plan = s.plan()
+    j = read_journal(s.journal_path)
+    missing, damaged = [], []
+    expected = [(d.index, c, k) for d in plan.directions for c in CAMERAS for k in range(len(plan.exposures_s))]
+    for key in expected:
+        rel = frame_relpath(*key)
+        rec = j.records.get(key)
+        if rec is None:
+            missing.append({"direction": key[0], "camera": key[1], "exposure_index": key[2], "file": rel,
+                            "problem": "not in the journal"})
+            continue
+        p = s.path / rel
+        problem = None
+        if not p.exists():
+            problem = "file missing"
+        elif sha256_of(p) != rec.get("sha256"):
+            problem = "checksum mismatch (file changed or truncated)"
+        elif check_pixels:
+            try:
+                s.read_frame(*key)
+            except InputFileError as exc:
+                problem = exc.problem
+        if problem:
+            damaged.append({"direction": key[0], "camera": key[1], "exposure_index": key[2], "file": rel,
+                            "problem": problem})
+    n_ok = len(expected) - len(missing) - len(damaged)
+    return {"session": str(s.path), "n_planned": len(expected), "n_ok": n_ok, "n_missing": len(missing),
+            "n_damaged": len(damaged), "complete": not missing and not damaged and not j.bad_lines,
+            "journal_partial_last_line": j.partial_tail,
+            "journal_bad_lines": [{"line": n, "problem": p} for n, p in j.bad_lines],
+            "missing": missing, "damaged": damaged}

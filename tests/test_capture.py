@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import datetime as dt
+import itertools
 import json
 import os
 import signal
@@ -46,7 +47,7 @@ def test_grid_is_serpentine_and_covers_the_sphere():
     assert pans[:12] == sorted(pans[:12]) and pans[12:24] == sorted(pans[12:24], reverse=True)
     assert max(abs(np.diff(pans[:12]))) == pytest.approx(30.0)
     # consecutive directions never jump across the circle
-    assert max(abs(a.pan_deg - b.pan_deg) for a, b in zip(dirs, dirs[1:], strict=False)) <= 30.0 + 1e-9
+    assert max(abs(a.pan_deg - b.pan_deg) for a, b in itertools.pairwise(dirs)) <= 30.0 + 1e-9
 
 
 def test_overlap_counts_and_tradeoff_monotonic():
@@ -84,7 +85,7 @@ def test_rig_file_errors(tmp_path):
     with pytest.raises(InputFileError, match="rig file not found"):
         load_rig(tmp_path / "nope.toml")
     (tmp_path / "bad.toml").write_text("name = [unclosed")
-    with pytest.raises(InputFileError, match="bad.toml: not valid TOML"):
+    with pytest.raises(InputFileError, match=r"bad.toml: not valid TOML"):
         load_rig(tmp_path / "bad.toml")
 
 

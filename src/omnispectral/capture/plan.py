@@ -1,8 +1,8 @@
 """Acquisition planning: the direction grid, its overlap, and the acquisition time (paper Sec. 4.5, 5.5, Table 2).
 
-Grid.  ``n_tilt`` rows cover latitude -90..90 with centres ``-90 + (i + 1/2) 180 / n_tilt``; each row has
-``n_pan`` directions ``-180 + (j + 1/2) 360 / n_pan`` (monotonic within a row, no wrap).  Rows are visited bottom to top and the
-pan direction alternates (serpentine), so the head never swings back across the circle.
+Grid.  ``n_tilt`` rows cover latitude -90..90 with centres ``-90 + (i + 1/2) 180 / n_tilt``; each row
+has ``n_pan`` directions ``-180 + (j + 1/2) 360 / n_pan`` (monotonic within a row, no wrap).  Rows are
+visited bottom to top and the pan direction alternates (serpentine): the head never swings back.
 
 Overlap.  ``overlap`` is the fraction of the frame, on each side, shared with the neighbour's margin: the
 step between directions is ``fov (1 - 2 overlap)`` and the counts are

@@ -46,7 +46,7 @@ class _Reader:
         v = self.data[key]
         if kind is float and isinstance(v, int) and not isinstance(v, bool):
             v = float(v)
-        if not isinstance(v, kind) or isinstance(v, bool) and kind is not bool:
+        if not isinstance(v, kind) or (isinstance(v, bool) and kind is not bool):
             self.fail(key, f"expected {kind.__name__}, got {v!r}")
         if kind in (int, float):
             if not math.isfinite(v):

@@ -239,7 +239,8 @@ class Session:
 
         p = self.path / frame_relpath(direction, camera, exposure_index)
         if not p.exists():
-            raise InputFileError(p, f"frame missing (direction {direction}, camera {camera}, exposure {exposure_index})")
+            raise InputFileError(p, f"frame missing (direction {direction}, camera {camera}, "
+                                    f"exposure {exposure_index})")
         try:
             with tifffile.TiffFile(p) as tf:
                 data = tf.pages[0].asarray()

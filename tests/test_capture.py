@@ -238,3 +238,67 @@ def test_resume_after_sigkill_loses_at_most_the_frame_in_flight(tmp_path):
     after = {json.dumps(r, sort_keys=True) for r in s.completed().values()}
     assert kept <= after  # every frame recorded before the kill is still there, unchanged
     assert verify_session(s.path, check_pixels=True)["complete"]
+
+
+# ------------------------------------------------------------------ time-lapse on a fake clock
+def test_timelapse_skips_slots_overrun_by_a_long_capture(tmp_path):
+    from omnispectral.capture.timelapse import parse_hhmm, parse_interval_s, run_timelapse, slot_times
+
+    tz = dt.UTC
+    clock = FakeClock(dt.datetime(2026, 6, 21, 5, 58, tzinfo=tz))
+    slots = slot_times(parse_hhmm("06:00", dt.date(2026, 6, 21), tz), parse_hhmm("06:30", dt.date(2026, 6, 21), tz),
+                       parse_interval_s("5min"))
+    durations = iter([180.0, 700.0, 180.0, 180.0, 180.0])  # the 06:05 capture runs ~11.7 min
+
+    def capture(session_dir, t):
+        assert clock.now() == t  # started exactly on the slot
+        session_dir.mkdir()
+        clock.sleep(next(durations))
+        return {"complete": True}
+
+    index = run_timelapse(tmp_path / "series", slots, clock, capture, {"rig": "small"})
+    status = [(e["session"], e["status"]) for e in index["slots"]]
+    assert status == [("slot_0600", "complete"), ("slot_0605", "complete"), ("slot_0610", "skipped"),
+                      ("slot_0615", "skipped"), ("slot_0620", "complete"), ("slot_0625", "complete"),
+                      ("slot_0630", "complete")]
+    assert "overran until 06:16:40" in index["slots"][2]["reason"]
+    assert clock.now() == dt.datetime(2026, 6, 21, 6, 33, tzinfo=tz)  # no real sleeping happened
+    on_disk = json.loads((tmp_path / "series" / "series.json").read_text())
+    assert on_disk["n_complete"] == 5 and on_disk["n_skipped"] == 2
+    # resuming later: complete slots are kept, nothing is captured again
+    again = run_timelapse(tmp_path / "series", slots, clock, lambda *a: pytest.fail("captured twice"))
+    assert again["n_complete"] == 5
+
+
+def test_interval_parsing():
+    from omnispectral.capture.timelapse import parse_interval_s
+
+    assert parse_interval_s("5min") == 300 and parse_interval_s("1h") == 3600 and parse_interval_s("90") == 90
+    with pytest.raises(ConfigurationError, match="interval"):
+        parse_interval_s("soon")
+
+
+def test_cli_plan_json_and_tradeoff(tmp_path, capsys):
+    from omnispectral.cli import main
+
+    assert main(["plan", "--preset", "paper-gigapixel", "--overlap", "0", "--json",
+                 "--tradeoff", str(tmp_path / "t.png")]) == 0
+    out = json.loads(capsys.readouterr().out)
+    for key in ("n_directions", "n_pan", "n_tilt", "overlap", "estimated_s", "directions"):
+        assert key in out
+    assert out["n_directions"] == 425 and set(out["directions"][0]) >= {"pan_deg", "tilt_deg"}
+    curve = json.loads((tmp_path / "t.json").read_text())["curve"]
+    assert curve[0]["overlap"] == 0 and curve[0]["n_directions"] == 425
+    assert (tmp_path / "t.png").stat().st_size > 10_000
+
+
+def test_cli_session_verify_exit_codes(tmp_path, capsys):
+    from omnispectral.cli import main
+
+    rig, s = small_session(tmp_path)
+    assert main(["session", "verify", str(s.path), "--json"]) == 1
+    assert json.loads(capsys.readouterr().out)["n_missing"] == 1080
+    clock = FakeClock(dt.datetime(2026, 6, 21, 9, 0, tzinfo=dt.UTC))
+    run_capture(s, *devices(rig, clock), clock, progress=False)
+    assert main(["session", "verify", str(s.path)]) == 0
+    assert main(["session", "verify", str(tmp_path / "nothing")]) == 2

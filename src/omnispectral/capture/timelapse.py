@@ -1,0 +1,112 @@
+"""Time-lapse: one capture session per time slot, in a series directory with an index.
+
+Slots are ``from, from + every, …`` up to ``to`` (inclusive), in the clock's time zone.  The loop waits
+for each slot on the :class:`~omnispectral.capture.devices.Clock`, runs the capture into
+``SERIES/slot_HHMM[SS]/``, and if the capture ran past the following slots' start times those slots
+are recorded as skipped (the paper's 5-minute interval holds when one capture takes ~180 s).  The
+index ``SERIES/series.json`` is rewritten atomically after every slot, so a series can be resumed:
+complete slots are not captured again, slots whose time has passed are marked missed.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import re
+from collections.abc import Callable
+from pathlib import Path
+
+from omnispectral.capture.devices import Clock
+from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.io import atomic_write_json
+
+INDEX = "series.json"
+
+
+def parse_interval_s(text: str) -> float:
+    """``5min``, ``300s``, ``1h``, ``90`` (seconds) → seconds."""
+    m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+)\s*(s|sec|min|m|h)?\s*", str(text).lower())
+    if not m:
+        raise ConfigurationError(f"interval {text!r} is not like 5min, 300s or 1h")
+    value = float(m.group(1)) * {"s": 1, "sec": 1, None: 1, "min": 60, "m": 60, "h": 3600}[m.group(2)]
+    if value <= 0:
+        raise ConfigurationError(f"interval {text!r} must be positive")
+    return value
+
+
+def parse_hhmm(text: str, day: _dt.date, tz: _dt.tzinfo) -> _dt.datetime:
+    """``HH:MM`` (or ``HH:MM:SS``) on ``day`` in ``tz``."""
+    try:
+        t = _dt.time.fromisoformat(text)
+    except ValueError:
+        raise ConfigurationError(f"time {text!r} is not HH:MM") from None
+    return _dt.datetime.combine(day, t, tzinfo=tz)
+
+
+def slot_times(start: _dt.datetime, end: _dt.datetime, every_s: float) -> list[_dt.datetime]:
+    if end < start:
+        raise ConfigurationError(f"the series ends ({end:%H:%M}) before it starts ({start:%H:%M})")
+    n = int((end - start).total_seconds() // every_s) + 1
+    return [start + _dt.timedelta(seconds=i * every_s) for i in range(n)]
+
+
+def slot_name(t: _dt.datetime) -> str:
+    return f"slot_{t:%H%M}" + (f"{t:%S}" if t.second else "")
+
+
+def run_timelapse(series_dir: str | Path, slots: list[_dt.datetime], clock: Clock,
+                  capture_slot: Callable[[Path, _dt.datetime], dict], meta: dict | None = None,
+                  on_slot: Callable[[dict], None] | None = None) -> dict:
+    """Capture every slot that is still to come; returns the index (also written to ``series.json``).
+
+    ``capture_slot(session_dir, slot_time)`` runs one capture and returns at least ``{"complete": bool}``.
+    """
+    series = Path(series_dir)
+    series.mkdir(parents=True, exist_ok=True)
+    index = _load_index(series) or {"format": "omnispectral-series", "format_version": 1, **(meta or {}),
+                                    "slots": [{"time": t.isoformat(), "session": slot_name(t), "status": "pending"}
+                                              for t in slots]}
+    entries = index["slots"]
+    if [e["time"] for e in entries] != [t.isoformat() for t in slots]:
+        raise InputFileError(series / INDEX, "holds a series with other slot times; choose another directory")
+    for i, (entry, t) in enumerate(zip(entries, slots, strict=True)):
+        if entry["status"] in ("complete", "skipped", "missed"):
+            continue
+        now = clock.now()
+        later = slots[i + 1] if i + 1 < len(slots) else None
+        if later is not None and now >= later:
+            entry.update(status="missed", reason=f"slot time passed (now {now:%H:%M:%S})")
+            _save(series, index, on_slot, entry)
+            continue
+        clock.sleep((t - now).total_seconds())
+        started = clock.now()
+        result = capture_slot(series / entry["session"], t)
+        finished = clock.now()
+        entry.update(status="complete" if result.get("complete") else "incomplete", started=started.isoformat(),
+                     finished=finished.isoformat(), duration_s=(finished - started).total_seconds(),
+                     reason=result.get("stopped_reason"))
+        for later_entry, lt in zip(entries[i + 1:], slots[i + 1:], strict=True):
+            if lt > finished:
+                break
+            if later_entry["status"] == "pending":
+                later_entry.update(status="skipped", reason=f"the {t:%H:%M} capture overran until {finished:%H:%M:%S}")
+        _save(series, index, on_slot, entry)
+    return index
+
+
+def _save(series: Path, index: dict, on_slot, entry: dict) -> None:
+    index["n_complete"] = sum(e["status"] == "complete" for e in index["slots"])
+    index["n_skipped"] = sum(e["status"] in ("skipped", "missed") for e in index["slots"])
+    atomic_write_json(series / INDEX, index)
+    if on_slot is not None:
+        on_slot(entry)
+
+
+def _load_index(series: Path) -> dict | None:
+    p = series / INDEX
+    if not p.exists():
+        return None
+    try:
+        return json.loads(p.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise InputFileError(p, f"unreadable series index ({exc})") from None

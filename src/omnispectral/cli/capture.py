@@ -1,0 +1,100 @@
+"""``omnispectral plan | session verify``: acquisition planning and session checks (paper Sec. 4.5, 5.5)."""
+
+from __future__ import annotations
+
+from rich.table import Table
+
+from omnispectral.cli._common import console, print_json
+
+
+def add_rig_args(p) -> None:
+    from omnispectral.capture.rig import PRESETS
+
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--preset", choices=PRESETS, default=None, help="built-in rig of the paper (or 'small')")
+    g.add_argument("--rig", default=None, metavar="FILE.toml", help="rig description file")
+
+
+def rig_from_args(args, default_preset: str | None = None):
+    from omnispectral.capture.rig import resolve_rig
+
+    preset = args.preset if args.preset or args.rig else default_preset
+    return resolve_rig(preset, args.rig)
+
+
+def cmd_plan(args) -> int:
+    from omnispectral.capture.plan import format_duration, make_plan, plot_tradeoff, tradeoff
+    from omnispectral.io import atomic_write_json
+
+    rig = rig_from_args(args)
+    plan = make_plan(rig, overlap=args.overlap)
+    out = plan.to_dict()
+    if args.tradeoff:
+        rows = tradeoff(rig)
+        png = args.tradeoff if args.tradeoff.endswith(".png") else args.tradeoff + ".png"
+        plot_tradeoff(rig, rows, png)
+        js = png[:-4] + ".json"
+        atomic_write_json(js, {"rig": rig.name, "reference": {k: out[k] for k in ("n_directions", "estimated_s")},
+                               "curve": rows})
+        out["tradeoff"] = {"png": png, "json": js}
+    if args.json:
+        print_json(out)
+        return 0
+    t = out["timing_s"]
+    console.print(f"[bold]{rig.name}[/bold]: {plan.n_pan} x {plan.n_tilt} = {plan.n_directions} directions, "
+                  f"overlap {100 * plan.overlap_pan:.1f} % (pan) / {100 * plan.overlap_tilt:.1f} % (tilt) per side, "
+                  f"{len(plan.exposures_s)} exposures {max(plan.exposures_s) * 1e3:.4g} ms -> "
+                  f"{min(plan.exposures_s) * 1e3:.4g} ms")
+    table = Table(title=f"Estimated acquisition time: {format_duration(plan.estimated_s)}")
+    for col in ("head moves", "settling", "exposures", "read-out", "per direction", "total"):
+        table.add_column(col, justify="right")
+    table.add_row(*(format_duration(t[k]) for k in ("moves", "settle", "exposures", "readout", "per_direction",
+                                                    "total")))
+    console.print(table)
+    if args.tradeoff:
+        console.print(f"Overlap trade-off (paper Fig. 15a): {out['tradeoff']['png']} and {out['tradeoff']['json']}")
+    return 0
+
+
+def cmd_session_verify(args) -> int:
+    from omnispectral.capture.session import verify_session
+
+    report = verify_session(args.session, check_pixels=args.pixels)
+    if args.json:
+        print_json(report)
+    else:
+        state = "[green]complete[/green]" if report["complete"] else "[red]incomplete[/red]"
+        console.print(f"{report['session']}: {state}, {report['n_ok']} of {report['n_planned']} frames good, "
+                      f"{report['n_missing']} missing, {report['n_damaged']} damaged"
+                      + (", journal cut mid-line (repaired on resume)" if report["journal_partial_last_line"] else ""))
+        for item in report["damaged"] + report["missing"][:50]:
+            console.print(f"  {item['file']}: {item['problem']}")
+        if report["n_missing"] > 50:
+            console.print(f"  … and {report['n_missing'] - 50} more missing")
+        for bad in report["journal_bad_lines"]:
+            console.print(f"  journal.jsonl line {bad['line']}: {bad['problem']}")
+    return 0 if report["complete"] else 1
+
+
+def add_commands(sub) -> None:
+    """Register ``plan`` and ``session verify``."""
+    p = sub.add_parser("plan", help="direction grid, overlap and acquisition time of a rig",
+                       description="Plan a capture: the pan/tilt direction grid (serpentine order), its overlap and "
+                                   "the estimated acquisition time (paper Table 2, Sec. 5.5).")
+    add_rig_args(p)
+    p.add_argument("--overlap", type=float, default=None, metavar="F",
+                   help="per-side overlap fraction (0-0.5); default: the rig's own grid")
+    p.add_argument("--tradeoff", default=None, metavar="OUT.png",
+                   help="also write the overlap / directions / time curve (paper Fig. 15a) as PNG and JSON")
+    p.add_argument("--json", action="store_true", help="print the plan as JSON")
+    p.set_defaults(func=cmd_plan)
+
+    s = sub.add_parser("session", help="inspect capture sessions", description="Inspect capture sessions.")
+    ssub = s.add_subparsers(dest="session_command", metavar="SUBCOMMAND", required=True)
+    v = ssub.add_parser("verify", help="check a session against its plan and checksums",
+                        description="Check completeness against the plan and every frame's SHA-256; name every "
+                                    "missing or damaged frame. Exit status 1 when the session is incomplete.")
+    v.add_argument("session", metavar="SESSION")
+    v.add_argument("--pixels", action="store_true", help="also decode every frame")
+    v.add_argument("--json", action="store_true", help="print the report as JSON")
+    v.set_defaults(func=cmd_session_verify)

@@ -90,7 +90,7 @@ def cmd_calibrate_lens(args) -> int:
 
 def add_commands(sub) -> None:
     """Register ``calibrate lens``."""
-    from omnispectral.imaging.lens import DETECTORS, MIN_IMAGES, MODELS, SUBPIX_WINDOW_PX
+    from omnispectral.imaging.lens import DEFAULT_SUBPIX_WINDOW, DETECTORS, MIN_IMAGES, MODELS
 
     lens = calibrate_group(sub).add_parser(
         "lens", help="lens intrinsics and distortion from chessboard images (Zhang's method)",
@@ -108,9 +108,9 @@ def add_commands(sub) -> None:
     lens.add_argument("--detector", choices=list(DETECTORS), default="auto",
                       help="corner detector: classic findChessboardCorners, sb (sector-based) or auto "
                            "(classic, sb as fallback; default)")
-    lens.add_argument("--subpix-window", type=_subpix, default=SUBPIX_WINDOW_PX, metavar="PX|auto",
-                      help=f"cornerSubPix half-window in px (default {SUBPIX_WINDOW_PX}, OpenCV's); 'auto' limits it "
-                           "to 40%% of the corner spacing, better for small or oblique boards")
+    lens.add_argument("--subpix-window", type=_subpix, default=DEFAULT_SUBPIX_WINDOW, metavar="PX|auto",
+                      help=f"cornerSubPix half-window: 'auto' = min(11, 40%% of the corner spacing) per image, or "
+                           f"pixels; 11 is OpenCV's tutorial pipeline exactly (default {DEFAULT_SUBPIX_WINDOW})")
     lens.add_argument("--min-images", type=int, default=MIN_IMAGES,
                       help=f"fewest images with a found board (default {MIN_IMAGES})")
     lens.add_argument("--json", action="store_true", help="print the result as JSON")

@@ -1,0 +1,693 @@
+"""Sub-pixel registration of camera B to camera A by phase-only correlation (paper Sec. 4.3, Eq. (3)).
+
+The paper aligns the two cameras' images with phase-only correlation (POC; Kuglin & Hines 1975):
+
+.. math::  R(u, v) = \\frac{F(u,v)\\,\\overline{G}(u,v)}{|F(u,v)\\,\\overline{G}(u,v)|}
+
+and takes the displacement from the position of the maximum of the inverse transform of ``R``.
+This module computes the conjugate, ``G F* / |G F*|``, so that the peak sits at ``+d`` rather than
+``-d`` (see the sign convention below); the magnitude and the information are the same.
+
+What is added to Eq. (3), following Takita et al. 2003 ("High-accuracy subpixel image
+registration based on phase-only correlation", IEICE Trans. Fundamentals E86-A(8), 1925-1934):
+
+1. **Window.**  Cropped images are not periodic; a 2-D Hann (or Tukey) window, applied after
+   subtracting the window-weighted mean, removes the wrap-around edges that would otherwise pull
+   the peak to zero shift.
+2. **Band limit.**  Only frequencies ``|k| <= K`` (a fraction ``band_limit`` of Nyquist in each
+   axis) enter the correlation; high frequencies, where sensor noise and aliasing dominate the
+   phase, are dropped.  As in Takita et al., the inverse transform is taken on the small
+   ``L = 2K + 1`` grid (here ``upsample`` times oversampled), which makes it cheap.
+3. **Peak model.**  For a pure translation ``d`` the band-limited POC function is the separable
+   Dirichlet kernel
+
+   .. math::  r(n_1, n_2) = \\alpha\\, D_{L_1}(n_1 - \\delta_1)\\, D_{L_2}(n_2 - \\delta_2),\\qquad
+              D_L(t) = \\frac{\\sin(\\pi L t / M)}{L \\sin(\\pi t / M)}
+
+   on an ``M``-point grid (Takita et al. Eq. (13), with the oversampling factor ``M / L``).  It is
+   fitted by least squares (Gauss-Newton) to the ``(2 r + 1)^2`` values around the integer
+   maximum, giving ``delta`` and the peak height ``alpha``.  ``alpha`` is 1 for identical
+   structure and about ``1/sqrt(L1 L2)`` for unrelated images: it is the confidence.
+
+Beyond the paper:
+
+- **Saturation.**  Clipped pixels (a sensor's full scale, e.g. the sun) have sharp, aliased
+  boundaries that do not obey the shift theorem; a few of them bias the estimate by tenths of a
+  pixel.  They are detected (a plateau at the image maximum, or a given level) and faded to the
+  image mean with a soft mask.
+- **Variance-stabilising pre-processing.**  ``preprocess="sqrt"`` (the Anscombe transform of
+  photon-limited data) equalises shot noise between dark and bright regions and compresses the
+  dynamic range of HDR input; ``"log"`` compresses further; ``"gradient"`` (gradient magnitude of
+  the square root) is insensitive to contrast reversal between colour bands.
+- **Fallback** to the rig's calibrated offset when the confidence is low (texture-less sky):
+  :func:`register_with_fallback`.
+- **Block-wise POC** (:func:`block_disparity`): a coarse dense disparity map of camera B against
+  camera A, with confidence, an unreliable mask and an occlusion mask (the paper's named open
+  problem, near objects and occlusion).
+
+Sign convention
+---------------
+``dx, dy`` is the displacement of ``moving``'s content relative to ``reference``::
+
+    moving(x, y) ~= reference(x - dx, y - dy)
+
+A feature at ``(x, y)`` in the reference appears at ``(x + dx, y + dy)`` in the moving image; to
+resample ``moving`` onto ``reference``'s grid, read it at ``(x + dx, y + dy)``.  This is the
+convention of ``cv2.phaseCorrelate(reference, moving)``; ``skimage.registration.
+phase_cross_correlation`` returns ``(-dy, -dx)``.  ``x`` is the column index, ``y`` the row index.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import scipy.fft as sfft
+
+from omnispectral.errors import ConfigurationError
+
+WINDOWS = ("hann", "tukey", "none")
+PREPROCESS = ("sqrt", "none", "log", "gradient")
+
+#: Fraction of Nyquist kept in each axis (Takita et al.'s ``K/M``), chosen by benchmark
+#: (``benchmarks/bench_registration.py``; docs/benchmarks.md).
+DEFAULT_BAND_LIMIT = 0.75
+DEFAULT_PREPROCESS = "sqrt"
+DEFAULT_WINDOW = "hann"
+#: Oversampling of the band-limited correlation grid (``M / L``) on which the peak model is fitted.
+DEFAULT_UPSAMPLE = 1.25
+#: Half size of the neighbourhood fitted by the peak model (``2 r + 1`` samples per axis).
+DEFAULT_FIT_RADIUS = 3
+
+#: Peak height below which a whole-image registration is not trusted and the calibrated offset is
+#: used instead.  Measured (docs/benchmarks.md, "Registration"): pure sensor noise and flat sky
+#: give peaks of 0.02-0.06 at 256 px and below 0.01 at 1024 px; textured crops of real panoramas
+#: give 0.3-0.99, and every crop with a confidence above 0.15 was registered to better than 0.3 px.
+DEFAULT_MIN_CONFIDENCE = 0.15
+
+#: Block-wise default: smaller blocks have fewer frequencies, so noise peaks are higher
+#: (about 0.15-0.25 for 32 px blocks of pure noise).
+DEFAULT_BLOCK_MIN_CONFIDENCE = 0.3
+
+#: Smallest image side accepted (below this a Hann window leaves almost nothing).
+MIN_SIZE_PX = 8
+#: A value attained by at least this many pixels at the image maximum is taken as clipping.
+AUTO_SATURATION_MIN_PX = 4
+_SATURATION_GROW_PX = 2
+_SATURATION_SOFTNESS_PX = 1.5
+_SATURATION_MAX_CORRECTION_PX = 1.0
+_TUKEY_ALPHA = 0.5
+_BLOCK_CHUNK = 4096
+
+
+@dataclass(frozen=True)
+class Registration:
+    """Result of :func:`phase_correlate` / :func:`register_with_fallback`.
+
+    ``dx, dy`` follow the module's convention ``moving(x, y) ~= reference(x - dx, y - dy)`` (pixels).
+    ``confidence`` is the fitted POC peak height (1 = identical structure, ~0 = unrelated).  When
+    ``used_fallback`` is true, ``dx, dy`` are the calibrated offset and ``measured_dx, measured_dy``
+    what the correlation found.
+    """
+
+    dx: float
+    dy: float
+    confidence: float
+    measured_dx: float
+    measured_dy: float
+    used_fallback: bool = False
+    min_confidence: float | None = None
+    window: str = DEFAULT_WINDOW
+    band_limit: float = DEFAULT_BAND_LIMIT
+    preprocess: str = DEFAULT_PREPROCESS
+    saturated_fraction: float = 0.0
+    shape: tuple[int, int] = (0, 0)
+
+    def to_dict(self) -> dict:
+        out = asdict(self)
+        out["shape"] = list(self.shape)
+        out["convention"] = "moving(x, y) ~= reference(x - dx, y - dy); x = column, y = row, pixels"
+        return out
+
+
+@dataclass(frozen=True)
+class DisparityMap:
+    """Block-wise POC disparity of ``moving`` (camera B) relative to ``reference`` (camera A).
+
+    Grid arrays are ``(ny, nx)`` with block centres at ``y_px[i], x_px[j]`` (pixel coordinates of
+    the reference).  ``unreliable`` marks blocks with low confidence, a left-right inconsistency
+    or an outlier against their neighbours; ``occluded`` is ``(H, W)``: reference pixels hidden in
+    the moving image by a nearer surface (z-buffer forward warp of the block disparities).
+    """
+
+    x_px: np.ndarray
+    y_px: np.ndarray
+    dx: np.ndarray
+    dy: np.ndarray
+    confidence: np.ndarray
+    unreliable: np.ndarray
+    low_confidence: np.ndarray
+    inconsistent: np.ndarray
+    outlier: np.ndarray
+    occluded: np.ndarray
+    block: int
+    step: int
+    shape: tuple[int, int]
+    offset: tuple[float, float] = (0.0, 0.0)
+    extras: dict = field(default_factory=dict)
+
+    def to_full_resolution(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Bilinear ``dx, dy, confidence`` and nearest-block ``unreliable`` at every reference pixel, ``(H, W)``."""
+        return (_grid_to_pixels(self.dx, self.x_px, self.y_px, self.shape),
+                _grid_to_pixels(self.dy, self.x_px, self.y_px, self.shape),
+                _grid_to_pixels(self.confidence, self.x_px, self.y_px, self.shape),
+                _grid_to_pixels(self.unreliable, self.x_px, self.y_px, self.shape, nearest=True))
+
+
+# ------------------------------------------------------------------------------------------ input
+def as_gray(image, name: str = "image") -> np.ndarray:
+    """``(H, W)`` or ``(H, W, C)`` numeric array → ``(H, W)`` float32 (mean of the channels).
+
+    Raises :class:`ConfigurationError` for other shapes, non-numeric data, NaN or infinity.
+    """
+    arr = np.asarray(image)
+    if arr.dtype.kind not in "uif":
+        raise ConfigurationError(f"{name}: pixel type {arr.dtype} is not a real number type")
+    if arr.ndim == 3:
+        if arr.shape[2] == 0:
+            raise ConfigurationError(f"{name}: image has no channels (shape {arr.shape})")
+        arr = arr.mean(axis=2, dtype=np.float32) if arr.shape[2] > 1 else arr[:, :, 0]
+    elif arr.ndim != 2:
+        raise ConfigurationError(f"{name}: expected an (H, W) or (H, W, C) image, got shape {arr.shape}")
+    if min(arr.shape) < MIN_SIZE_PX:
+        raise ConfigurationError(f"{name}: image {arr.shape[0]}x{arr.shape[1]} is too small for phase correlation "
+                                 f"(at least {MIN_SIZE_PX}x{MIN_SIZE_PX} px)")
+    arr = np.asarray(arr, dtype=np.float32)
+    if arr.dtype.kind == "f" and not np.isfinite(arr.sum(dtype=np.float64)) and not np.isfinite(arr).all():
+        raise ConfigurationError(f"{name}: image contains NaN or infinite values; fill or crop them first")
+    return arr
+
+
+def _check_pair(reference, moving) -> tuple[np.ndarray, np.ndarray]:
+    ref = np.asarray(reference)
+    mov = np.asarray(moving)
+    if ref.shape[:2] != mov.shape[:2]:
+        raise ConfigurationError(f"reference and moving images differ in size: {ref.shape[:2]} vs {mov.shape[:2]} "
+                                 "(crop both to the same region first)")
+    return ref, mov
+
+
+def _check_options(window: str, band_limit: float, upsample: float, preprocess: str, fit_radius: int) -> None:
+    if window not in WINDOWS:
+        raise ConfigurationError(f"unknown window {window!r}; choose one of {', '.join(WINDOWS)}")
+    if preprocess not in PREPROCESS:
+        raise ConfigurationError(f"unknown preprocess {preprocess!r}; choose one of {', '.join(PREPROCESS)}")
+    if not 0.0 < band_limit <= 1.0:
+        raise ConfigurationError(f"band_limit must be in (0, 1] (fraction of Nyquist), got {band_limit}")
+    if not 1.0 <= upsample <= 8.0:
+        raise ConfigurationError(f"upsample must be a number in [1, 8], got {upsample}")
+    if int(fit_radius) != fit_radius or not 1 <= fit_radius <= 4:
+        raise ConfigurationError(f"fit_radius must be an integer in 1..4, got {fit_radius}")
+
+
+# ------------------------------------------------------------------------------ pre-processing
+def saturation_mask(image, saturation: float | str | None = None) -> np.ndarray | None:
+    """Pixels clipped at the sensor's full scale (any channel), or ``None`` when there are none.
+
+    ``saturation`` is a level (pixels ``>=`` it are clipped), ``"auto"`` (a plateau of at least
+    :data:`AUTO_SATURATION_MIN_PX` pixels at a channel's maximum value) or ``None`` (no detection).
+    """
+    if saturation is None:
+        return None
+    arr = np.asarray(image)
+    chans = arr[:, :, None] if arr.ndim == 2 else arr
+    mask = None
+    for c in range(chans.shape[2]):
+        ch = chans[:, :, c]
+        if isinstance(saturation, str):
+            if saturation != "auto":
+                raise ConfigurationError(f"saturation must be a number, 'auto' or None, got {saturation!r}")
+            top = ch.max()
+            hit = ch >= top
+            if np.count_nonzero(hit) < AUTO_SATURATION_MIN_PX:
+                continue
+        else:
+            hit = ch >= saturation
+        mask = hit if mask is None else (mask | hit)
+    if mask is None or not mask.any():
+        return None
+    return mask
+
+
+def _fade_saturated(gray: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Blend clipped regions (grown by 2 px, softened by a 1.5 px Gaussian) into the mean of the rest."""
+    from scipy import ndimage
+
+    pad = _SATURATION_GROW_PX + int(np.ceil(4 * _SATURATION_SOFTNESS_PX)) + 1
+    if not mask.any():
+        return gray
+    rows = np.flatnonzero(mask.any(axis=1))
+    cols = np.flatnonzero(mask.any(axis=0))
+    y0, y1 = max(rows[0] - pad, 0), min(rows[-1] + pad + 1, gray.shape[0])
+    x0, x1 = max(cols[0] - pad, 0), min(cols[-1] + pad + 1, gray.shape[1])
+    sub = mask[y0:y1, x0:x1]
+    grown = ndimage.binary_dilation(sub, iterations=_SATURATION_GROW_PX)
+    keep = 1.0 - ndimage.gaussian_filter(grown.astype(np.float32), _SATURATION_SOFTNESS_PX)
+    keep[grown] = 0.0
+    unsat = ~mask
+    mean = float(gray[unsat].mean()) if unsat.any() else float(gray.mean())
+    out = gray.copy()
+    out[y0:y1, x0:x1] = mean + (gray[y0:y1, x0:x1] - mean) * keep
+    return out
+
+
+def preprocess_image(gray: np.ndarray, kind: str = DEFAULT_PREPROCESS) -> np.ndarray:
+    """Intensity transform applied before correlation (see the module docstring)."""
+    if kind == "none":
+        return gray
+    if kind == "sqrt":
+        return np.sqrt(np.maximum(gray, 0.0, dtype=np.float32))
+    if kind == "log":
+        pos = gray[gray > 0]
+        eps = np.float32(max(1e-3 * float(pos.mean()) if pos.size else 1.0, 1e-12))
+        return np.log(np.maximum(gray, 0.0) + eps).astype(np.float32, copy=False)
+    if kind == "gradient":
+        s = np.sqrt(np.maximum(gray, 0.0, dtype=np.float32))
+        gy, gx = np.gradient(s)
+        return np.hypot(gx, gy).astype(np.float32, copy=False)
+    raise ConfigurationError(f"unknown preprocess {kind!r}; choose one of {', '.join(PREPROCESS)}")
+
+
+def _prepare(image, name: str, preprocess: str, saturation) -> tuple[np.ndarray, np.ndarray | None]:
+    gray = as_gray(image, name)
+    return preprocess_image(gray, preprocess), saturation_mask(image, saturation)
+
+
+def _shift_mask(mask: np.ndarray, dx: float, dy: float) -> np.ndarray:
+    """``mask`` moved by the rounded ``(dx, dy)`` (content at ``p`` goes to ``p + d``), zero-filled."""
+    ix, iy = round(dx), round(dy)
+    h, w = mask.shape
+    out = np.zeros_like(mask)
+    if abs(ix) >= w or abs(iy) >= h:
+        return out
+    out[max(iy, 0):h + min(iy, 0), max(ix, 0):w + min(ix, 0)] = mask[max(-iy, 0):h - max(iy, 0),
+                                                                      max(-ix, 0):w - max(ix, 0)]
+    return out
+
+
+# ------------------------------------------------------------------------------------- windows
+@functools.lru_cache(maxsize=64)
+def window_1d(n: int, kind: str = DEFAULT_WINDOW) -> np.ndarray:
+    """Symmetric 1-D window of ``n`` samples (read-only float32): Hann, Tukey (alpha 0.5) or none."""
+    from scipy.signal import windows
+
+    if kind == "hann":
+        w = windows.hann(n, sym=True)
+    elif kind == "tukey":
+        w = windows.tukey(n, _TUKEY_ALPHA, sym=True)
+    elif kind == "none":
+        w = np.ones(n)
+    else:
+        raise ConfigurationError(f"unknown window {kind!r}; choose one of {', '.join(WINDOWS)}")
+    w = w.astype(np.float32)
+    w.setflags(write=False)
+    return w
+
+
+@functools.lru_cache(maxsize=16)
+def window_2d(shape: tuple[int, int], kind: str = DEFAULT_WINDOW) -> np.ndarray:
+    """Separable 2-D window for ``shape`` (cached per shape and kind; read-only float32)."""
+    w = window_1d(shape[0], kind)[:, None] * window_1d(shape[1], kind)[None, :]
+    w.setflags(write=False)
+    return w
+
+
+def _apply_window(x: np.ndarray, kind: str) -> np.ndarray:
+    """Subtract the window-weighted mean of each image (last two axes), then multiply by the window.
+
+    Removing the weighted mean first matters: the window's own spectrum times a non-zero mean
+    is identical in both images and would add a spurious peak at zero shift.
+    """
+    w = window_2d((x.shape[-2], x.shape[-1]), kind)
+    # einsum without BLAS: a threaded sgemv stalls for milliseconds when the cores are busy.
+    mean = np.einsum("...ij,ij->...", x, w) / np.float32(w.sum(dtype=np.float64))
+    centred = x - np.asarray(mean, dtype=np.float32)[..., None, None]
+    if kind != "none":
+        centred *= w
+    return centred
+
+
+# --------------------------------------------------------------------------- POC and peak fit
+def band_size(n: int, band_limit: float) -> int:
+    """Highest frequency index ``K`` kept for an axis of ``n`` samples (at least 2, below Nyquist)."""
+    return int(max(2, min(n // 2 - 1, np.floor(band_limit * (n / 2.0 - 1.0)))))
+
+
+def band_limited_poc(f_ref: np.ndarray, f_mov: np.ndarray, shape: tuple[int, int], k: tuple[int, int],
+                     upsample: float) -> tuple[np.ndarray, tuple[int, int], tuple[int, int]]:
+    """Band-limited POC function from half spectra (``rfft2``) of windowed images (Takita et al. 2003).
+
+    ``f_ref``, ``f_mov`` are ``(..., N0, N1 // 2 + 1)``.  Returns ``r`` of shape ``(..., M0, M1)``
+    with ``M`` the first fast FFT length ``>= upsample * L`` and ``L = 2 K + 1``, normalised so
+    that a perfect match peaks at 1, and the tuples ``L`` and ``M``.  The cross-phase spectrum is
+    the conjugate of paper Eq. (3), ``G F* / |G F*|``, so that the peak is at ``+d * M / N``.
+    """
+    n0, _ = shape
+    k0, k1 = k
+    l0, l1 = 2 * k0 + 1, 2 * k1 + 1
+    m0 = sfft.next_fast_len(int(np.ceil(upsample * l0)), real=True)
+    m1 = sfft.next_fast_len(int(np.ceil(upsample * l1)), real=True)
+    batch = f_ref.shape[:-2]
+    band = np.zeros((*batch, m0, m1 // 2 + 1), dtype=np.complex64)
+    for dst, src in ((slice(0, k0 + 1), slice(0, k0 + 1)), (slice(m0 - k0, m0), slice(n0 - k0, n0))):
+        cross = f_mov[..., src, : k1 + 1] * np.conj(f_ref[..., src, : k1 + 1])
+        mag = np.abs(cross)
+        mag += np.float32(1e-30)
+        band[..., dst, : k1 + 1] = cross / mag
+    # The phase of the DC term is undefined once the means are removed; its consistent value is 1.
+    band[..., 0, 0] = 1.0
+    r = sfft.irfft2(band, s=(m0, m1), axes=(-2, -1), workers=-1)
+    r *= np.float32(m0 * m1 / (l0 * l1))
+    return r, (l0, l1), (m0, m1)
+
+
+def _dirichlet(t: np.ndarray, big_l: int, big_m: int) -> tuple[np.ndarray, np.ndarray]:
+    """``D_L(t) = sin(pi L t / M) / (L sin(pi t / M))`` and its derivative in ``t`` (Takita et al. Eq. (13))."""
+    u = np.pi * t / big_m
+    s = np.sin(u)
+    small = np.abs(s) < 1e-6
+    s_safe = np.where(small, 1.0, s)
+    num = np.sin(big_l * u)
+    d = np.where(small, 1.0 - (big_l**2 - 1) * u * u / 6.0, num / (big_l * s_safe))
+    dd_du = np.where(small, -(big_l**2 - 1) * u / 3.0,
+                     (big_l * np.cos(big_l * u) * s - num * np.cos(u)) / (big_l * s_safe * s_safe))
+    return d, dd_du * (np.pi / big_m)
+
+
+def fit_peak(r: np.ndarray, big_l: tuple[int, int], big_m: tuple[int, int], radius: int = DEFAULT_FIT_RADIUS,
+             iterations: int = 8) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares fit of Takita et al.'s peak model around the integer maximum of each POC surface.
+
+    ``r`` is ``(..., M0, M1)``.  Returns the peak position on the ``M`` grid (rows, cols; signed,
+    wrapped to ``[-M/2, M/2)``) and the fitted height ``alpha``, each of shape ``r.shape[:-2]``.
+    Gauss-Newton on ``alpha * D(n0 - d0) * D(n1 - d1)`` over the ``(2 radius + 1)^2`` samples,
+    started from a 3-point parabola; sub-sample offsets are kept within +-1 sample.
+    """
+    m0, m1 = big_m
+    batch = r.shape[:-2]
+    flat = r.reshape(-1, m0, m1)
+    nb = flat.shape[0]
+    idx = np.argmax(flat.reshape(nb, -1), axis=1)
+    i0, i1 = np.divmod(idx, m1)
+    offs = np.arange(-radius, radius + 1)
+    rows = (i0[:, None] + offs[None, :]) % m0
+    cols = (i1[:, None] + offs[None, :]) % m1
+    y = flat[np.arange(nb)[:, None, None], rows[:, :, None], cols[:, None, :]].astype(np.float64)
+    c = radius
+    peak = y[:, c, c]
+
+    def parabola(lo, mid, hi):
+        den = lo - 2 * mid + hi
+        return np.where(den < 0, np.clip(0.5 * (lo - hi) / np.where(den < 0, den, -1.0), -0.5, 0.5), 0.0)
+
+    d0 = parabola(y[:, c - 1, c], peak, y[:, c + 1, c])
+    d1 = parabola(y[:, c, c - 1], peak, y[:, c, c + 1])
+    alpha = peak.copy()
+    t = offs.astype(np.float64)[None, :]
+    eye = np.eye(3)[None]
+    for _ in range(iterations):
+        g0, g0d = _dirichlet(t - d0[:, None], big_l[0], m0)
+        g1, g1d = _dirichlet(t - d1[:, None], big_l[1], m1)
+        model = g0[:, :, None] * g1[:, None, :]
+        resid = (y - alpha[:, None, None] * model).reshape(nb, -1)
+        jac = np.stack([model.reshape(nb, -1),
+                        (-alpha[:, None, None] * g0d[:, :, None] * g1[:, None, :]).reshape(nb, -1),
+                        (-alpha[:, None, None] * g0[:, :, None] * g1d[:, None, :]).reshape(nb, -1)], axis=2)
+        jtj = np.einsum("bki,bkj->bij", jac, jac)
+        jtr = np.einsum("bki,bk->bi", jac, resid)
+        damp = 1e-9 * np.trace(jtj, axis1=1, axis2=2)[:, None, None] + 1e-30
+        step = np.linalg.solve(jtj + damp * eye, jtr[:, :, None])[:, :, 0]
+        alpha = alpha + step[:, 0]
+        d0 = np.clip(d0 + step[:, 1], -1.0, 1.0)
+        d1 = np.clip(d1 + step[:, 2], -1.0, 1.0)
+    bad = ~(np.isfinite(alpha) & np.isfinite(d0) & np.isfinite(d1))
+    if bad.any():
+        d0[bad] = parabola(y[bad, c - 1, c], peak[bad], y[bad, c + 1, c])
+        d1[bad] = parabola(y[bad, c, c - 1], peak[bad], y[bad, c, c + 1])
+        alpha[bad] = peak[bad]
+    p0 = ((i0 + m0 // 2) % m0) - m0 // 2 + d0
+    p1 = ((i1 + m1 // 2) % m1) - m1 // 2 + d1
+    return p0.reshape(batch), p1.reshape(batch), alpha.reshape(batch)
+
+
+def _poc_shift(ref_w: np.ndarray, mov_w: np.ndarray, band_limit: float, upsample: float,
+               fit_radius: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Windowed images (..., H, W) → (dx, dy, alpha) arrays over the leading axes."""
+    shape = ref_w.shape[-2:]
+    k = (band_size(shape[0], band_limit), band_size(shape[1], band_limit))
+    f_ref = sfft.rfft2(ref_w, axes=(-2, -1), workers=-1)
+    f_mov = sfft.rfft2(mov_w, axes=(-2, -1), workers=-1)
+    r, big_l, big_m = band_limited_poc(f_ref, f_mov, shape, k, upsample)
+    p0, p1, alpha = fit_peak(r, big_l, big_m, fit_radius)
+    return p1 * (shape[1] / big_m[1]), p0 * (shape[0] / big_m[0]), alpha
+
+
+# ---------------------------------------------------------------------------------- public API
+def phase_correlate(reference, moving, *, window: str = DEFAULT_WINDOW, band_limit: float = DEFAULT_BAND_LIMIT,
+                    upsample: float = DEFAULT_UPSAMPLE, preprocess: str = DEFAULT_PREPROCESS,
+                    saturation: float | str | None = None, fit_radius: int = DEFAULT_FIT_RADIUS) -> Registration:
+    """Sub-pixel translation of ``moving`` relative to ``reference`` by band-limited POC (Eq. (3) + Takita 2003).
+
+    Parameters
+    ----------
+    reference, moving
+        Same-size ``(H, W)`` or ``(H, W, C)`` arrays of any real dtype (channels are averaged).
+        For the rig: camera A's image is the reference, camera B's the moving image.
+    window
+        ``"hann"`` (default), ``"tukey"`` (alpha 0.5, keeps more of the image) or ``"none"``
+        (only for images that really are periodic).
+    band_limit
+        Fraction of Nyquist kept in each axis (Takita's band limitation).
+    upsample
+        Oversampling of the band-limited correlation grid on which the peak model is fitted.
+    preprocess
+        ``"sqrt"`` (default), ``"none"``, ``"log"`` or ``"gradient"`` (see the module docstring).
+    saturation
+        ``None`` (default), a clipping level or ``"auto"`` (plateau at the maximum): clipped pixels
+        are faded out in a second pass.  Off by default: on the benchmark it removed the bias of
+        a few clipped suns but made some wrong estimates confident (docs/benchmarks.md).
+    fit_radius
+        The peak model is fitted to ``(2 fit_radius + 1)^2`` samples.
+
+    Returns
+    -------
+    Registration
+        ``dx, dy`` with ``moving(x, y) ~= reference(x - dx, y - dy)``, and the peak height as
+        ``confidence``.  Shifts are found up to half the image size; accuracy is best below a
+        tenth of it (the overlap shrinks with the shift).
+    """
+    _check_options(window, band_limit, upsample, preprocess, fit_radius)
+    ref, mov = _check_pair(reference, moving)
+    a, sat_a = _prepare(ref, "reference", preprocess, saturation)
+    b, sat_b = _prepare(mov, "moving", preprocess, saturation)
+    dx, dy, alpha = _poc_shift(_apply_window(a, window), _apply_window(b, window), band_limit, upsample, fit_radius)
+    if sat_a is not None or sat_b is not None:
+        # Clipped areas (e.g. the sun) have aliased edges that bias the peak by tenths of a pixel.
+        # Fade out the union of both images' clipped areas, carried over by the first estimate so
+        # that the faded regions move with the content; the images may clip differently (other
+        # exposure, other filter, the sun cut by the frame).  The refined estimate must stay near
+        # the first one: a wrong first estimate must not create a consistent-looking artefact.
+        union_a = _union(sat_a, None if sat_b is None else _shift_mask(sat_b, -dx, -dy))
+        union_b = _union(sat_b, None if sat_a is None else _shift_mask(sat_a, dx, dy))
+        rdx, rdy, ralpha = _poc_shift(_apply_window(_fade_saturated(a, union_a), window),
+                                      _apply_window(_fade_saturated(b, union_b), window), band_limit, upsample,
+                                      fit_radius)
+        if np.hypot(rdx - dx, rdy - dy) <= _SATURATION_MAX_CORRECTION_PX:
+            dx, dy, alpha = rdx, rdy, ralpha
+    dx, dy, conf = float(dx), float(dy), float(alpha)
+    sat = max(_fraction(sat_a), _fraction(sat_b))
+    return Registration(dx=dx, dy=dy, confidence=conf, measured_dx=dx, measured_dy=dy, window=window,
+                        band_limit=band_limit, preprocess=preprocess, saturated_fraction=sat,
+                        shape=(int(a.shape[0]), int(a.shape[1])))
+
+
+def _union(a: np.ndarray | None, b: np.ndarray | None) -> np.ndarray:
+    if a is None:
+        return b
+    return a if b is None else (a | b)
+
+
+def _fraction(mask: np.ndarray | None) -> float:
+    return 0.0 if mask is None else float(np.count_nonzero(mask)) / mask.size
+
+
+def register_with_fallback(reference, moving, calibrated_offset: tuple[float, float],
+                           min_confidence: float = DEFAULT_MIN_CONFIDENCE, **kwargs) -> Registration:
+    """POC registration, or the rig's calibrated offset ``(dx, dy)`` when the confidence is below ``min_confidence``.
+
+    Texture-less directions (clear sky, fog) give no reliable correlation peak; the offset
+    measured once on a textured scene (same convention as the result) is then the best estimate.
+    The result says which was used (``used_fallback``) and always carries the measured values.
+    Keyword arguments go to :func:`phase_correlate`.
+    """
+    off = np.asarray(calibrated_offset, dtype=np.float64)
+    if off.shape != (2,) or not np.isfinite(off).all():
+        raise ConfigurationError(f"calibrated_offset must be two finite numbers (dx, dy), got {calibrated_offset!r}")
+    if not np.isfinite(min_confidence):
+        raise ConfigurationError(f"min_confidence must be a finite number, got {min_confidence}")
+    reg = phase_correlate(reference, moving, **kwargs)
+    if reg.confidence >= min_confidence:
+        return Registration(**{**asdict(reg), "min_confidence": float(min_confidence)})
+    return Registration(**{**asdict(reg), "dx": float(off[0]), "dy": float(off[1]), "used_fallback": True,
+                           "min_confidence": float(min_confidence)})
+
+
+# ------------------------------------------------------------------------------ block disparity
+def _block_origins(n: int, block: int, step: int) -> np.ndarray:
+    starts = np.arange(0, n - block + 1, step)
+    if starts[-1] != n - block:
+        starts = np.append(starts, n - block)
+    return starts
+
+
+def _grid_to_pixels(values: np.ndarray, x_px: np.ndarray, y_px: np.ndarray, shape: tuple[int, int],
+                    nearest: bool = False) -> np.ndarray:
+    """Values on the block-centre grid → every pixel (bilinear, or nearest block), edges held constant."""
+    from scipy import ndimage
+
+    fy = np.interp(np.arange(shape[0]), y_px, np.arange(y_px.size))
+    fx = np.interp(np.arange(shape[1]), x_px, np.arange(x_px.size))
+    if nearest:
+        return values[np.rint(fy).astype(int)[:, None], np.rint(fx).astype(int)[None, :]]
+    coords = np.stack(np.meshgrid(fy, fx, indexing="ij"))
+    return ndimage.map_coordinates(values.astype(np.float32), coords, order=1, mode="nearest")
+
+
+def _sample_grid(values: np.ndarray, x_px: np.ndarray, y_px: np.ndarray, xq: np.ndarray, yq: np.ndarray) -> np.ndarray:
+    """Bilinear sample of a block-centre grid at pixel positions ``(xq, yq)``."""
+    from scipy import ndimage
+
+    fy = np.interp(yq, y_px, np.arange(y_px.size))
+    fx = np.interp(xq, x_px, np.arange(x_px.size))
+    return ndimage.map_coordinates(values, np.stack([fy, fx]), order=1, mode="nearest")
+
+
+def _occlusion_zbuffer(dx_px: np.ndarray, dy_px: np.ndarray, nearness: np.ndarray, tol_px: float) -> np.ndarray:
+    """Reference pixels whose target ``p + d(p)`` in the moving image is taken by a nearer pixel (z-buffer)."""
+    h, w = dx_px.shape
+    yy, xx = np.mgrid[0:h, 0:w]
+    tx = np.rint(xx + dx_px).astype(np.int64)
+    ty = np.rint(yy + dy_px).astype(np.int64)
+    inside = (tx >= 0) & (tx < w) & (ty >= 0) & (ty < h)
+    key = (ty * w + tx)[inside]
+    near = nearness[inside]
+    top = np.full(h * w, -np.inf, dtype=np.float64)
+    np.maximum.at(top, key, near)
+    occluded = np.zeros((h, w), dtype=bool)
+    occluded[inside] = near < top[key] - tol_px
+    return occluded
+
+
+def block_disparity(reference, moving, *, block: int = 32, step: int | None = None,
+                    offset: tuple[float, float] = (0.0, 0.0), far_offset: tuple[float, float] | None = None,
+                    window: str = DEFAULT_WINDOW, band_limit: float = DEFAULT_BAND_LIMIT,
+                    upsample: float = DEFAULT_UPSAMPLE, preprocess: str = DEFAULT_PREPROCESS,
+                    saturation: float | str | None = None, fit_radius: int = DEFAULT_FIT_RADIUS,
+                    min_confidence: float = DEFAULT_BLOCK_MIN_CONFIDENCE, consistency_tol_px: float = 1.0,
+                    outlier_tol_px: float = 1.0, occlusion_tol_px: float = 0.5) -> DisparityMap:
+    """Dense (block-grid) disparity of ``moving`` (camera B) against ``reference`` (camera A) by block-wise POC.
+
+    Each ``block x block`` window of the reference, every ``step`` pixels, is registered with the
+    window of the moving image at the same place moved by the rounded ``offset`` (e.g. the rig's
+    calibrated offset, so that blocks measure only the parallax of near objects).  All blocks go
+    through one batched ``rfft2`` per chunk, the band-limited POC and the vectorised peak fit of
+    :func:`phase_correlate`.  Disparities follow the module convention (content at ``p`` in the
+    reference is at ``p + d`` in the moving image) and include ``offset``; they must stay below
+    about ``block / 4`` around ``offset``.
+
+    Masks on the block grid (``unreliable`` is their union, plus blocks that leave the image):
+
+    - ``low_confidence``: peak height below ``min_confidence`` (flat regions, mixed motions);
+    - ``inconsistent``: left-right check -- the disparity at ``p`` and the one found where ``p``
+      lands, ``p + d(p)``, differ by more than ``consistency_tol_px`` (depth edges);
+    - ``outlier``: more than ``outlier_tol_px`` from the 3 x 3 median of the neighbouring blocks.
+
+    ``occluded`` (full resolution): reference pixels hidden in the moving image by a nearer
+    surface -- a z-buffer forward warp of the nearest-block disparities, where nearness is the
+    distance of the disparity from ``far_offset`` (default: the median disparity of reliable
+    blocks, i.e. the background).  This is the paper's occlusion problem around close objects.
+    """
+    _check_options(window, band_limit, upsample, preprocess, fit_radius)
+    ref, mov = _check_pair(reference, moving)
+    step = block // 2 if step is None else step
+    h, w = ref.shape[:2]
+    if int(block) != block or block < MIN_SIZE_PX:
+        raise ConfigurationError(f"block must be an integer >= {MIN_SIZE_PX} px, got {block}")
+    if block > min(h, w):
+        raise ConfigurationError(f"block {block} px is larger than the image ({h}x{w})")
+    if int(step) != step or step < 1:
+        raise ConfigurationError(f"step must be a positive integer, got {step}")
+    off = np.asarray(offset, dtype=np.float64)
+    if off.shape != (2,) or not np.isfinite(off).all():
+        raise ConfigurationError(f"offset must be two finite numbers (dx, dy), got {offset!r}")
+    a, sat_a = _prepare(ref, "reference", preprocess, saturation)
+    b, sat_b = _prepare(mov, "moving", preprocess, saturation)
+    if sat_a is not None:
+        a = _fade_saturated(a, sat_a)
+    if sat_b is not None:
+        b = _fade_saturated(b, sat_b)
+
+    ys, xs = _block_origins(h, block, step), _block_origins(w, block, step)
+    ox, oy = round(off[0]), round(off[1])
+    ys_m = np.clip(ys + oy, 0, h - block)
+    xs_m = np.clip(xs + ox, 0, w - block)
+    clipped = (ys_m - ys != oy)[:, None] | (xs_m - xs != ox)[None, :]
+    view_a = np.lib.stride_tricks.sliding_window_view(a, (block, block))
+    view_b = np.lib.stride_tricks.sliding_window_view(b, (block, block))
+    ny, nx = ys.size, xs.size
+    yy, xx = np.meshgrid(np.arange(ny), np.arange(nx), indexing="ij")
+    flat_y, flat_x = yy.ravel(), xx.ravel()
+    dx = np.empty(ny * nx)
+    dy = np.empty(ny * nx)
+    conf = np.empty(ny * nx)
+    for start in range(0, ny * nx, _BLOCK_CHUNK):
+        sel = slice(start, start + _BLOCK_CHUNK)
+        blocks_a = _apply_window(view_a[ys[flat_y[sel]], xs[flat_x[sel]]], window)
+        blocks_b = _apply_window(view_b[ys_m[flat_y[sel]], xs_m[flat_x[sel]]], window)
+        dx[sel], dy[sel], conf[sel] = _poc_shift(blocks_a, blocks_b, band_limit, upsample, fit_radius)
+    dx = (dx.reshape(ny, nx) + (xs_m - xs)[None, :]).astype(np.float32)
+    dy = (dy.reshape(ny, nx) + (ys_m - ys)[:, None]).astype(np.float32)
+    conf = conf.reshape(ny, nx).astype(np.float32)
+    x_px = xs + (block - 1) / 2.0
+    y_px = ys + (block - 1) / 2.0
+    return _finish_disparity(dx, dy, conf, clipped, x_px, y_px, (h, w), block, step, (float(off[0]), float(off[1])),
+                             far_offset, min_confidence, consistency_tol_px, outlier_tol_px, occlusion_tol_px)
+
+
+def _finish_disparity(dx, dy, conf, clipped, x_px, y_px, shape, block, step, offset, far_offset, min_confidence,
+                      consistency_tol_px, outlier_tol_px, occlusion_tol_px) -> DisparityMap:
+    from scipy import ndimage
+
+    low = conf < min_confidence
+    gy, gx = np.meshgrid(y_px, x_px, indexing="ij")
+    dx_back = _sample_grid(dx, x_px, y_px, (gx + dx).ravel(), (gy + dy).ravel()).reshape(dx.shape)
+    dy_back = _sample_grid(dy, x_px, y_px, (gx + dx).ravel(), (gy + dy).ravel()).reshape(dy.shape)
+    inconsistent = np.hypot(dx - dx_back, dy - dy_back) > consistency_tol_px
+    med_x = ndimage.median_filter(dx, size=3, mode="nearest")
+    med_y = ndimage.median_filter(dy, size=3, mode="nearest")
+    outlier = np.hypot(dx - med_x, dy - med_y) > outlier_tol_px
+    unreliable = low | inconsistent | outlier | clipped
+    if far_offset is None:
+        good = ~unreliable
+        far = (float(np.median(dx[good])), float(np.median(dy[good]))) if good.any() else offset
+    else:
+        far = (float(far_offset[0]), float(far_offset[1]))
+    dx_px = _grid_to_pixels(dx, x_px, y_px, shape, nearest=True)
+    dy_px = _grid_to_pixels(dy, x_px, y_px, shape, nearest=True)
+    nearness = np.hypot(dx_px - far[0], dy_px - far[1])
+    occluded = _occlusion_zbuffer(dx_px, dy_px, nearness, occlusion_tol_px)
+    return DisparityMap(x_px=x_px, y_px=y_px, dx=dx, dy=dy, confidence=conf, unreliable=unreliable,
+                        low_confidence=low, inconsistent=inconsistent, outlier=outlier, occluded=occluded,
+                        block=int(block), step=int(step), shape=(int(shape[0]), int(shape[1])), offset=offset,
+                        extras={"far_offset": far, "min_confidence": float(min_confidence)})

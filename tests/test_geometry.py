@@ -25,9 +25,9 @@ from omnispectral.imaging.geometry import (
 REAL = dict(width=640, height=480, fx=536.0735, fy=536.0164, cx=342.3705, cy=235.5369,
             dist=(-0.26509, -0.046742, 0.0018330, -0.00031469, 0.25231))
 
-#: Rational (8-coefficient) fit of the same boards (OpenCV's 11 px corner window).  Numerator and denominator nearly cancel (complex root
-#: pairs at r² ≈ 0.0829 ± 0.0003i), leaving a ripple: r·g(r²) falls between r ≈ 0.2877 and 0.2885 (θ ≈ 16°),
-#: well inside the image, so the model folds there.
+#: Rational (8-coefficient) fit of the same boards (OpenCV's 11 px corner window).  Numerator and denominator
+#: nearly cancel (complex root pairs at r² ≈ 0.0829 ± 0.0003i), leaving a ripple: r·g(r²) falls between
+#: r ≈ 0.2877 and 0.2885 (θ ≈ 16°), well inside the image, so the model folds there.
 REAL_RATIONAL = dict(width=640, height=480, fx=535.8145698337988, fy=535.6366653541695, cx=342.8601275407204,
                      cy=235.72037805622625,
                      dist=(-24.19731636528174, 147.13633111770045, 0.0018304670630908547, -0.0003647507146426214,

@@ -339,7 +339,7 @@ def monotonic_radius(dist, n_azimuth: int = 180, n_radius: int = 3000) -> float:
     if not np.any(d[:12]):
         return _R_SCAN
     limit = min(_R_SCAN, math.sqrt(_radial_limit_r2(d)) * (1.0 - 1e-9))
-    if not np.any(d[[2, 3, 8, 9, 10, 11]]):
+    if not np.any(d[[2, 3, 8, 9, 10, 11]]) or limit <= 1e-3:
         return limit
     r = np.geomspace(1e-3, limit, n_radius)[:, None]
     phi = np.linspace(0.0, 2.0 * np.pi, n_azimuth, endpoint=False)[None, :]

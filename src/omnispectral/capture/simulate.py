@@ -1,0 +1,258 @@
+"""The simulated rig: render raw frames of a spectral scene through the rig's own geometry and sensor model.
+
+Every sensor pixel's ray comes from the same :class:`~omnispectral.imaging.geometry.CameraModel` the
+processing uses (lens distortion, portrait roll, head rotation, camera B's misalignment and
+baseline), the scene's spectral radiance is integrated against the camera's sensitivity × filter
+(``MultibandSystem.matrix``), scaled by the exposure, and turned into 12-bit codes with the CMV2000
+noise model (Poisson shot noise — Gaussian above 30 e⁻ —, 13 e⁻ read noise, quantisation,
+saturation).  Frames go through the same session writer and capture loop as real hardware
+(:func:`~omnispectral.capture.run.run_capture` on simulated devices with a fake clock starting at the
+scene's time of day, so journal timestamps follow the timing model).
+
+Units.  ``electrons_per_unit`` converts the scene's band radiance (scene units · nm) into
+photo-electrons per second; it is chosen so that the scene's bright diffuse surfaces (99.5th
+percentile of the brightest band, sampled on a coarse grid) reach 80 % of full well at the
+bracket's geometric-mean exposure.  The ground truth is stored in DN per second of exposure — the
+unit of the HDR merge — so a processed product compares pixel by pixel (see :func:`write_ground_truth`).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from omnispectral.capture.rig import Rig
+from omnispectral.errors import ConfigurationError
+from omnispectral.imaging.geometry import CameraModel, Mounting
+from omnispectral.io import atomic_path, atomic_write_json
+from omnispectral.spectral.noise import SensorNoiseModel
+from omnispectral.spectral.system import MultibandSystem, build_system
+
+GROUND_TRUTH_FORMAT = "omnispectral-ground-truth"
+PAPER_PANORAMA_WIDTH_PX = 7260  # Table 2, for the 2048-px sensor
+
+
+def camera_model(rig: Rig, name: str) -> CameraModel:
+    """The geometric model of camera ``A`` or ``B`` of a rig: lens (calibration or field of view) and mounting."""
+    cam = rig.cameras[name]
+    if name == "A":
+        mounting = Mounting(roll_deg=cam.roll_deg)
+    else:
+        m = rig.mounting
+        mounting = Mounting(roll_deg=cam.roll_deg, misalignment_deg=(m.yaw_deg, m.pitch_deg, m.roll_deg),
+                            baseline_mm=m.baseline_mm)
+    if cam.lens.calibration:
+        from dataclasses import replace
+
+        model = CameraModel.from_json(cam.lens.calibration)
+        if (model.width, model.height) != (cam.width_px, cam.height_px):
+            raise ConfigurationError(f"camera {name}: lens calibration {cam.lens.calibration} is for "
+                                     f"{model.width}x{model.height}, the sensor is {cam.width_px}x{cam.height_px}")
+        return replace(model, mounting=mounting)
+    return CameraModel.from_fov(cam.width_px, cam.height_px, cam.lens.hfov_deg, cam.lens.distortion, mounting)
+
+
+def rig_system(rig: Rig, wavelength_nm: np.ndarray | None = None) -> MultibandSystem:
+    """The six-band system of a rig: camera A's sensitivity × filter A, then camera B's × filter B."""
+    from omnispectral.spectral.library import load_camera, load_filter
+
+    parts = [build_system(load_camera(rig.cameras[c].sensitivity), [load_filter(rig.cameras[c].filter)],
+                          wavelength_nm) for c in ("A", "B")]
+    return MultibandSystem(parts[0].wavelength_nm, np.vstack([p.sensitivity for p in parts]),
+                           tuple(f"{c}:{b}" for c in ("A", "B") for b in ("R", "G", "B")),
+                           np.array([0, 0, 0, 1, 1, 1]),
+                           f"{rig.name}: {parts[0].description} | {parts[1].description}")
+
+
+def sample_dn(electrons: np.ndarray, noise: SensorNoiseModel, rng: np.random.Generator) -> np.ndarray:
+    """Raw codes of mean photo-electron counts: Poisson shot noise (normal approximation above 30 e⁻),
+    Gaussian read noise, rounding to DN, clipping at full scale.  float32 throughout; returns uint16."""
+    mu = np.maximum(electrons, 0, dtype=np.float32)
+    e = rng.standard_normal(mu.shape, dtype=np.float32)
+    small = mu < 30
+    shot = np.sqrt(mu) * e
+    if small.any():
+        mu_small = mu[small]
+        shot[small] = rng.poisson(mu_small).astype(np.float32) - mu_small
+    read = rng.standard_normal(mu.shape, dtype=np.float32) * np.float32(noise.read_noise_e)
+    dn = (mu + shot + read) * np.float32(1.0 / noise.gain_e_per_dn)
+    return np.clip(np.rint(dn), 0, noise.max_dn).astype(np.uint16)
+
+
+@dataclass
+class RigRenderer:
+    """Renders raw frames of ``scene`` for both cameras of ``rig`` (the simulated cameras' ``render``)."""
+
+    rig: Rig
+    scene: object
+    noise: bool = True
+    electrons_per_unit: float | None = None
+    system: MultibandSystem = field(init=False)
+    models: dict = field(init=False)
+    _rays: dict = field(init=False, default_factory=dict)
+    _last: dict = field(init=False, default_factory=dict)
+
+    def __post_init__(self):
+        self.system = rig_system(self.rig, np.asarray(self.scene.wavelength_nm))
+        self.models = {c: camera_model(self.rig, c) for c in ("A", "B")}
+        if self.electrons_per_unit is None:
+            self.electrons_per_unit = calibrate_exposure(self.rig, self.scene, self.system)
+
+    def band_matrix(self, camera: str) -> np.ndarray:
+        """(3, n) sensitivity × filter × Δλ of one camera."""
+        rows = slice(0, 3) if camera == "A" else slice(3, 6)
+        return self.system.matrix[rows]
+
+    def camera_rays(self, camera: str) -> tuple[np.ndarray, np.ndarray]:
+        """Unit camera-frame rays of every pixel centre (H*W, 3) and their validity (cached)."""
+        if camera not in self._rays:
+            m = self.models[camera]
+            v, u = np.mgrid[0:m.height, 0:m.width]
+            rays, valid = m.unproject(np.stack([u.ravel(), v.ravel()], axis=-1).astype(np.float64))
+            self._rays[camera] = (np.nan_to_num(rays), valid)
+        return self._rays[camera]
+
+    def electrons_per_second(self, camera: str, pan_deg: float, tilt_deg: float) -> np.ndarray:
+        """Noise-free photo-electrons per second of each pixel, ``(H, W, 3)`` float32 (cached per direction)."""
+        key = (pan_deg, tilt_deg)
+        if self._last.get(camera, (None,))[0] == key:
+            return self._last[camera][1]
+        m = self.models[camera]
+        rays, valid = self.camera_rays(camera)
+        world = rays @ m.camera_to_world(pan_deg, tilt_deg).T
+        origin_m = m.camera_center_mm(pan_deg, tilt_deg) / 1000.0
+        bands = np.zeros((rays.shape[0], 3), np.float32)
+        if valid.any():
+            bands[valid] = self.scene.band_radiance(world[valid], self.band_matrix(camera), origin_m=origin_m)
+        img = (bands * np.float32(self.electrons_per_unit)).reshape(m.height, m.width, 3)
+        self._last[camera] = (key, img)
+        return img
+
+    def __call__(self, camera: str, pan_deg: float, tilt_deg: float, exposure_s: float,
+                 rng: np.random.Generator) -> np.ndarray:
+        cam = self.rig.cameras[camera]
+        electrons = self.electrons_per_second(camera, pan_deg, tilt_deg) * np.float32(exposure_s)
+        noise = cam.noise_model()
+        if not self.noise:
+            return np.clip(np.rint(electrons / noise.gain_e_per_dn), 0, noise.max_dn).astype(np.uint16)
+        return sample_dn(electrons, noise, rng)
+
+
+def calibrate_exposure(rig: Rig, scene, system: MultibandSystem, grid: tuple[int, int] = (256, 128)) -> float:
+    """Electrons per second per unit band radiance (module docstring: bright surfaces at 80 % of full well
+    at the bracket's geometric-mean exposure)."""
+    from omnispectral.imaging.geometry import equirect_pixel_to_lonlat, lonlat_to_ray
+
+    w, h = grid
+    col, row = np.meshgrid(np.arange(w), np.arange(h))
+    rays = lonlat_to_ray(*equirect_pixel_to_lonlat(col.ravel(), row.ravel(), w, h))
+    bands = scene.band_radiance(rays, system.matrix)
+    reference = float(np.percentile(bands.max(axis=1), 99.5))
+    if not reference > 0:
+        raise ConfigurationError("the scene is black: cannot choose an exposure scale")
+    t_mid = float(np.exp(np.mean(np.log(rig.bracket.exposures_s))))
+    return 0.8 * rig.camera_a.full_well_e / (reference * t_mid)
+
+
+def default_ground_truth_width(rig: Rig) -> int:
+    """The paper's 7260-px panorama width scaled to the sensor's long side (even)."""
+    return max(64, 2 * round(PAPER_PANORAMA_WIDTH_PX * rig.camera_a.width_px / 2048 / 2))
+
+
+def write_ground_truth(directory: str | Path, renderer: RigRenderer, width: int, spectral_width: int = 512,
+                       rows_per_chunk: int = 64) -> dict:
+    """Save the scene's exact six-band response and spectral radiance on equirectangular grids.
+
+    Files (all float32 NumPy ``.npy``, row 0 = latitude +90°, column 0 = longitude -180°, pixel
+    centres at +0.5, see :mod:`omnispectral.imaging.geometry`):
+
+    ``bands.npy`` ``(H, W, 6)``: noise-free response of bands ``A:R … B:B`` in DN per second of exposure
+    (what the HDR merge of a noise-free capture gives), seen from the head's rotation centre.
+    ``spectral.npy`` ``(h, w, n)`` at ``spectral_width``: spectral radiance in DN/s per unit of the
+    system matrix (``bands = spectral @ matrix.T``), i.e. the unit a Wiener estimate of the bands is in.
+    ``wavelength_nm.npy``, ``system_matrix.npy`` ``(6, n)``; ``ground_truth.json`` describes all of it.
+    """
+    out = Path(directory)
+    out.mkdir(parents=True, exist_ok=True)
+    height = width // 2
+    scale = renderer.electrons_per_unit / renderer.rig.camera_a.noise_model().gain_e_per_dn
+    matrix = renderer.system.matrix
+    with atomic_path(out / "bands.npy") as tmp:
+        arr = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float32, shape=(height, width, 6))
+        _fill_equirect(arr, lambda rays: renderer.scene.band_radiance(rays, matrix) * np.float32(scale),
+                       rows_per_chunk)
+        arr.flush()
+        del arr
+    sw = min(spectral_width, width)
+    sh = sw // 2
+    spectral = np.empty((sh, sw, matrix.shape[1]), np.float32)
+    _fill_equirect(spectral, lambda rays: renderer.scene.spectral_radiance(rays) * np.float32(scale), rows_per_chunk)
+    _save_npy(out / "spectral.npy", spectral)
+    _save_npy(out / "wavelength_nm.npy", np.asarray(renderer.system.wavelength_nm, np.float32))
+    _save_npy(out / "system_matrix.npy", matrix.astype(np.float32))
+    patches = renderer.scene.colorchecker_patches() if hasattr(renderer.scene, "colorchecker_patches") else []
+    meta = {"format": GROUND_TRUTH_FORMAT, "format_version": 1,
+            "bands": {"file": "bands.npy", "shape": [height, width, 6], "names": list(renderer.system.band_names),
+                      "units": "DN per second of exposure (noise-free, 12-bit codes per second)"},
+            "spectral": {"file": "spectral.npy", "shape": [sh, sw, int(matrix.shape[1])],
+                         "units": "DN/s per unit of system_matrix: bands = spectral @ system_matrix.T"},
+            "wavelength_nm": "wavelength_nm.npy", "system_matrix": "system_matrix.npy",
+            "grid": "equirectangular: row 0 at latitude +90, column 0 at longitude -180, pixel centres at +0.5; "
+                    "world +Y up, longitude 0 = +Z, longitude +90 = -X (omnispectral.imaging.geometry)",
+            "viewpoint": "the head's rotation centre (camera A's optical centre)",
+            "electrons_per_unit": renderer.electrons_per_unit, "dn_per_second_per_unit": scale,
+            "scene": _jsonable(renderer.scene.describe()), "colorchecker_patches": _jsonable(patches)}
+    atomic_write_json(out / "ground_truth.json", meta)
+    return meta
+
+
+def _fill_equirect(arr: np.ndarray, fn, rows_per_chunk: int) -> None:
+    from omnispectral.imaging.geometry import equirect_pixel_to_lonlat, lonlat_to_ray
+
+    h, w = arr.shape[:2]
+    cols = np.arange(w)
+    for r0 in range(0, h, rows_per_chunk):
+        r1 = min(h, r0 + rows_per_chunk)
+        col, row = np.meshgrid(cols, np.arange(r0, r1))
+        rays = lonlat_to_ray(*equirect_pixel_to_lonlat(col.ravel(), row.ravel(), w, h))
+        arr[r0:r1] = np.asarray(fn(rays), np.float32).reshape(r1 - r0, w, -1)
+
+
+def _save_npy(path: Path, array: np.ndarray) -> None:
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        np.save(fh, array)
+
+
+def _jsonable(x):
+    return json.loads(json.dumps(x, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
+
+
+def simulate_session(output: str | Path, rig: Rig, scene, *, start: _dt.datetime, noise: bool = True,
+                     seed: int = 0, ground_truth_width: int | None = None, progress: bool = True,
+                     overlap: float | None = None) -> dict:
+    """``capture`` with the simulated rig plus the ground truth; resumable like any capture."""
+    from omnispectral.capture.devices import FakeClock, SimulatedCamera, SimulatedHead
+    from omnispectral.capture.plan import make_plan
+    from omnispectral.capture.run import RetryPolicy, run_capture
+    from omnispectral.capture.session import Session
+
+    plan = make_plan(rig, overlap=overlap)
+    renderer = RigRenderer(rig, scene, noise=noise)
+    session = Session.create(output, rig, plan, kind="simulation",
+                             extra={"simulation": {"scene": _jsonable(scene.describe()), "noise": noise, "seed": seed,
+                                                   "start": start.isoformat(),
+                                                   "electrons_per_unit": renderer.electrons_per_unit}})
+    clock = FakeClock(start)
+    head = SimulatedHead(clock, rig.head.pan_speed_deg_s, rig.head.tilt_speed_deg_s, rig.head.settle_s)
+    cams = {c: SimulatedCamera(c, head, renderer, clock, rig.cameras[c].bit_depth, rig.cameras[c].readout_s,
+                               seed=seed * 2 + i) for i, c in enumerate(("A", "B"))}
+    result = run_capture(session, head, cams, clock,
+                         RetryPolicy(rig.head.retries, rig.head.timeout_s, rig.head.position_tolerance_deg), progress)
+    gt_dir = session.path / "ground_truth"
+    if not (gt_dir / "ground_truth.json").exists():
+        write_ground_truth(gt_dir, renderer, ground_truth_width or default_ground_truth_width(rig))
+    return {**result.to_dict(), "ground_truth": str(gt_dir), "electrons_per_unit": renderer.electrons_per_unit}

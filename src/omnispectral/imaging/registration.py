@@ -602,9 +602,10 @@ def block_disparity(reference, moving, *, block: int = 32, step: int | None = No
     window of the moving image at the same place moved by the rounded ``offset`` (e.g. the rig's
     calibrated offset, so that blocks measure only the parallax of near objects).  All blocks go
     through one batched ``rfft2`` per chunk, the band-limited POC and the vectorised peak fit of
-    :func:`phase_correlate`.  Disparities follow the module convention (content at ``p`` in the
+    :func:`phase_correlate`; a second pass re-pairs every block with the moving block displaced by
+    its rounded first-pass disparity.  Disparities follow the module convention (content at ``p`` in the
     reference is at ``p + d`` in the moving image) and include ``offset``; they must stay below
-    about ``block / 4`` around ``offset``.
+    about ``block / 3`` around ``offset`` for the first pass to find them.
 
     Masks on the block grid (``unreliable`` is their union, plus blocks that leave the image):
 
@@ -639,30 +640,46 @@ def block_disparity(reference, moving, *, block: int = 32, step: int | None = No
         b = _fade_saturated(b, sat_b)
 
     ys, xs = _block_origins(h, block, step), _block_origins(w, block, step)
-    ox, oy = round(off[0]), round(off[1])
-    ys_m = np.clip(ys + oy, 0, h - block)
-    xs_m = np.clip(xs + ox, 0, w - block)
-    clipped = (ys_m - ys != oy)[:, None] | (xs_m - xs != ox)[None, :]
+    ny, nx = ys.size, xs.size
+    org_y = np.repeat(ys, nx)
+    org_x = np.tile(xs, ny)
     view_a = np.lib.stride_tricks.sliding_window_view(a, (block, block))
     view_b = np.lib.stride_tricks.sliding_window_view(b, (block, block))
-    ny, nx = ys.size, xs.size
-    yy, xx = np.meshgrid(np.arange(ny), np.arange(nx), indexing="ij")
-    flat_y, flat_x = yy.ravel(), xx.ravel()
-    dx = np.empty(ny * nx)
-    dy = np.empty(ny * nx)
-    conf = np.empty(ny * nx)
-    for start in range(0, ny * nx, _BLOCK_CHUNK):
-        sel = slice(start, start + _BLOCK_CHUNK)
-        blocks_a = _apply_window(view_a[ys[flat_y[sel]], xs[flat_x[sel]]], window)
-        blocks_b = _apply_window(view_b[ys_m[flat_y[sel]], xs_m[flat_x[sel]]], window)
-        dx[sel], dy[sel], conf[sel] = _poc_shift(blocks_a, blocks_b, band_limit, upsample, fit_radius)
-    dx = (dx.reshape(ny, nx) + (xs_m - xs)[None, :]).astype(np.float32)
-    dy = (dy.reshape(ny, nx) + (ys_m - ys)[:, None]).astype(np.float32)
+    # Pass 1 pairs each block with the moving block displaced by the rounded offset; pass 2 with the
+    # one displaced by the rounded pass-1 disparity, so the residual is below half a pixel and the
+    # window (fixed while the content moves) no longer pulls large disparities towards zero.
+    guess_x = np.full(ny * nx, float(round(off[0])))
+    guess_y = np.full(ny * nx, float(round(off[1])))
+    for _ in range(2):
+        mov_y = np.clip(org_y + np.rint(guess_y).astype(np.int64), 0, h - block)
+        mov_x = np.clip(org_x + np.rint(guess_x).astype(np.int64), 0, w - block)
+        res_x, res_y, conf = _block_pass(view_a, view_b, org_y, org_x, mov_y, mov_x, window, band_limit, upsample,
+                                         fit_radius)
+        guess_x = (mov_x - org_x) + res_x
+        guess_y = (mov_y - org_y) + res_y
+    clipped = ((mov_y - org_y) != np.rint(guess_y - res_y)) | ((mov_x - org_x) != np.rint(guess_x - res_x))
+    clipped |= (org_y + np.rint(guess_y) < 0) | (org_y + np.rint(guess_y) > h - block)
+    clipped |= (org_x + np.rint(guess_x) < 0) | (org_x + np.rint(guess_x) > w - block)
+    dx = guess_x.reshape(ny, nx).astype(np.float32)
+    dy = guess_y.reshape(ny, nx).astype(np.float32)
     conf = conf.reshape(ny, nx).astype(np.float32)
+    clipped = clipped.reshape(ny, nx)
     x_px = xs + (block - 1) / 2.0
     y_px = ys + (block - 1) / 2.0
     return _finish_disparity(dx, dy, conf, clipped, x_px, y_px, (h, w), block, step, (float(off[0]), float(off[1])),
                              far_offset, min_confidence, consistency_tol_px, outlier_tol_px, occlusion_tol_px)
+
+
+def _block_pass(view_a, view_b, org_y, org_x, mov_y, mov_x, window, band_limit, upsample, fit_radius):
+    """POC of reference blocks at ``(org_y, org_x)`` against moving blocks at ``(mov_y, mov_x)``, in chunks."""
+    n = org_y.size
+    dx, dy, conf = np.empty(n), np.empty(n), np.empty(n)
+    for start in range(0, n, _BLOCK_CHUNK):
+        sel = slice(start, start + _BLOCK_CHUNK)
+        blocks_a = _apply_window(view_a[org_y[sel], org_x[sel]], window)
+        blocks_b = _apply_window(view_b[mov_y[sel], mov_x[sel]], window)
+        dx[sel], dy[sel], conf[sel] = _poc_shift(blocks_a, blocks_b, band_limit, upsample, fit_radius)
+    return dx, dy, conf
 
 
 def _finish_disparity(dx, dy, conf, clipped, x_px, y_px, shape, block, step, offset, far_offset, min_confidence,

@@ -1,0 +1,145 @@
+"""``omnispectral simulate | capture | timelapse``: run the capture loop on the simulated rig (or a rig's devices)."""
+
+from __future__ import annotations
+
+import datetime as _dt
+from pathlib import Path
+
+from omnispectral.cli._common import console, print_json
+from omnispectral.cli.capture import add_rig_args, rig_from_args
+from omnispectral.errors import ConfigurationError
+
+DEFAULT_DATE = _dt.date(2017, 6, 21)  # summer solstice; the paper's captures are from 2016-2017 in Japan
+
+
+def build_scene(scene: str, cube: str | None, when: _dt.datetime, wavelength_nm=None):
+    """The scene named on the command line: ``procedural``, an HDR panorama file, optionally a cube on a wall."""
+    from omnispectral.capture import scenes
+
+    kwargs = {} if wavelength_nm is None else {"wavelength_nm": wavelength_nm}
+    if scene == "procedural":
+        base = scenes.ProceduralOutdoorScene(time_hhmm=f"{when:%H:%M}", day_of_year=when.timetuple().tm_yday,
+                                             **kwargs)
+    else:
+        if cube:
+            raise ConfigurationError("--cube mounts the cube on a wall of the procedural scene; use --scene procedural")
+        return scenes.PanoramaScene(scene, **kwargs)
+    return scenes.CubeOnWallScene(cube, base=base) if cube else base
+
+
+def _start_time(text: str, date: str | None) -> _dt.datetime:
+    from omnispectral.capture.timelapse import parse_hhmm
+
+    day = _dt.date.fromisoformat(date) if date else DEFAULT_DATE
+    return parse_hhmm(text, day, _dt.UTC)
+
+
+def cmd_simulate(args) -> int:
+    from omnispectral.capture.simulate import simulate_session
+
+    rig = rig_from_args(args, default_preset="small")
+    start = _start_time(args.time, args.date)
+    scene = build_scene(args.scene, args.cube, start)
+    out = simulate_session(args.output, rig, scene, start=start, noise=args.noise == "on", seed=args.seed,
+                           ground_truth_width=args.gt_width, progress=not args.json)
+    out["rig"] = rig.name
+    if args.json:
+        print_json(out)
+    else:
+        console.print(f"Simulated {out['n_written']} frames ({out['n_already_done']} already there) of {rig.name} "
+                      f"in {out['wall_s']:.1f} s; the capture itself would take {out['simulated_s']:.0f} s.")
+        console.print(f"Session: {args.output}  (verify: omnispectral session verify {args.output})")
+        console.print(f"Ground truth: {out['ground_truth']} (bands.npy in DN/s, spectral.npy, ground_truth.json)")
+    return 0 if out["complete"] else 1
+
+
+def cmd_capture(args) -> int:
+    rig = rig_from_args(args)
+    if rig.head.driver != "simulated" or any(c.device.get("driver") != "simulated" for c in rig.cameras.values()):
+        raise ConfigurationError(f"{rig.source}: the rig names real devices (head {rig.head.driver!r}); real "
+                                 "drivers (GenICam cameras, RODEON and Merlin heads) are not available in this "
+                                 "version — use driver = \"simulated\" or 'omnispectral simulate'")
+    args.json = getattr(args, "json", False)
+    return cmd_simulate(args)
+
+
+def cmd_timelapse(args) -> int:
+    from omnispectral.capture.devices import FakeClock
+    from omnispectral.capture.simulate import simulate_session
+    from omnispectral.capture.timelapse import parse_interval_s, run_timelapse, slot_times
+
+    rig = rig_from_args(args, default_preset="small")
+    start = _start_time(args.start, args.date)
+    end = _start_time(args.end, args.date)
+    slots = slot_times(start, end, parse_interval_s(args.every))
+    clock = FakeClock(start)  # simulated devices: simulated time
+
+    def capture(session_dir: Path, t: _dt.datetime) -> dict:
+        scene = build_scene(args.scene, args.cube, t)
+        res = simulate_session(session_dir, rig, scene, start=clock.now(), noise=args.noise == "on",
+                               seed=args.seed, ground_truth_width=args.gt_width, progress=False)
+        clock.sleep(res["simulated_s"])
+        return res
+
+    def report(entry: dict) -> None:
+        if not args.json:
+            console.print(f"{entry['time'][11:16]} {entry['session']}: {entry['status']}"
+                          + (f" ({entry['reason']})" if entry.get("reason") else ""))
+
+    index = run_timelapse(args.output, slots, clock, capture, {"rig": rig.name, "every_s": parse_interval_s(args.every),
+                                                                "scene": args.scene}, on_slot=report)
+    if args.json:
+        print_json(index)
+    else:
+        console.print(f"Series {args.output}: {index['n_complete']} sessions, {index['n_skipped']} slots skipped "
+                      f"(index: {Path(args.output) / 'series.json'})")
+    return 0
+
+
+def _add_scene_args(p) -> None:
+    p.add_argument("--scene", default="procedural", metavar="procedural|FILE.hdr|FILE.exr",
+                   help="procedural outdoor scene (default) or an HDR equirectangular panorama")
+    p.add_argument("--cube", default=None, metavar="FILE.npz|FILE.hdr",
+                   help="hyperspectral reflectance cube mounted on a wall of the procedural scene")
+    p.add_argument("--date", default=None, metavar="YYYY-MM-DD", help=f"day of the capture (default {DEFAULT_DATE})")
+    p.add_argument("--noise", choices=["on", "off"], default="on", help="CMV2000 sensor noise")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the noise")
+    p.add_argument("--gt-width", type=int, default=None, metavar="W",
+                   help="width of the ground-truth panorama (default: the paper's 7260 px scaled to the sensor)")
+
+
+def _add_session_args(p) -> None:
+    add_rig_args(p)
+    _add_scene_args(p)
+    p.add_argument("--time", default="12:00", metavar="HH:MM",
+                   help="time of day of the capture (sun position and daylight of the simulated scene)")
+    p.add_argument("-o", "--output", required=True, metavar="SESSION", help="session directory (resumed if it exists)")
+    p.add_argument("--json", action="store_true", help="print a JSON summary")
+
+
+def add_commands(sub) -> None:
+    """Register ``simulate``, ``capture`` and ``timelapse``."""
+    s = sub.add_parser("simulate", help="capture a simulated scene with the simulated rig (plus ground truth)",
+                       description="Run the capture loop on the simulated rig: every sensor pixel through the rig's "
+                                   "camera model, CMV2000 noise, frames and journal as from real hardware, and the "
+                                   "ground truth (six-band DN/s and spectral radiance, equirectangular). Resumable.")
+    _add_session_args(s)
+    s.set_defaults(func=cmd_simulate)
+
+    c = sub.add_parser("capture", help="capture a session with the devices a rig file names",
+                       description="Run the capture loop on the devices named in the rig file; resumes an "
+                                   "incomplete session in the same directory.")
+    _add_session_args(c)
+    c.set_defaults(func=cmd_capture)
+
+    t = sub.add_parser("timelapse", help="one capture every N minutes into a series directory",
+                       description="Time-lapse (paper Sec. 5.3): one session per slot from --from to --to every "
+                                   "--every; a capture that overruns its slot skips to the next slot and records it.")
+    add_rig_args(t)
+    _add_scene_args(t)
+    t.add_argument("--every", default="5min", help="interval, e.g. 5min, 300s, 1h")
+    t.add_argument("--from", dest="start", default="06:00", metavar="HH:MM")
+    t.add_argument("--to", dest="end", default="17:00", metavar="HH:MM")
+    t.add_argument("-o", "--output", required=True, metavar="SERIES", help="series directory")
+    t.add_argument("--json", action="store_true", help="print the series index as JSON")
+    t.set_defaults(func=cmd_timelapse)

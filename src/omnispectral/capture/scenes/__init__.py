@@ -1,0 +1,38 @@
+"""Scenes of the simulated rig: the demo, the test bed and the ground truth (issue 4).
+
+- :class:`ProceduralOutdoorScene`: clear sky and HDR sun following the time of day, ground,
+  buildings with measured reflectances, a ColorChecker, an optional near object (parallax).
+- :class:`PanoramaScene`: any HDR RGB equirectangular panorama, spectrally up-sampled (Mallett & Yuksel 2019).
+- :class:`CubeOnWallScene`: a hyperspectral reflectance cube on a wall of the procedural scene.
+
+All share the :class:`Scene` interface: ``spectral_radiance``, the fast ``band_radiance``,
+``describe``, ``colorchecker_patches`` and equirectangular ground truth.
+"""
+
+from omnispectral.capture.scenes.base import (
+    Scene,
+    direction_to_lonlat,
+    equirect_directions,
+    equirect_lonlat,
+    lonlat_to_direction,
+)
+from omnispectral.capture.scenes.cube import CubeOnWallScene, load_reflectance_cube
+from omnispectral.capture.scenes.panorama import PanoramaScene, read_panorama
+from omnispectral.capture.scenes.procedural import ProceduralOutdoorScene
+from omnispectral.capture.scenes.sky import ClearSkyDaylight, SolarPosition, solar_position
+
+__all__ = [
+    "ClearSkyDaylight",
+    "CubeOnWallScene",
+    "PanoramaScene",
+    "ProceduralOutdoorScene",
+    "Scene",
+    "SolarPosition",
+    "direction_to_lonlat",
+    "equirect_directions",
+    "equirect_lonlat",
+    "load_reflectance_cube",
+    "lonlat_to_direction",
+    "read_panorama",
+    "solar_position",
+]

@@ -1,0 +1,506 @@
+"""A procedural, spectral, sunlit outdoor scene: clear sky, HDR sun, ground, buildings, a ColorChecker.
+
+The world (metres, frame of :mod:`omnispectral.capture.scenes.base`) has its origin at the head's
+rotation centre, ``ground_y_m`` (default 1.5 m) above a flat, infinite ground: pavement within
+8 m, grass beyond.  Axis-aligned boxes stand on it: buildings at 20-40 m, a free-standing concrete
+wall 4 m away (where :class:`~omnispectral.capture.scenes.cube.CubeOnWallScene` hangs its cube), a
+hedge, and optionally a painted post 1.5 m from the rig so that the two cameras, 60 mm apart, see
+parallax.  A 24-patch ColorChecker (N. Ohta's reflectances) on a board faces the rig 2.5 m away at
+longitude 30°, latitude -15°, its 50 mm patches ≈1.1° wide (≈23 px in a 7260 × 3630 panorama).
+
+Light (see :mod:`omnispectral.capture.scenes.sky`): a sun disk of 0.533° with the IES clear-sky
+direct illuminance and a CIE type-12 clear sky, with D-series spectra whose CCT follows the sun.
+Surfaces are Lambertian: ``L(λ) = ρ(λ)/π · (E_sun cos θ · V + E_sky(n)) `` with ``V`` the sun's
+visibility from the point (a shadow ray against every box and the chart board) and ``E_sky(n)``
+the illuminance of the unoccluded sky dome on a surface of normal ``n`` (no ambient occlusion, no
+light reflected between surfaces).
+
+Every ray's radiance is therefore ``a · P[k] + b · Q[k]`` with the material ``k``, ``P[k] =
+ρ_k S_sun / π``, ``Q[k] = ρ_k S_sky / π`` (for the sky: ``P = S_sun``, ``Q = S_sky``) and two
+scalars ``a`` (sun illuminance in lx, or the sun disk's luminance) and ``b`` (sky illuminance, or
+the sky's luminance).  The band path projects ``P`` and ``Q`` on the sensitivities once and per
+ray combines two scalars with two looked-up rows, so its cost does not depend on the number of
+wavelengths.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from omnispectral.capture.scenes.base import (
+    RAY_BLOCK,
+    BandProjectionCache,
+    Scene,
+    as_directions,
+    as_origin,
+    direction_to_lonlat,
+    lonlat_to_direction,
+)
+from omnispectral.capture.scenes.materials import SCENE_MATERIALS, choose_materials, colorchecker_reflectances
+from omnispectral.capture.scenes.sky import ClearSkyDaylight
+from omnispectral.errors import ConfigurationError
+from omnispectral.spectral.curves import DEFAULT_WAVELENGTH_NM
+
+#: Chiba University, Inage campus (the authors' institution; the paper's time-lapse is of "our
+#: university campus", Sec. 5.4): latitude, longitude (east) and Japan Standard Time.
+CHIBA_LATITUDE_DEG = 35.63
+CHIBA_LONGITUDE_DEG = 140.10
+JST_UTC_OFFSET_H = 9.0
+#: Day 80 (21 March, near the vernal equinox): day length ≈ 12 h, so a 06:00-17:00 time-lapse is all daylight.
+DEFAULT_DAY_OF_YEAR = 80
+#: Radius (m) of the paved area around the rig; grass beyond.
+PAVEMENT_RADIUS_M = 8.0
+#: Ray offsets (m): hits closer than this are ignored (self-intersection of shadow rays).
+EPS_M = 1e-3
+
+#: Object ids in the per-ray record.
+SKY_ID = -1
+GROUND_ID = 0
+#: Normal ids: ±X, ±Y, ±Z (axis-aligned faces), then the chart's front and back.
+N_PX, N_NX, N_PY, N_NY, N_PZ, N_NZ, N_CHART_FRONT, N_CHART_BACK = range(8)
+
+
+@dataclass(frozen=True)
+class Box:
+    """An axis-aligned box ``lo_m ≤ p ≤ hi_m`` (world metres) of one material."""
+
+    name: str
+    lo_m: tuple[float, float, float]
+    hi_m: tuple[float, float, float]
+    material: str
+
+    def centre_m(self) -> np.ndarray:
+        return 0.5 * (np.asarray(self.lo_m) + np.asarray(self.hi_m))
+
+    def radius_m(self) -> float:
+        return 0.5 * float(np.linalg.norm(np.asarray(self.hi_m) - np.asarray(self.lo_m)))
+
+
+@dataclass(frozen=True)
+class ChartBoard:
+    """A ColorChecker board: 4 × 6 square patches on a thin rectangle facing the rig.
+
+    ``right`` and ``up`` span the board as seen from the front (``normal`` points at the viewer);
+    patch ``i`` (0 = dark skin, 23 = black) sits in row ``i // 6`` from the top and column ``i % 6``
+    from the left, the standard layout.
+    """
+
+    centre_m: np.ndarray
+    normal: np.ndarray
+    right: np.ndarray
+    up: np.ndarray
+    patch_m: float
+    gap_m: float
+    rows: int = 4
+    cols: int = 6
+
+    @property
+    def half_width_m(self) -> float:
+        return 0.5 * (self.cols * self.patch_m + (self.cols + 1) * self.gap_m)
+
+    @property
+    def half_height_m(self) -> float:
+        return 0.5 * (self.rows * self.patch_m + (self.rows + 1) * self.gap_m)
+
+    def patch_centre_m(self, index: int) -> np.ndarray:
+        r, c = divmod(index, self.cols)
+        u = -self.half_width_m + self.gap_m + 0.5 * self.patch_m + c * (self.patch_m + self.gap_m)
+        v = self.half_height_m - self.gap_m - 0.5 * self.patch_m - r * (self.patch_m + self.gap_m)
+        return self.centre_m + u * self.right + v * self.up
+
+    def patch_index(self, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Patch index at board coordinates ``(u, v)`` (m from the centre), -1 on the frame."""
+        pitch = self.patch_m + self.gap_m
+        cu = (u + self.half_width_m - self.gap_m) / pitch
+        cv = (self.half_height_m - self.gap_m - v) / pitch
+        c = np.floor(cu)
+        r = np.floor(cv)
+        on = ((cu - c) * pitch < self.patch_m) & ((cv - r) * pitch < self.patch_m)
+        on &= (c >= 0) & (c < self.cols) & (r >= 0) & (r < self.rows)
+        return np.where(on, r * self.cols + c, -1).astype(np.int32)
+
+
+def facing_board(lon_deg: float, lat_deg: float, distance_m: float, patch_m: float, gap_m: float) -> ChartBoard:
+    """A chart board centred ``distance_m`` from the origin at ``(lon_deg, lat_deg)``, facing the origin."""
+    d = lonlat_to_direction(lon_deg, lat_deg)
+    normal = -d
+    right = np.cross(d, [0.0, 1.0, 0.0])
+    if np.linalg.norm(right) < 1e-6:
+        raise ConfigurationError("the chart cannot be placed straight up or down")
+    right /= np.linalg.norm(right)
+    up = np.cross(right, d)
+    return ChartBoard(distance_m * d, normal, right, up / np.linalg.norm(up), patch_m, gap_m)
+
+
+@dataclass
+class Shading:
+    """Per-ray record: material row, sun and sky weights, object hit, its face normal id and distance (m).
+
+    ``sun`` and ``sky`` are illuminances (lx) on surfaces and luminances (cd/m²) in the sky;
+    ``obj`` is -1 for the sky, 0 for the ground, ``1 + j`` for box ``j`` and ``len(boxes) + 1``
+    for the chart board; ``normal_id`` indexes :attr:`ProceduralOutdoorScene.normals`.
+    """
+
+    material: np.ndarray
+    sun: np.ndarray
+    sky: np.ndarray
+    obj: np.ndarray
+    normal_id: np.ndarray
+    t_m: np.ndarray
+
+
+def combine(rec: Shading, table: np.ndarray) -> np.ndarray:
+    """``sun · P[k] + sky · Q[k]`` per ray, from ``table = [P | Q]`` of shape ``(K, 2c)``."""
+    c = table.shape[1] // 2
+    rows = table[rec.material]
+    out = rows[:, :c] * rec.sun[:, None]
+    out += rows[:, c:] * rec.sky[:, None]
+    return out
+
+
+class ProceduralOutdoorScene(Scene):
+    """The procedural outdoor scene (see the module docstring).
+
+    Parameters
+    ----------
+    time_hhmm
+        Local clock time (``"HH:MM"``, time zone ``utc_offset_h``).
+    latitude_deg, longitude_deg, utc_offset_h
+        Site; default Chiba (35.63° N, 140.10° E, JST).
+    day_of_year
+        1-366; default 80 (21 March).
+    north_lon_deg
+        Scene longitude that faces north (default 0: the head's pan 0 looks north, the noon sun is behind).
+    near_object
+        Add the painted post 1.5 m from the rig (parallax between the cameras).
+    seed
+        Chooses among the nearest measured reflectances and jitters building sizes; the scene is a
+        deterministic function of its parameters.
+    wavelength_nm
+        Spectral grid (within 400-700 nm, the range of the measured reflectances); default 400-700 / 5 nm.
+    ground_y_m
+        Height of the ground (m, negative: below the head).
+    chart_lon_deg, chart_lat_deg, chart_distance_m, chart_patch_m
+        Where the ColorChecker is and how big its patches are.
+    """
+
+    kind = "procedural"
+
+    def __init__(self, time_hhmm: str = "12:00", latitude_deg: float = CHIBA_LATITUDE_DEG,
+                 longitude_deg: float = CHIBA_LONGITUDE_DEG, utc_offset_h: float = JST_UTC_OFFSET_H,
+                 day_of_year: int = DEFAULT_DAY_OF_YEAR, north_lon_deg: float = 0.0, near_object: bool = True,
+                 seed: int = 0, wavelength_nm=None, ground_y_m: float = -1.5, chart_lon_deg: float = 30.0,
+                 chart_lat_deg: float = -15.0, chart_distance_m: float = 2.5, chart_patch_m: float = 0.05):
+        super().__init__(DEFAULT_WAVELENGTH_NM if wavelength_nm is None else wavelength_nm)
+        if ground_y_m >= 0:
+            raise ConfigurationError(f"ground_y_m must be below the head (negative), got {ground_y_m}")
+        self.params = {"time_hhmm": str(time_hhmm), "latitude_deg": float(latitude_deg),
+                       "longitude_deg": float(longitude_deg), "utc_offset_h": float(utc_offset_h),
+                       "day_of_year": int(day_of_year), "north_lon_deg": float(north_lon_deg),
+                       "near_object": bool(near_object), "seed": int(seed), "ground_y_m": float(ground_y_m),
+                       "chart_lon_deg": float(chart_lon_deg), "chart_lat_deg": float(chart_lat_deg),
+                       "chart_distance_m": float(chart_distance_m), "chart_patch_m": float(chart_patch_m)}
+        self.ground_y_m = float(ground_y_m)
+        self.daylight = ClearSkyDaylight(day_of_year, time_hhmm, latitude_deg, longitude_deg, utc_offset_h,
+                                         north_lon_deg, self.wavelength_nm)
+        rng = np.random.default_rng(seed)
+        self.materials = choose_materials(SCENE_MATERIALS, self.wavelength_nm, rng)
+        self.patch_names, self.patch_reflectance = colorchecker_reflectances(self.wavelength_nm)
+        self.chart = facing_board(chart_lon_deg, chart_lat_deg, chart_distance_m, chart_patch_m, 0.2 * chart_patch_m)
+        if chart_distance_m * math.sin(math.radians(-chart_lat_deg)) + self.chart.half_height_m >= -self.ground_y_m:
+            raise ConfigurationError("the chart would reach below the ground; raise chart_lat_deg or move it closer")
+        self.boxes = self._layout(rng, bool(near_object))
+        self._build_tables()
+        self._bands = BandProjectionCache()
+
+    # -- construction -----------------------------------------------------------------------------
+    def _layout(self, rng: np.random.Generator, near_object: bool) -> list[Box]:
+        """Buildings, the near wall, a hedge, the chart's stand and optionally the post (world metres)."""
+        g = self.ground_y_m
+
+        def jitter(h: float) -> float:
+            return float(h * rng.uniform(0.9, 1.1))
+
+        boxes = [
+            Box("brick building", (-14.0, g, 22.0), (10.0, g + jitter(12.0), 34.0), "brick"),
+            Box("white building", (-34.0, g, 14.0), (-16.0, g + jitter(18.0), 30.0), "white wall"),
+            Box("dark building", (15.0, g, -34.0), (36.0, g + jitter(8.0), -14.0), "dark facade"),
+            Box("near wall", (1.0, g, 4.0), (7.0, g + 3.0, 4.3), "concrete"),
+            Box("hedge", (6.0, g, -9.0), (12.0, g + jitter(1.8), -6.0), "hedge"),
+        ]
+        back = self.chart.centre_m - 0.03 * self.chart.normal
+        boxes.append(Box("chart stand", (back[0] - 0.015, g, back[2] - 0.015),
+                         (back[0] + 0.015, float(self.chart.centre_m[1]), back[2] + 0.015), "dark facade"))
+        if near_object:
+            d = lonlat_to_direction(100.0, 0.0) * 1.5
+            boxes.append(Box("post", (d[0] - 0.06, g, d[2] - 0.06), (d[0] + 0.06, 0.3, d[2] + 0.06), "painted post"))
+        return boxes
+
+    def _build_tables(self) -> None:
+        """Material rows (sky, surfaces, chart patches), per-object material, per-normal light."""
+        names = ["sky", *[m.name for m in self.materials], "chart frame",
+                 *[f"chart:{n}" for n in self.patch_names]]
+        frame = self.patch_reflectance[self.patch_names.index("black 2 (1.5 D)")]
+        refl = np.vstack([np.zeros(self.wavelength_nm.size), *[m.reflectance for m in self.materials], frame,
+                          self.patch_reflectance])
+        self.material_names = tuple(names)
+        self.material_reflectance = refl
+        self._row = {n: i for i, n in enumerate(names)}
+        self._first_patch_row = self._row[f"chart:{self.patch_names[0]}"]
+        dl = self.daylight
+        p = refl * dl.sun_spectrum / math.pi
+        q = refl * dl.sky_spectrum / math.pi
+        p[0], q[0] = dl.sun_spectrum, dl.sky_spectrum
+        self._table64 = np.hstack([p, q])
+        self._table32 = self._table64.astype(np.float32)
+        # objects: 0 ground, 1..B boxes, B + 1 chart
+        self._chart_id = len(self.boxes) + 1
+        self._obj_row = np.array([self._row["pavement"], *[self._row[b.material] for b in self.boxes],
+                                  self._row["chart frame"]], dtype=np.int32)
+        normals = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1],
+                            self.chart.normal, -self.chart.normal], dtype=np.float64)
+        self.normals = normals
+        self._sun_lx_by_normal = np.array([dl.sun_illuminance_lx(n) for n in normals], dtype=np.float32)
+        self._sky_lx_by_normal = np.array([dl.sky_illuminance_lx(n) for n in normals], dtype=np.float32)
+        self._box_lo = np.array([b.lo_m for b in self.boxes], dtype=np.float64)
+        self._box_hi = np.array([b.hi_m for b in self.boxes], dtype=np.float64)
+        self._box_centre = np.array([b.centre_m() for b in self.boxes])
+        self._box_radius = np.array([b.radius_m() for b in self.boxes])
+
+    # -- the interface ----------------------------------------------------------------------------
+    def spectral_radiance(self, directions, origin_m=(0.0, 0.0, 0.0)) -> np.ndarray:
+        """Spectral radiance (W·sr⁻¹·m⁻²·nm⁻¹) ``(N, n)`` float32 arriving at ``origin_m`` from ``directions``."""
+        return self._render(directions, origin_m, self._table32)
+
+    def band_radiance(self, directions, sensitivity, origin_m=(0.0, 0.0, 0.0)) -> np.ndarray:
+        """``spectral_radiance @ sensitivity.T`` ``(N, m)`` float32 via per-material band projections."""
+        s = self.check_sensitivity(sensitivity)
+        table = self._bands.get(s, self._project)
+        return self._render(directions, origin_m, table)
+
+    def _project(self, sensitivity: np.ndarray) -> np.ndarray:
+        n = self.wavelength_nm.size
+        return np.hstack([self._table64[:, :n] @ sensitivity.T, self._table64[:, n:] @ sensitivity.T]).astype(
+            np.float32)
+
+    def _render(self, directions, origin_m, table: np.ndarray) -> np.ndarray:
+        d, lead = as_directions(directions)
+        o = as_origin(origin_m)
+        out = np.empty((d.shape[0], table.shape[1] // 2), dtype=np.float32)
+        for b0 in range(0, d.shape[0], RAY_BLOCK):
+            b1 = min(d.shape[0], b0 + RAY_BLOCK)
+            out[b0:b1] = combine(self.shade(d[b0:b1], o), table)
+        return out.reshape(*lead, out.shape[1])
+
+    # -- tracing ----------------------------------------------------------------------------------
+    def shade(self, d: np.ndarray, o: np.ndarray) -> Shading:
+        """Trace unit rays ``d (N, 3)`` float32 from ``o`` (m) and shade them (see the module docstring)."""
+        n = d.shape[0]
+        dx, dy, dz = (np.ascontiguousarray(d[:, i]) for i in range(3))
+        t = np.full(n, np.inf, dtype=np.float32)
+        obj = np.full(n, SKY_ID, dtype=np.int16)
+        nid = np.zeros(n, dtype=np.int8)
+        self._hit_ground(dy, o, t, obj, nid)
+        self._hit_boxes(d, (dx, dy, dz), o, t, obj, nid)
+        patch = self._hit_chart(d, o, t, obj, nid)
+        return self._light(d, o, t, obj, nid, patch)
+
+    def _hit_ground(self, dy, o, t, obj, nid) -> None:
+        h = np.float32(self.ground_y_m - o[1])
+        if h >= 0:
+            return
+        down = np.flatnonzero(dy < 0)
+        t[down] = h / dy[down]
+        obj[down] = GROUND_ID
+        nid[down] = N_PY
+
+    def _candidates(self, d: np.ndarray, o: np.ndarray, centres: np.ndarray, radii: np.ndarray) -> np.ndarray:
+        """``(B, N)`` mask of rays whose direction lies in the cone from ``o`` around each bounding sphere."""
+        v = centres - o
+        dist = np.linalg.norm(v, axis=1)
+        inside = dist <= radii * 1.0001
+        axis = (v / np.where(inside, 1.0, dist)[:, None]).astype(np.float32)
+        cos_lim = np.where(inside, -2.0, np.sqrt(np.maximum(0.0, 1.0 - (radii / np.maximum(dist, 1e-12)) ** 2)))
+        # a little slack for float32 rounding of the dot products
+        return (axis @ d.T) >= (cos_lim - 1e-6).astype(np.float32)[:, None]
+
+    def _hit_boxes(self, d, comps, o, t, obj, nid) -> None:
+        mask = self._candidates(d, o, self._box_centre, self._box_radius)
+        lo = (self._box_lo - o).astype(np.float32)
+        hi = (self._box_hi - o).astype(np.float32)
+        tiny = np.float32(1e-20)
+        for j in range(len(self.boxes)):
+            idx = np.flatnonzero(mask[j])
+            if idx.size == 0:
+                continue
+            near, far = [], []
+            for a in range(3):
+                c = comps[a][idx]
+                inv = np.float32(1.0) / np.where(np.abs(c) < tiny, tiny, c)
+                t0 = lo[j, a] * inv
+                t1 = hi[j, a] * inv
+                near.append(np.minimum(t0, t1))
+                far.append(np.maximum(t0, t1))
+            tn = np.maximum(np.maximum(near[0], near[1]), near[2])
+            tf = np.minimum(np.minimum(far[0], far[1]), far[2])
+            hit = (tn <= tf) & (tn > EPS_M) & (tn < t[idx])
+            if not hit.any():
+                continue
+            sel = idx[hit]
+            t[sel] = tn[hit]
+            obj[sel] = j + 1
+            axis = np.argmax(np.stack([near[a][hit] for a in range(3)]), axis=0)
+            positive = d[sel, axis] > 0
+            nid[sel] = 2 * axis + positive
+
+    def _hit_chart(self, d, o, t, obj, nid) -> tuple[np.ndarray, np.ndarray]:
+        """Intersect the chart board; returns the rays on it and their patch index (-1: frame or back)."""
+        ch = self.chart
+        mask = self._candidates(d, o, ch.centre_m[None], np.array([math.hypot(ch.half_width_m, ch.half_height_m)]))[0]
+        idx = np.flatnonzero(mask)
+        empty = (np.zeros(0, np.int64), np.zeros(0, np.int32))
+        if idx.size == 0:
+            return empty
+        nrm = ch.normal.astype(np.float32)
+        denom = d[idx] @ nrm
+        num = np.float32((ch.centre_m - o) @ ch.normal)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tc = num / denom
+        rel = (o - ch.centre_m).astype(np.float32) + tc[:, None] * d[idx]
+        u = rel @ ch.right.astype(np.float32)
+        v = rel @ ch.up.astype(np.float32)
+        hit = (np.abs(u) <= ch.half_width_m) & (np.abs(v) <= ch.half_height_m) & (tc > EPS_M) & (tc < t[idx])
+        if not hit.any():
+            return empty
+        sel = idx[hit]
+        t[sel] = tc[hit]
+        obj[sel] = self._chart_id
+        front = denom[hit] < 0
+        nid[sel] = np.where(front, N_CHART_FRONT, N_CHART_BACK)
+        patch = np.where(front, ch.patch_index(u[hit], v[hit]), -1)
+        return sel, patch
+
+    def _light(self, d, o, t, obj, nid, patch) -> Shading:
+        """Material rows and the sun/sky weights of every ray."""
+        dl = self.daylight
+        n = d.shape[0]
+        material = np.zeros(n, dtype=np.int32)
+        sun = np.zeros(n, dtype=np.float32)
+        sky = np.zeros(n, dtype=np.float32)
+        s = dl.sun_direction.astype(np.float32)
+        # sky and sun disk
+        up = np.flatnonzero(obj == SKY_ID)
+        if up.size:
+            ds = d[up]
+            sky[up] = dl.sky_luminance_cd_m2(ds)
+            if dl.direct_normal_lx > 0:
+                on_disk = (ds @ s) >= np.float32(math.cos(dl.sun_radius_rad))
+                sun[up[on_disk]] = np.float32(dl.sun_luminance_cd_m2)
+        # surfaces
+        hit = np.flatnonzero(obj != SKY_ID)
+        if hit.size == 0:
+            return Shading(material, sun, sky, obj, nid, t)
+        material[hit] = self._obj_row[obj[hit]]
+        p = o.astype(np.float32) + t[hit, None] * d[hit]
+        ground = obj[hit] == GROUND_ID
+        far = ground & (p[:, 0] ** 2 + p[:, 2] ** 2 > PAVEMENT_RADIUS_M**2)
+        material[hit[far]] = self._row["grass"]
+        on_patch = patch[1] >= 0
+        material[patch[0][on_patch]] = self._first_patch_row + patch[1][on_patch]
+        k = nid[hit]
+        sky[hit] = self._sky_lx_by_normal[k]
+        lit = self._sun_lx_by_normal[k] > 0
+        if lit.any():
+            lit_idx = np.flatnonzero(lit)
+            visible = ~self.occluded(p[lit_idx])
+            sun[hit[lit_idx[visible]]] = self._sun_lx_by_normal[k[lit_idx[visible]]]
+        return Shading(material, sun, sky, obj, nid, t)
+
+    def occluded(self, points_m: np.ndarray) -> np.ndarray:
+        """Whether the sun's centre is hidden from each point ``(N, 3)`` by a box or the chart board."""
+        s = self.daylight.sun_direction
+        p = np.asarray(points_m, dtype=np.float32)
+        blocked = np.zeros(p.shape[0], dtype=bool)
+        if p.shape[0] == 0:
+            return blocked
+        # a zero component gets a huge inverse: the slab then spans (-big, big) when the point is
+        # inside it and lies wholly before or behind the ray otherwise, which is what the test needs
+        inv = np.array([1.0 / c if c != 0 else 1e20 for c in s])
+        near = np.where(s >= 0, self._box_lo, self._box_hi).astype(np.float32)
+        far = np.where(s >= 0, self._box_hi, self._box_lo).astype(np.float32)
+        inv32 = inv.astype(np.float32)
+        for j in range(len(self.boxes)):
+            tn = (near[j, 0] - p[:, 0]) * inv32[0]
+            tf = (far[j, 0] - p[:, 0]) * inv32[0]
+            for a in (1, 2):
+                tn = np.maximum(tn, (near[j, a] - p[:, a]) * inv32[a])
+                tf = np.minimum(tf, (far[j, a] - p[:, a]) * inv32[a])
+            blocked |= (tn <= tf) & (tf > EPS_M)
+        ch = self.chart
+        sn = float(s @ ch.normal)
+        if abs(sn) > 1e-9:
+            tc = ((ch.centre_m - p) @ ch.normal) / sn
+            rel = p - ch.centre_m + tc[:, None] * s
+            blocked |= ((np.abs(rel @ ch.right) <= ch.half_width_m) & (np.abs(rel @ ch.up) <= ch.half_height_m)
+                        & (tc > EPS_M))
+        return blocked
+
+    # -- what a report needs ----------------------------------------------------------------------
+    def surface_irradiance(self, point_m, normal) -> np.ndarray:
+        """Spectral irradiance (W·m⁻²·nm⁻¹, ``(n,)``) on a surface at ``point_m`` with unit ``normal``.
+
+        Sun (with the shadow test of :meth:`occluded`) plus the unoccluded sky dome: the light the
+        scene's Lambertian surfaces reflect, ``L = ρ E / π``.
+        """
+        dl = self.daylight
+        nrm = np.asarray(normal, dtype=np.float64)
+        sun_lx = dl.sun_illuminance_lx(nrm)
+        if sun_lx > 0 and self.occluded(np.asarray(point_m, dtype=np.float64)[None])[0]:
+            sun_lx = 0.0
+        return sun_lx * dl.sun_spectrum + dl.sky_illuminance_lx(nrm) * dl.sky_spectrum
+
+    def colorchecker_patches(self, origin_m=(0.0, 0.0, 0.0)) -> list[dict]:
+        """The 24 patches: name, centre direction from ``origin_m``, angular half-size, reflectance."""
+        o = as_origin(origin_m)
+        out = []
+        for i, name in enumerate(self.patch_names):
+            c = self.chart.patch_centre_m(i)
+            rel = c - o
+            dist = float(np.linalg.norm(rel))
+            lon, lat = direction_to_lonlat(rel)
+            out.append({
+                "index": i,
+                "name": name,
+                "lon_deg": float(lon),
+                "lat_deg": float(lat),
+                "distance_m": dist,
+                "half_size_deg": math.degrees(math.atan(0.5 * self.chart.patch_m / dist)),
+                "half_size_m": 0.5 * self.chart.patch_m,
+                "centre_m": [float(x) for x in c],
+                "normal": [float(x) for x in self.chart.normal],
+                "wavelength_nm": self.wavelength_nm.tolist(),
+                "reflectance": self.patch_reflectance[i].tolist(),
+            })
+        return out
+
+    def describe(self) -> dict:
+        """Kind, parameters, sun and sky, materials, objects and the chart (JSON-able)."""
+        return {
+            "kind": self.kind,
+            "parameters": dict(self.params),
+            "wavelength_nm": {"start": float(self.wavelength_nm[0]), "stop": float(self.wavelength_nm[-1]),
+                              "count": int(self.wavelength_nm.size)},
+            "radiance_units": self.radiance_units,
+            "daylight": self.daylight.describe(),
+            "materials": [{"name": m.name, "set": m.source_set, "sample": m.sample,
+                           "lab_d65": list(m.lab_d65)} for m in self.materials],
+            "objects": [{"name": b.name, "lo_m": list(b.lo_m), "hi_m": list(b.hi_m), "material": b.material}
+                        for b in self.boxes],
+            "ground": {"y_m": self.ground_y_m, "pavement_radius_m": PAVEMENT_RADIUS_M},
+            "chart": {"reflectances": "ColorChecker N Ohta", "centre_m": self.chart.centre_m.tolist(),
+                      "normal": self.chart.normal.tolist(), "patch_m": self.chart.patch_m,
+                      "gap_m": self.chart.gap_m},
+        }

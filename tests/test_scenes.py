@@ -383,3 +383,12 @@ def test_envi_cube_needs_spectral_python(tmp_path):
             CubeOnWallScene(header)
     else:
         pytest.skip("Spectral Python is installed; the ENVI path is exercised by real files")
+
+
+def test_scenes_pickle_for_worker_processes(noon, cube_file, six_bands):
+    import pickle
+
+    d = random_directions(500, seed=5)
+    for scene in (noon, CubeOnWallScene(cube_file, base=noon), PanoramaScene(np.ones((4, 8, 3)))):
+        copy = pickle.loads(pickle.dumps(scene))
+        np.testing.assert_array_equal(copy.band_radiance(d, six_bands), scene.band_radiance(d, six_bands))

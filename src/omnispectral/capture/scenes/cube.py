@@ -84,7 +84,7 @@ def _read_envi(path: Path) -> tuple[np.ndarray, np.ndarray]:
         raise InputFileError(path, f"ENVI header {header.name} not found")
     try:
         img = envi.open(str(header))
-        cube = np.asarray(img.load(), dtype=np.float32)
+        cube = np.asarray(img.load(scale=False), dtype=np.float32)  # the scale factor is applied below
     except Exception as exc:  # Spectral Python raises several types for bad headers and data
         raise InputFileError(path, f"cannot be read as an ENVI image ({exc})") from None
     centers = getattr(img.bands, "centers", None)

@@ -123,3 +123,37 @@ def test_simulated_session_with_ground_truth(tmp_path):
     lines = (tmp_path / "sim" / "journal.jsonl").read_text().splitlines()
     last = dt.datetime.fromisoformat(json.loads(lines[-1])["timestamp"])
     assert (last - dt.datetime(2026, 6, 21, 12, 0, tzinfo=dt.UTC)).total_seconds() == pytest.approx(180, rel=0.05)
+
+
+@pytest.mark.slow
+def test_cli_simulate_procedural_scene_with_a_cube_and_verify(tmp_path, capsys):
+    from omnispectral.cli import main
+
+    rng = np.random.default_rng(0)
+    wl = np.arange(400, 701, 10.0)
+    cube = np.clip(0.2 + 0.6 * rng.random((12, 16, 1)) * np.exp(-((wl - 550) / 80) ** 2), 0, 1)
+    np.savez(tmp_path / "cube.npz", cube=cube.astype(np.float32), wavelength_nm=wl)
+    code = main(["simulate", "--preset", "small", "--time", "10:15", "--cube", str(tmp_path / "cube.npz"),
+                 "--gt-width", "128", "--seed", "3", "-o", str(tmp_path / "s"), "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0 and out["complete"] and out["n_written"] == 1080
+    assert main(["session", "verify", str(tmp_path / "s")]) == 0
+    meta = json.loads((tmp_path / "s" / "session.json").read_text())
+    assert meta["kind"] == "simulation" and meta["simulation"]["seed"] == 3
+    gt = json.loads((tmp_path / "s" / "ground_truth" / "ground_truth.json").read_text())
+    assert len(gt["colorchecker_patches"]) == 24
+    first = json.loads((tmp_path / "s" / "journal.jsonl").read_text().splitlines()[0])
+    assert first["timestamp"].startswith("2017-06-21T10:15")
+
+
+@pytest.mark.slow
+def test_cli_timelapse_records_an_overrun_slot(tmp_path, capsys):
+    from omnispectral.cli import main
+
+    code = main(["timelapse", "--preset", "small", "--every", "2min", "--from", "09:00", "--to", "09:04",
+                 "--gt-width", "64", "-o", str(tmp_path / "series"), "--json"])
+    index = json.loads(capsys.readouterr().out)
+    assert code == 0
+    # each capture takes ~180 s of simulated time: 09:02 is skipped, 09:04 runs
+    assert [e["status"] for e in index["slots"]] == ["complete", "skipped", "complete"]
+    assert (tmp_path / "series" / "slot_0904" / "ground_truth" / "bands.npy").exists()

@@ -81,9 +81,9 @@ DEFAULT_UPSAMPLE = 1.25
 DEFAULT_FIT_RADIUS = 3
 
 #: Peak height below which a whole-image registration is not trusted and the calibrated offset is
-#: used instead.  Measured (docs/benchmarks.md, "Registration"): pure sensor noise and flat sky
-#: give peaks of 0.02-0.06 at 256 px and below 0.01 at 1024 px; textured crops of real panoramas
-#: give 0.3-0.99, and every crop with a confidence above 0.15 was registered to better than 0.3 px.
+#: used instead.  Measured (docs/benchmarks.md, "Registration"): pure CMV2000 noise peaks at 0.03-0.04
+#: (256 px) and 0.01 (1024 px); textured crops of real panoramas give 0.3-0.99.  Images smaller than
+#: about 128 px have higher noise peaks: raise the threshold there (see DEFAULT_BLOCK_MIN_CONFIDENCE).
 DEFAULT_MIN_CONFIDENCE = 0.15
 
 #: Block-wise default: smaller blocks have fewer frequencies, so noise peaks are higher

@@ -1,0 +1,105 @@
+"""Reading images from files into ``(H, W, C)`` float32 arrays.
+
+Formats: PNG, JPEG, TIFF, BMP, PNM and Radiance HDR through OpenCV (``cv2.imread`` with
+``IMREAD_UNCHANGED``, so 16-bit and float data keep their depth), TIFF through ``tifffile`` when
+OpenCV cannot read it (float or many-channel TIFF), and OpenEXR through the ``OpenEXR`` package
+(the OpenCV wheels are built without EXR support).
+
+Values are not rescaled: an 8- or 16-bit file gives its digital numbers (DN) as float32, a float
+file its values as they are.  Colour files come out in R, G, B(, A) order (OpenCV's BGR is
+reversed).  Anything that is not a readable image raises
+:class:`~omnispectral.errors.InputFileError` naming the file.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from omnispectral.errors import InputFileError
+
+#: Channel order used when an EXR file stores named channels.
+_EXR_ORDER = ("R", "G", "B", "A", "Y")
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Read an image file as ``(H, W, C)`` float32 (DN for integer files, values as stored for float files).
+
+    Raises
+    ------
+    InputFileError
+        The file does not exist, is not a file, or cannot be decoded as an image.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise InputFileError(path, "no such file")
+    if not path.is_file():
+        raise InputFileError(path, "not a regular file")
+    suffix = path.suffix.lower()
+    if suffix == ".exr":
+        image = _read_exr(path)
+    else:
+        image = _read_cv2(path)
+        if image is None and suffix in (".tif", ".tiff"):
+            image = _read_tiff(path)
+        if image is None:
+            raise InputFileError(path, "cannot be read as an image (unsupported format or corrupt file)")
+    return _as_hwc_float32(image, path)
+
+
+def _read_cv2(path: Path) -> np.ndarray | None:
+    import cv2
+
+    # np.fromfile + imdecode copes with non-ASCII paths, which cv2.imread does not on every platform.
+    data = np.fromfile(str(path), dtype=np.uint8)
+    if data.size == 0:
+        return None
+    image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
+    if image is None:
+        return None
+    if image.ndim == 3 and image.shape[2] in (3, 4):
+        order = [2, 1, 0] + ([3] if image.shape[2] == 4 else [])
+        image = image[:, :, order]
+    return image
+
+
+def _read_tiff(path: Path) -> np.ndarray | None:
+    import tifffile
+
+    try:
+        image = tifffile.imread(path)
+    except Exception:  # tifffile raises many types for corrupt files; all mean "not readable"
+        return None
+    if image.ndim == 3 and image.shape[0] in (1, 3, 4) and image.shape[2] not in (1, 3, 4):
+        image = np.moveaxis(image, 0, -1)  # planar (C, H, W) storage
+    return image
+
+
+def _read_exr(path: Path) -> np.ndarray:
+    import OpenEXR
+
+    try:
+        with OpenEXR.File(str(path), separate_channels=True) as exr:
+            channels = {name: np.asarray(ch.pixels) for name, ch in exr.channels().items()}
+    except Exception as exc:  # the OpenEXR binding raises RuntimeError/OSError/ValueError
+        raise InputFileError(path, f"cannot be read as an OpenEXR image ({exc})") from exc
+    if not channels:
+        raise InputFileError(path, "OpenEXR file has no channels")
+    names = [n for n in _EXR_ORDER if n in channels] + sorted(n for n in channels if n not in _EXR_ORDER)
+    shapes = {channels[n].shape for n in names}
+    if len(shapes) != 1:
+        raise InputFileError(path, f"OpenEXR channels have different sizes {sorted(shapes)} (subsampled channels "
+                                   "are not supported)")
+    return np.stack([channels[n] for n in names], axis=-1)
+
+
+def _as_hwc_float32(image: np.ndarray, path: Path) -> np.ndarray:
+    image = np.asarray(image)
+    if image.ndim == 2:
+        image = image[:, :, None]
+    if image.ndim != 3 or image.shape[0] == 0 or image.shape[1] == 0:
+        raise InputFileError(path, f"unexpected image array shape {image.shape}")
+    if image.dtype.kind not in "uif":
+        raise InputFileError(path, f"unsupported pixel type {image.dtype}")
+    return np.ascontiguousarray(image, dtype=np.float32)

@@ -373,16 +373,23 @@ def test_cube_bad_inputs(tmp_path, cube_file):
         CubeOnWallScene(cube_file, width_m=20.0)
 
 
-def test_envi_cube_needs_spectral_python(tmp_path):
-    try:
-        import spectral  # noqa: F401
-    except ImportError:
-        header = tmp_path / "cube.hdr"
-        header.write_text("ENVI\nsamples = 2\nlines = 2\nbands = 2\n")
-        with pytest.raises(InputFileError, match="pip install spectral"):
-            CubeOnWallScene(header)
-    else:
-        pytest.skip("Spectral Python is installed; the ENVI path is exercised by real files")
+def test_envi_cube_round_trip(tmp_path):
+    """An ENVI cube written by Spectral Python reads back with its wavelengths, like the .npz form."""
+    import spectral.io.envi as envi
+
+    from omnispectral.capture.scenes import load_reflectance_cube
+
+    rng = np.random.default_rng(4)
+    cube = rng.uniform(0.05, 0.9, (6, 7, 31)).astype(np.float32)
+    wl = np.arange(400.0, 701.0, 10.0)
+    envi.save_image(str(tmp_path / "cube.hdr"), cube, metadata={"wavelength": [f"{w:g}" for w in wl],
+                                                                 "wavelength units": "nm"}, force=True)
+    got, got_wl = load_reflectance_cube(tmp_path / "cube.hdr")
+    np.testing.assert_allclose(got, cube, rtol=1e-6)
+    np.testing.assert_allclose(got_wl, wl)
+    (tmp_path / "bare.hdr").write_text("ENVI\nsamples = 2\nlines = 2\nbands = 2\n")
+    with pytest.raises(InputFileError, match="bare"):
+        CubeOnWallScene(tmp_path / "bare.hdr")
 
 
 def test_scenes_pickle_for_worker_processes(noon, cube_file, six_bands):

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from omnispectral.errors import ConfigurationError
+from omnispectral.imaging.geometry import lonlat_to_ray, ray_to_lonlat
 
 #: Rays processed per internal block: small enough for the per-ray temporaries to stay in cache.
 RAY_BLOCK = 1 << 15
@@ -40,24 +41,17 @@ MAX_SPECTRAL_CUBE_BYTES = 2 << 30
 
 # ------------------------------------------------------------------------------------- directions
 def lonlat_to_direction(lon_deg, lat_deg) -> np.ndarray:
-    """Unit world directions ``(..., 3)`` = ``(-cos lat sin lon, sin lat, cos lat cos lon)`` (float64).
-
-    The same formula as :func:`omnispectral.imaging.geometry.lonlat_to_ray`.
-    """
-    lon = np.radians(np.asarray(lon_deg, dtype=np.float64))
-    lat = np.radians(np.asarray(lat_deg, dtype=np.float64))
-    lon, lat = np.broadcast_arrays(lon, lat)
-    cos_lat = np.cos(lat)
-    return np.stack((-cos_lat * np.sin(lon), np.sin(lat), cos_lat * np.cos(lon)), axis=-1)
+    """Unit world directions ``(..., 3)`` (float64): :func:`omnispectral.imaging.geometry.lonlat_to_ray`."""
+    return lonlat_to_ray(*np.broadcast_arrays(np.asarray(lon_deg, np.float64), np.asarray(lat_deg, np.float64)))
 
 
 def direction_to_lonlat(directions) -> tuple[np.ndarray, np.ndarray]:
-    """World directions ``(..., 3)`` (any length > 0) → ``(lon_deg, lat_deg)``, ``lon`` in ``[-180, 180)``."""
+    """World directions ``(..., 3)`` (any length > 0) → ``(lon_deg, lat_deg)``, ``lon`` in ``[-180, 180)``.
+
+    :func:`omnispectral.imaging.geometry.ray_to_lonlat` on the normalised directions.
+    """
     d = np.asarray(directions, dtype=np.float64)
-    x, y, z = d[..., 0], d[..., 1], d[..., 2]
-    lon = np.degrees(np.arctan2(-x, z))
-    lat = np.degrees(np.arctan2(y, np.hypot(x, z)))
-    return np.mod(lon + 180.0, 360.0) - 180.0, lat
+    return ray_to_lonlat(d / np.linalg.norm(d, axis=-1, keepdims=True))
 
 
 def equirect_lonlat(width: int, height: int, row_start: int = 0,

@@ -1,0 +1,473 @@
+"""The mosaic engine: merged directional images → six-band equirectangular panorama (paper Sec. 4.4–4.5).
+
+For each output tile (a chunk of the store) the engine
+
+1. finds the (direction, camera) images whose bounding cone meets the tile's cone
+   (:mod:`omnispectral.mosaic.maps`);
+2. computes for every tile pixel where it lands on each of those sensors through the composed
+   geometry (equirect pixel → ray → inverse head rotation → mounting → OpenCV lens with
+   distortion → sensor pixel, plus camera B's registration offset) — one map, no intermediate
+   undistorted or polar image;
+3. reads only the crop of each source the map touches, interpolates it once
+   (:mod:`omnispectral.mosaic.interp`), weights it with the linear-blending weight
+   (:mod:`omnispectral.mosaic.blending`) and accumulates camera A into bands 0–2 and camera B into
+   bands 3–5 (optionally multi-band blending and per-direction gains);
+4. writes the chunk atomically with a completion marker (:mod:`omnispectral.mosaic.store`).
+
+Tiles are independent tasks run by Dask (the local threaded scheduler, or a distributed cluster
+given its address); a task holds its tile and the crops of the sources that overlap it, so peak
+memory depends on the tile size and the directions per tile, never on the panorama size.  The
+pyramid levels follow, chunk by chunk, from the level below.  An interrupted run resumes by skipping
+chunks whose markers exist.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import resource
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.mosaic.blending import (
+    BLENDS,
+    DEFAULT_MULTIBAND_LEVELS,
+    LinearBlend,
+    feather_weight,
+    multiband_blend,
+    multiband_halo_px,
+)
+from omnispectral.mosaic.interp import (
+    KERNEL_RADIUS_PX,
+    SPLINE_PREFILTER_MARGIN_PX,
+    check_method,
+    remap,
+    spline_prefilter,
+)
+from omnispectral.mosaic.maps import Canvas, Rect, SourceGeometry, source_map, tile_cone
+from omnispectral.mosaic.sources import BAND_NAMES, MergedDirections, SourceImage
+from omnispectral.mosaic.store import PanoramaStore
+
+DEFAULT_TILE = 512
+DEFAULT_INTERP = "cubic"
+N_BANDS = 6
+
+
+def native_width(fx_px: float) -> int:
+    """Panorama width whose pixel matches the sensor's on its optical axis: ``2π f`` rounded to an even number."""
+    return max(8, 2 * round(np.pi * fx_px))
+
+
+# ------------------------------------------------------------------------------------------ the job
+@dataclass
+class MosaicJob:
+    """Everything a tile task needs (picklable, so it can be sent to Dask workers once)."""
+
+    canvas: Canvas
+    tile: int
+    interp: str
+    blend: str
+    multiband_levels: int
+    images: list[SourceImage]
+    geometry: list[SourceGeometry]
+    gains: np.ndarray  # (n_sources, 3): per source, per band of its camera
+    store_path: Path
+    axes: np.ndarray = field(init=False)
+    radii: np.ndarray = field(init=False)
+
+    def __post_init__(self):
+        self.axes = np.array([g.axis for g in self.geometry]).reshape(-1, 3)
+        self.radii = np.array([g.radius_rad for g in self.geometry])
+
+    def sources_for(self, rect: Rect) -> np.ndarray:
+        """Indices of the sources whose cones meet the cone of ``rect`` (vectorised test)."""
+        centre, radius = tile_cone(self.canvas, rect)
+        angle = np.arccos(np.clip(self.axes @ centre, -1.0, 1.0))
+        return np.flatnonzero(angle <= radius + self.radii)
+
+
+def build_job(merged: MergedDirections, store_path: Path, width: int, tile: int, interp: str, blend: str,
+              multiband_levels: int, gains: np.ndarray | None = None) -> MosaicJob:
+    images = merged.sources()
+    geometry = [SourceGeometry.build(merged.cameras[s.camera], s.pan_deg, s.tilt_deg, s.offset_px) for s in images]
+    if gains is None:
+        gains = np.ones((len(images), 3), np.float32)
+    return MosaicJob(Canvas(width, width // 2), tile, interp, blend, multiband_levels, images, geometry,
+                     np.asarray(gains, np.float32), Path(store_path))
+
+
+# ------------------------------------------------------------------------------------------ one tile
+@dataclass
+class Warped:
+    """One source resampled onto (part of) a tile: values (h, w, 3), weights (h, w), at ``(row0, col0)``."""
+
+    index: int
+    row0: int
+    col0: int
+    values: np.ndarray
+    weight: np.ndarray
+    step: int
+    max_error_px: float
+
+
+def warp_source(job: MosaicJob, i: int, rect: Rect) -> Warped | None:
+    """Resample source ``i`` onto ``rect`` (the one interpolation); ``None`` if it does not land there."""
+    geo, img = job.geometry[i], job.images[i]
+    m = geo.model
+    radius = KERNEL_RADIUS_PX[job.interp]
+    sm = source_map(geo, job.canvas, rect, margin_px=radius + 1.0)
+    if sm is None:
+        return None
+    weight = feather_weight(sm.u, sm.v, m.width, m.height)
+    rows_any = np.flatnonzero(weight.any(axis=1))
+    if rows_any.size == 0:
+        return None
+    cols_any = np.flatnonzero(weight.any(axis=0))
+    r_lo, r_hi, c_lo, c_hi = rows_any[0], rows_any[-1] + 1, cols_any[0], cols_any[-1] + 1
+    u, v, weight = sm.u[r_lo:r_hi, c_lo:c_hi], sm.v[r_lo:r_hi, c_lo:c_hi], weight[r_lo:r_hi, c_lo:c_hi]
+    values = sample_crop(img, u, v, weight > 0, job.interp, m.width, m.height)
+    bad = ~np.isfinite(values).all(axis=-1)
+    if bad.any():
+        weight = np.where(bad, 0.0, weight).astype(np.float32)
+        values[bad] = 0.0
+    values *= job.gains[i]
+    return Warped(i, sm.row0 + int(r_lo), sm.col0 + int(c_lo), values, weight, sm.step, sm.max_error_px)
+
+
+def sample_crop(img: SourceImage, u: np.ndarray, v: np.ndarray, used: np.ndarray, interp: str, width: int,
+                height: int) -> np.ndarray:
+    """Read the part of the source the positions need (plus kernel margin) and interpolate it."""
+    radius = KERNEL_RADIUS_PX[interp] + 1
+    extra = SPLINE_PREFILTER_MARGIN_PX if interp == "spline" else 0
+    uu, vv = u[used], v[used]
+    x0 = int(max(0, np.floor(uu.min()) - radius - extra))
+    x1 = int(min(width, np.ceil(uu.max()) + radius + extra + 1))
+    y0 = int(max(0, np.floor(vv.min()) - radius - extra))
+    y1 = int(min(height, np.ceil(vv.max()) + radius + extra + 1))
+    crop = img.read((y0, y1), (x0, x1))
+    bad = ~np.isfinite(crop).all(axis=-1)
+    if bad.any():
+        crop = np.where(bad[..., None], 0.0, crop).astype(np.float32)
+    if interp == "spline":
+        crop = spline_prefilter(crop)
+    uc, vc = u - np.float32(x0), v - np.float32(y0)
+    values = remap(crop, uc, vc, interp, prefiltered=interp == "spline")
+    if bad.any():
+        values[_touches(bad, uc, vc, radius + (6 if interp == "spline" else 0))] = np.nan
+    values[~used] = 0.0
+    return values
+
+
+def _touches(bad: np.ndarray, u: np.ndarray, v: np.ndarray, radius: int) -> np.ndarray:
+    """Positions whose kernel (``radius`` px) reaches a bad source pixel."""
+    import cv2
+
+    grown = cv2.dilate(bad.astype(np.uint8), np.ones((2 * radius + 1, 2 * radius + 1), np.uint8))
+    return remap(grown.astype(np.float32), u, v, "linear") > 0
+
+
+def render_tile(job: MosaicJob, rect: Rect) -> tuple[np.ndarray, dict]:
+    """The six-band tile ``rect`` (h, w, 6) float32 (NaN where no source covers it) and its statistics."""
+    halo = multiband_halo_px(job.multiband_levels) if job.blend == "multiband" else 0
+    work = rect.grow(halo) if halo else rect
+    warped = [w for i in job.sources_for(work) if (w := warp_source(job, int(i), work)) is not None]
+    if job.blend == "multiband":
+        out = _multiband(job, warped, work)[halo:halo + rect.shape[0], halo:halo + rect.shape[1]]
+        weight_sum = None
+    else:
+        acc = LinearBlend(rect.shape, N_BANDS)
+        for w in warped:
+            acc.add(job.images[w.index].bands, w.row0 - rect.row0, w.col0 - rect.col0, w.values, w.weight)
+        out = acc.result()
+        weight_sum = acc.weight_sum((0, 1, 2))
+    holes = int((~np.isfinite(out)).any(axis=-1).sum())
+    stats = {"n_sources": len(warped), "holes": holes,
+             "map_step_min": min((w.step for w in warped), default=0),
+             "map_error_px": max((w.max_error_px for w in warped), default=0.0)}
+    if weight_sum is not None and warped:
+        stats["min_weight_sum"] = float(weight_sum.min())
+    return out, stats
+
+
+def _multiband(job: MosaicJob, warped: list[Warped], work: Rect) -> np.ndarray:
+    h, w = work.shape
+    out = np.full((h, w, N_BANDS), np.nan, np.float32)
+    for camera_bands in ((0, 1, 2), (3, 4, 5)):
+        group = [x for x in warped if job.images[x.index].bands == camera_bands]
+        if not group:
+            continue
+        values, weights = [], []
+        for x in group:
+            val = np.zeros((h, w, 3), np.float32)
+            wt = np.zeros((h, w), np.float32)
+            r, c = x.row0 - work.row0, x.col0 - work.col0
+            val[r:r + x.weight.shape[0], c:c + x.weight.shape[1]] = x.values
+            wt[r:r + x.weight.shape[0], c:c + x.weight.shape[1]] = x.weight
+            values.append(val)
+            weights.append(wt)
+        out[..., camera_bands[0]:camera_bands[-1] + 1] = multiband_blend(values, weights, job.multiband_levels)
+    return out
+
+
+def tile_task(job: MosaicJob, ty: int, tx: int) -> dict:
+    """Render and write chunk ``(ty, tx)`` of level 0; returns its statistics (also stored in its marker)."""
+    t0 = time.perf_counter()
+    store = PanoramaStore.open(job.store_path)
+    r0, r1, c0, c1 = store.chunk_rect(0, ty, tx)
+    data, stats = render_tile(job, Rect(r0, r1, c0, c1))
+    stats["seconds"] = round(time.perf_counter() - t0, 4)
+    store.write_chunk(0, ty, tx, data, stats)
+    return {"level": 0, "ty": ty, "tx": tx, **stats}
+
+
+def pyramid_task(store_path: Path, level: int, ty: int, tx: int) -> dict:
+    store = PanoramaStore.open(store_path)
+    store.write_chunk(level, ty, tx, store.downsample_chunk(level, ty, tx))
+    return {"level": level, "ty": ty, "tx": tx}
+
+
+# ------------------------------------------------------------------------------------------ execution
+def run_tasks(fn, shared, items: list[tuple], scheduler, workers: int | None,
+              progress: Callable[[dict], None] | None) -> list[dict]:
+    """Run ``fn(shared, *item)`` for every item with Dask: threads locally, or on the cluster at ``scheduler``.
+
+    ``scheduler`` is ``None`` (local threaded scheduler, ``workers`` threads), a scheduler address
+    (``tcp://…``) or a ``distributed.Client``; ``shared`` is sent to the cluster once.  ``progress``
+    is called with each result as it finishes.
+    """
+    if not items:
+        return []
+    if scheduler is None:
+        import dask
+        from dask.callbacks import Callback
+
+        tasks = [dask.delayed(fn, pure=False)(shared, *item) for item in items]
+        keys = {t.key for t in tasks}
+
+        def posttask(key, result, dsk, state, worker_id):
+            if progress is not None and key in keys:
+                progress(result)
+
+        with Callback(posttask=posttask):
+            return list(dask.compute(*tasks, scheduler="threads", num_workers=workers or None))
+    from distributed import Client, as_completed
+
+    client = scheduler if isinstance(scheduler, Client) else Client(scheduler)
+    try:
+        remote = client.scatter(shared, broadcast=True)
+        futures = [client.submit(fn, remote, *item, pure=False) for item in items]
+        results = []
+        for future in as_completed(futures):
+            results.append(future.result())
+            if progress is not None:
+                progress(results[-1])
+        return results
+    finally:
+        if client is not scheduler:
+            client.close()
+
+
+# ------------------------------------------------------------------------------------------ the entry point
+def open_input(source: str | Path | MergedDirections, merged_dir: str | Path | None = None, dtype: str = "float16",
+               register=None, progress: Callable[[int, int], None] | None = None) -> MergedDirections:
+    """A merged-directions directory as is; a raw session is merged first (streaming, into ``merged_dir``)."""
+    from omnispectral.mosaic.sources import merge_session
+
+    if isinstance(source, MergedDirections):
+        return source
+    path = Path(source)
+    if (path / "merged.json").is_file():
+        return MergedDirections.open(path)
+    if (path / "session.json").is_file():
+        out = Path(merged_dir) if merged_dir is not None else path / "merged"
+        return merge_session(path, out, register=register, dtype=dtype, progress=progress)
+    raise InputFileError(path, "neither a capture session (session.json) nor merged directions (merged.json)")
+
+
+def mosaic(source: str | Path | MergedDirections, output: str | Path, *, width: int | None = None,
+           tile: int = DEFAULT_TILE, interp: str = DEFAULT_INTERP, blend: str = "linear",
+           multiband_levels: int = DEFAULT_MULTIBAND_LEVELS, gain_compensation: bool = False,
+           scheduler=None, workers: int | None = None, overwrite: bool = False, compression: str = "blosc-zstd",
+           merged_dir: str | Path | None = None, register=None,
+           progress: Callable[[str, dict, int, int], None] | None = None) -> dict:
+    """Stitch a six-band panorama into a Zarr store; returns a summary (see :func:`summarise`).
+
+    Parameters
+    ----------
+    source
+        A merged-directions directory (:mod:`omnispectral.mosaic.sources`) or a raw capture session
+        (its brackets are merged first into ``merged_dir``, default ``SESSION/merged``, with camera B
+        offset by ``register``, default the calibrated offset 0).
+    output
+        The panorama store (``.zarr`` directory); an interrupted run with the same parameters resumes.
+    width
+        Panorama width (height = width / 2); default :func:`native_width` of camera A.
+    tile
+        Tile (and chunk) side in pixels.
+    interp, blend, multiband_levels, gain_compensation
+        Interpolation (:data:`omnispectral.mosaic.interp.METHODS`), ``"linear"`` (paper) or
+        ``"multiband"`` blending, and per-direction gain compensation (:mod:`omnispectral.mosaic.gain`).
+    scheduler, workers
+        ``None`` for Dask's local threaded scheduler with ``workers`` threads (default: all cores),
+        or a Dask distributed scheduler address / ``Client``.
+    progress
+        ``progress(stage, result, done, total)`` per finished tile (``stage`` is ``"tiles"`` or ``"pyramid"``)
+        and per merged direction (``"merge"``).
+    """
+    check_method(interp)
+    if blend not in BLENDS:
+        raise ConfigurationError(f"unknown blend {blend!r}; expected one of {', '.join(BLENDS)}")
+    if tile < 16:
+        raise ConfigurationError(f"tile must be at least 16 px, got {tile}")
+    t_start = time.perf_counter()
+    merge_progress = (lambda d, n: progress("merge", {}, d, n)) if progress else None
+    merged = open_input(source, merged_dir, register=register, progress=merge_progress)
+    merged.check_files()
+    width = int(width) if width is not None else native_width(merged.cameras["A"].fx)
+    if width < 8 or width % 2:
+        raise ConfigurationError(f"width must be an even number ≥ 8, got {width}")
+    gains = None
+    if gain_compensation:
+        from omnispectral.mosaic.gain import estimate_gains
+
+        gains = estimate_gains(merged)
+    job = build_job(merged, Path(output), width, tile, interp, blend, multiband_levels, gains)
+    attrs = panorama_attributes(merged, job, gain_compensation)
+    store = PanoramaStore.create(output, width // 2, width, N_BANDS, tile, attrs, fingerprint(merged, job),
+                                 overwrite=overwrite, compression=compression)
+    t_tiles = time.perf_counter()
+    computed = _run_level0(job, store, scheduler, workers, progress)
+    t_pyramid = time.perf_counter()
+    _run_pyramid(store, scheduler, workers, progress)
+    t_end = time.perf_counter()
+    return summarise(store, computed, {"prepare": t_tiles - t_start, "tiles": t_pyramid - t_tiles,
+                                       "pyramid": t_end - t_pyramid, "total": t_end - t_start}, job)
+
+
+def _pending(store: PanoramaStore, level: int) -> list[tuple[int, int]]:
+    ny, nx = store.n_chunks(level)
+    done = set(store.done_markers(level))
+    return [(ty, tx) for ty in range(ny) for tx in range(nx) if (ty, tx) not in done]
+
+
+def _run_level0(job, store, scheduler, workers, progress) -> int:
+    import cv2
+
+    todo = _pending(store, 0)
+    total = int(np.prod(store.n_chunks(0)))
+    counter = [total - len(todo)]
+
+    def on_tile(result):
+        counter[0] += 1
+        if progress is not None:
+            progress("tiles", result, counter[0], total)
+
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)  # Dask parallelises over tiles; OpenCV's own threads would oversubscribe the cores
+    try:
+        run_tasks(tile_task, job, todo, scheduler, workers, on_tile)
+    finally:
+        cv2.setNumThreads(threads)
+    return len(todo)
+
+
+def _run_pyramid(store, scheduler, workers, progress) -> None:
+    total = sum(int(np.prod(store.n_chunks(k))) for k in range(1, len(store.shapes)))
+    counter = [sum(len(store.done_markers(k)) for k in range(1, len(store.shapes)))]
+
+    def on_chunk(result):
+        counter[0] += 1
+        if progress is not None:
+            progress("pyramid", result, counter[0], total)
+
+    for level in range(1, len(store.shapes)):
+        todo = _pending(store, level)
+        run_tasks(pyramid_task, store.path, [(level, ty, tx) for ty, tx in todo], scheduler, workers, on_chunk)
+
+
+# ------------------------------------------------------------------------------------------ metadata
+def panorama_attributes(merged: MergedDirections, job: MosaicJob, gain_compensation: bool) -> dict:
+    """The store's ``omnispectral`` attributes: bands, sensitivities, estimator, rig, session, geometry, method."""
+    meta = merged.meta
+    system = _rig_system(meta)
+    return {
+        "bands": list(meta.get("band_names", BAND_NAMES)),
+        "units": meta.get("units", "DN per second of exposure"),
+        "camera_bands": meta.get("camera_bands"),
+        "wavelength_nm": system["wavelength_nm"] if system else None,
+        "sensitivities": system["sensitivity"] if system else None,
+        "sensitivity_description": system["description"] if system else None,
+        "estimator": meta.get("estimator"),
+        "rig": meta.get("rig"),
+        "session": meta.get("session"),
+        "merged_directions": str(merged.path.resolve()),
+        "cameras": meta.get("cameras"),
+        "n_directions": len(merged.directions),
+        "geometry": "equirectangular: row 0 at latitude +90, column 0 at longitude -180, pixel centres at +0.5; "
+                    "world +Y up, longitude 0 = +Z, longitude +90 = -X (omnispectral.imaging.geometry)",
+        "mosaic": {"width": job.canvas.width, "height": job.canvas.height, "interp": job.interp, "blend": job.blend,
+                   "multiband_levels": job.multiband_levels if job.blend == "multiband" else None,
+                   "gain_compensation": gain_compensation,
+                   "gains": job.gains.tolist() if gain_compensation else None,
+                   "weights": "linear blending: tent (1 - |2(u+1/2)/W - 1|)(1 - |2(v+1/2)/H - 1|) per sensor",
+                   "fill": "NaN where no direction covers a pixel"},
+    }
+
+
+def _rig_system(meta: dict) -> dict | None:
+    """Sensitivities of the rig's six bands, if the rig snapshot can be read and its curves are known."""
+    import tomllib
+
+    from omnispectral.capture.rig import rig_from_dict
+    from omnispectral.capture.simulate import rig_system
+    from omnispectral.errors import OmnispectralError
+
+    text = (meta.get("rig") or {}).get("toml")
+    if not text:
+        return None
+    try:
+        return rig_system(rig_from_dict(tomllib.loads(text), "merged.json rig", text)).to_dict()
+    except (OmnispectralError, tomllib.TOMLDecodeError, KeyError, ValueError):
+        return None
+
+
+def fingerprint(merged: MergedDirections, job: MosaicJob) -> dict:
+    """What determines the output: inputs (files, sizes, mtimes, poses, offsets, scales), grid and method."""
+    h = hashlib.sha256()
+    for img, geo in zip(job.images, job.geometry, strict=True):
+        st = img.path.stat()
+        h.update(json.dumps([str(img.path.resolve()), st.st_size, st.st_mtime_ns, img.pan_deg, img.tilt_deg,
+                             img.scale, list(img.offset_px), geo.model.to_dict()], sort_keys=True).encode())
+    h.update(job.gains.tobytes())
+    return {"inputs_sha256": h.hexdigest(), "width": job.canvas.width, "tile": job.tile, "interp": job.interp,
+            "blend": job.blend, "multiband_levels": job.multiband_levels}
+
+
+def peak_rss_mb() -> float:
+    """Peak resident set size of this process in MiB (Linux ``ru_maxrss`` is in KiB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def summarise(store: PanoramaStore, computed: int, seconds: dict, job: MosaicJob) -> dict:
+    """Summary of a run: output, sizes, tiles computed/skipped, holes, timings, throughput, peak memory."""
+    markers = store.done_markers(0)
+    n_tiles = int(np.prod(store.n_chunks(0)))
+    h, w = store.shapes[0]
+    holes = sum(int(m.get("holes", 0)) for m in markers.values())
+    n_src = [int(m.get("n_sources", 0)) for m in markers.values()]
+    computed_px = computed / max(1, n_tiles) * h * w
+    return {"output": str(store.path), "width": w, "height": h, "bands": N_BANDS, "levels": [list(s) for s in
+                                                                                             store.shapes],
+            "tile": store.tile, "interp": job.interp, "blend": job.blend, "n_sources": len(job.images),
+            "tiles": n_tiles, "tiles_computed": computed, "tiles_skipped": n_tiles - computed,
+            "holes_px": holes, "sources_per_tile_mean": float(np.mean(n_src)) if n_src else 0.0,
+            "sources_per_tile_max": max(n_src, default=0),
+            "max_map_error_px": max((float(m.get("map_error_px", 0.0)) for m in markers.values()), default=0.0),
+            "seconds": {k: round(v, 3) for k, v in seconds.items()},
+            "megapixels_per_s": round(computed_px / 1e6 / seconds["tiles"], 3) if seconds["tiles"] > 0 else None,
+            "peak_rss_mb": round(peak_rss_mb(), 1)}

@@ -1,0 +1,235 @@
+"""Interpolation of source images at arbitrary (sub-pixel) sensor positions: the engine's one resampling.
+
+Methods (all separable kernels, evaluated at the exact floating-point position):
+
+``linear``
+    Bilinear (2 × 2 taps).
+``cubic``
+    Cubic convolution with ``a = -0.75`` (4 × 4 taps; Keys, "Cubic convolution interpolation for
+    digital image processing", IEEE TASSP 29(6), 1981, with OpenCV's parameter).
+``spline``
+    Cardinal cubic B-spline interpolation (Unser, Aldroubi & Eden, "Fast B-spline transforms for
+    continuous image representation and interpolation", IEEE TPAMI 13(3), 1991): the source is
+    prefiltered into B-spline coefficients (recursive filter, pole ``√3 - 2``), then the cubic
+    B-spline is evaluated as four bilinear fetches (Sigg & Hadwiger, "Fast third-order texture
+    filtering", GPU Gems 2, ch. 20, 2005).  This is the interpolator Hugin's ``spline36``
+    approximates with a 6-tap kernel.
+``lanczos``
+    Lanczos-3 (6 × 6 taps, weights normalised to sum 1; Duchon, "Lanczos filtering in one and two
+    dimensions", J. Appl. Meteor. 18, 1979).
+
+Implementation.  OpenCV's ``cv2.remap`` is used for ``linear``, ``cubic`` and the bilinear fetches
+of ``spline`` when it interpolates at the exact position: OpenCV ≥ 5 does for ≤ 4 float32
+channels, OpenCV 4 rounds positions to 1/32 px (``INTER_BITS = 5``), and every version does so for
+Lanczos and for more than 4 channels.  :func:`opencv_is_exact` probes the installed OpenCV once;
+where it rounds, a NumPy gather with the same kernel is used.  ``lanczos`` is always the NumPy
+gather (OpenCV only has Lanczos-4, rounded).  Sources are cropped before remapping, so OpenCV's
+limit of 32767 px per side never applies (sources are sensor frames).  Borders replicate the edge
+pixel; the mosaic's feathering weight is zero at the sensor border, so they never show.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+from omnispectral.errors import ConfigurationError
+
+METHODS = ("linear", "cubic", "spline", "lanczos")
+#: Taps on each side of the sample position a method reads (crop margins).
+KERNEL_RADIUS_PX = {"linear": 1, "cubic": 2, "spline": 2, "lanczos": 3}
+#: Extra source pixels prefiltered around a crop for ``spline``: the recursive filter's impulse response
+#: decays as ``|√3 - 2|^k``, below 2e-8 at 14 px.
+SPLINE_PREFILTER_MARGIN_PX = 14
+CUBIC_A = -0.75
+LANCZOS_A = 3
+_SPLINE_POLE = np.sqrt(3.0) - 2.0
+
+
+def check_method(method: str) -> str:
+    if method not in METHODS:
+        raise ConfigurationError(f"unknown interpolation {method!r}; expected one of {', '.join(METHODS)}")
+    return method
+
+
+# ------------------------------------------------------------------------------------------ kernels
+def cubic_kernel(t, a: float = CUBIC_A) -> np.ndarray:
+    """Cubic convolution kernel (Keys 1981) with parameter ``a``."""
+    t = np.abs(np.asarray(t, dtype=np.float64))
+    near = ((a + 2.0) * t - (a + 3.0)) * t * t + 1.0
+    far = ((a * t - 5.0 * a) * t + 8.0 * a) * t - 4.0 * a
+    return np.where(t <= 1.0, near, np.where(t < 2.0, far, 0.0))
+
+
+def lanczos_kernel(t, a: int = LANCZOS_A) -> np.ndarray:
+    """Lanczos kernel ``sinc(t) sinc(t / a)`` on ``|t| < a``."""
+    t = np.asarray(t, dtype=np.float64)
+    return np.where(np.abs(t) < a, np.sinc(t) * np.sinc(t / a), 0.0)
+
+
+def linear_kernel(t) -> np.ndarray:
+    return np.maximum(0.0, 1.0 - np.abs(np.asarray(t, dtype=np.float64)))
+
+
+def bspline3_kernel(t) -> np.ndarray:
+    """Cubic B-spline ``β³(t)``."""
+    t = np.abs(np.asarray(t, dtype=np.float64))
+    return np.where(t < 1.0, 2.0 / 3.0 - t * t + 0.5 * t ** 3, np.where(t < 2.0, (2.0 - t) ** 3 / 6.0, 0.0))
+
+
+_KERNELS = {"linear": (linear_kernel, 1), "cubic": (cubic_kernel, 2), "lanczos": (lanczos_kernel, LANCZOS_A),
+            "spline": (bspline3_kernel, 2)}
+
+
+# ------------------------------------------------------------------------------------------ prefilter
+def spline_prefilter(image: np.ndarray) -> np.ndarray:
+    """Cubic B-spline coefficients of ``image`` (H, W[, C]) along rows and columns (mirror boundaries).
+
+    Interpolating the result with the B-spline kernel reproduces ``image`` at the pixel centres
+    (Unser et al. 1991).  float32 in, float32 out (the recursion runs in float64).
+    """
+    from scipy.ndimage import spline_filter1d
+
+    out = np.asarray(image, dtype=np.float32)
+    for axis in (0, 1):
+        if out.shape[axis] > 1:
+            out = spline_filter1d(out, order=3, axis=axis, output=np.float32, mode="mirror")
+    return out
+
+
+# ------------------------------------------------------------------------------------------ OpenCV
+_CV_FLAGS = {"linear": "INTER_LINEAR", "cubic": "INTER_CUBIC"}
+
+
+@functools.cache
+def opencv_is_exact(method: str) -> bool:
+    """True if ``cv2.remap`` with ``method`` interpolates float32 3-channel images at the exact position.
+
+    Probe: a 1/100-px shift of a random image must change the result by about 1/100 of the gradient
+    (OpenCV 4 rounds positions to 1/32 px, so the shift would vanish).
+    """
+    import cv2
+
+    if method not in _CV_FLAGS:
+        return False
+    rng = np.random.default_rng(0)
+    src = rng.random((16, 16, 3)).astype(np.float32)
+    yy, xx = np.mgrid[4:12, 4:12].astype(np.float32)
+    flag = getattr(cv2, _CV_FLAGS[method])
+    a = cv2.remap(src, xx + np.float32(0.25), yy, flag, borderMode=cv2.BORDER_REPLICATE)
+    b = cv2.remap(src, xx + np.float32(0.26), yy, flag, borderMode=cv2.BORDER_REPLICATE)
+    ref_a = remap_reference(src, xx + 0.25, yy, method)
+    ref_b = remap_reference(src, xx + 0.26, yy, method)
+    return bool(np.abs((b - a) - (ref_b - ref_a)).max() < 1e-4)
+
+
+def _cv_remap(src: np.ndarray, u: np.ndarray, v: np.ndarray, method: str) -> np.ndarray:
+    import cv2
+
+    flag = getattr(cv2, _CV_FLAGS[method])
+    parts = [cv2.remap(src[..., c0:c0 + 4], u, v, flag, borderMode=cv2.BORDER_REPLICATE)
+             for c0 in range(0, src.shape[2], 4)]
+    parts = [p[..., None] if p.ndim == 2 else p for p in parts]
+    return parts[0] if len(parts) == 1 else np.concatenate(parts, axis=-1)
+
+
+# ------------------------------------------------------------------------------------------ NumPy
+def _gather_remap(src: np.ndarray, u: np.ndarray, v: np.ndarray, kernel, radius: int,
+                  normalise: bool) -> np.ndarray:
+    """Separable kernel at exact positions by gathering ``(2 radius)²`` taps (float32 accumulation)."""
+    h, w, c = src.shape
+    u = np.asarray(u, dtype=np.float64)
+    v = np.asarray(v, dtype=np.float64)
+    shape = u.shape
+    u, v = u.ravel(), v.ravel()
+    missing = ~(np.isfinite(u) & np.isfinite(v))
+    if missing.any():
+        u, v = np.where(missing, 0.0, u), np.where(missing, 0.0, v)
+    iu, iv = np.floor(u), np.floor(v)
+    fu, fv = u - iu, v - iv
+    iu, iv = iu.astype(np.int64), iv.astype(np.int64)
+    taps = range(1 - radius, radius + 1)
+    wu = [kernel(fu - k).astype(np.float32) for k in taps]
+    wv = [kernel(fv - k).astype(np.float32) for k in taps]
+    if normalise:
+        su, sv = sum(wu), sum(wv)
+        wu = [x / su for x in wu]
+        wv = [x / sv for x in wv]
+    cols = [np.clip(iu + k, 0, w - 1) for k in taps]
+    flat = src.reshape(-1, c)
+    out = np.zeros((u.size, c), np.float32)
+    for j, k in enumerate(taps):
+        row_base = np.clip(iv + k, 0, h - 1) * w
+        acc = np.zeros((u.size, c), np.float32)
+        for i in range(len(wu)):
+            acc += wu[i][:, None] * flat[row_base + cols[i]]
+        out += wv[j][:, None] * acc
+    out[missing] = np.nan
+    return out.reshape(*shape, c)
+
+
+def remap_reference(src: np.ndarray, u, v, method: str) -> np.ndarray:
+    """NumPy evaluation of ``method`` at the exact positions ``(u, v)`` (the definition; slow).
+
+    ``spline`` expects ``src`` to be the raw image and prefilters it here.
+    """
+    check_method(method)
+    src = np.asarray(src, dtype=np.float32)
+    squeeze = src.ndim == 2
+    if squeeze:
+        src = src[..., None]
+    if method == "spline":
+        src = spline_prefilter(src)
+    kernel, radius = _KERNELS[method]
+    out = _gather_remap(src, u, v, kernel, radius, normalise=method == "lanczos")
+    return out[..., 0] if squeeze else out
+
+
+def _spline_from_coefficients(coef: np.ndarray, u: np.ndarray, v: np.ndarray, exact_linear: bool) -> np.ndarray:
+    """Cubic B-spline of coefficients ``coef`` at ``(u, v)`` as four bilinear fetches (Sigg & Hadwiger 2005)."""
+    def split(x):
+        i = np.floor(x)
+        t = x - i
+        t2, t3 = t * t, t * t * t
+        w0 = (1.0 - 3.0 * t + 3.0 * t2 - t3) / 6.0
+        w1 = (4.0 - 6.0 * t2 + 3.0 * t3) / 6.0
+        w3 = t3 / 6.0
+        g0 = w0 + w1
+        g1 = 1.0 - g0
+        return g0.astype(np.float32), g1.astype(np.float32), (i - 1.0 + w1 / g0).astype(np.float32), \
+            (i + 1.0 + w3 / g1).astype(np.float32)
+
+    gu0, gu1, hu0, hu1 = split(np.asarray(u, dtype=np.float64))
+    gv0, gv1, hv0, hv1 = split(np.asarray(v, dtype=np.float64))
+    fetch = (lambda a, b: _cv_remap(coef, a, b, "linear")) if exact_linear else \
+        (lambda a, b: _gather_remap(coef, a, b, linear_kernel, 1, False))
+    top = gu0[..., None] * fetch(hu0, hv0) + gu1[..., None] * fetch(hu1, hv0)
+    bottom = gu0[..., None] * fetch(hu0, hv1) + gu1[..., None] * fetch(hu1, hv1)
+    return gv0[..., None] * top + gv1[..., None] * bottom
+
+
+def remap(src: np.ndarray, u: np.ndarray, v: np.ndarray, method: str = "cubic",
+          prefiltered: bool = False) -> np.ndarray:
+    """Interpolate ``src`` (H, W[, C]) float32 at positions ``u`` (column) and ``v`` (row), float32 maps.
+
+    Pixel centres are at integer coordinates (OpenCV convention).  Returns ``(*u.shape, C)``
+    float32 (or ``u.shape`` for a 2-D ``src``).  For ``spline``, ``prefiltered=True`` says ``src``
+    already holds B-spline coefficients (:func:`spline_prefilter`).
+    """
+    check_method(method)
+    src = np.ascontiguousarray(src, dtype=np.float32)
+    squeeze = src.ndim == 2
+    if squeeze:
+        src = src[..., None]
+    u = np.ascontiguousarray(u, dtype=np.float32)
+    v = np.ascontiguousarray(v, dtype=np.float32)
+    if method == "spline":
+        coef = src if prefiltered else spline_prefilter(src)
+        out = _spline_from_coefficients(coef, u, v, opencv_is_exact("linear"))
+    elif method != "lanczos" and opencv_is_exact(method):
+        out = _cv_remap(src, u, v, method)
+    else:
+        kernel, radius = _KERNELS[method]
+        out = _gather_remap(src, u, v, kernel, radius, normalise=method == "lanczos")
+    return out[..., 0] if squeeze else out

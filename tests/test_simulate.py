@@ -157,3 +157,22 @@ def test_cli_timelapse_records_an_overrun_slot(tmp_path, capsys):
     # each capture takes ~180 s of simulated time: 09:02 is skipped, 09:04 runs
     assert [e["status"] for e in index["slots"]] == ["complete", "skipped", "complete"]
     assert (tmp_path / "series" / "slot_0904" / "ground_truth" / "bands.npy").exists()
+
+
+@pytest.mark.slow
+def test_cli_capture_runs_the_devices_the_rig_names(tmp_path, capsys):
+    from omnispectral.cli import main
+
+    text = load_preset("small").toml_text
+    (tmp_path / "rig.toml").write_text(text)
+    assert main(["capture", "--rig", str(tmp_path / "rig.toml"), "--gt-width", "64", "-o", str(tmp_path / "s"),
+                 "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["n_written"] == 1080
+    # a second run resumes: nothing left to do
+    assert main(["capture", "--rig", str(tmp_path / "rig.toml"), "-o", str(tmp_path / "s"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["n_already_done"] == 1080
+    real = text.replace('driver = "simulated"\nmodel', 'driver = "merlin"\nmodel').replace('port = ""',
+                                                                                         'port = "/dev/ttyUSB0"')
+    (tmp_path / "real.toml").write_text(real)
+    assert main(["capture", "--rig", str(tmp_path / "real.toml"), "-o", str(tmp_path / "r")]) == 2
+    assert "real drivers" in capsys.readouterr().err

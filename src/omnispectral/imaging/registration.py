@@ -60,6 +60,7 @@ phase_cross_correlation`` returns ``(-dy, -dx)``.  ``x`` is the column index, ``
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -79,6 +80,12 @@ DEFAULT_WINDOW = "hann"
 DEFAULT_UPSAMPLE = 1.25
 #: Half size of the neighbourhood fitted by the peak model (``2 r + 1`` samples per axis).
 DEFAULT_FIT_RADIUS = 3
+#: Passes on the common overlap with a moved window (:func:`_refine`).
+DEFAULT_REFINE = 1
+#: Exponent ``p`` of the spectral weight ``|G F*|^p`` of the refinement (0 = phase only, 1 = cross-correlation).
+SPECTRAL_WEIGHT_POWER = 0.5
+#: Images at least this large get the first pass on 2 x 2-binned pixels (4x fewer FFT samples).
+COARSE_MIN_SIZE_PX = 512
 
 #: Peak height below which a whole-image registration is not trusted and the calibrated offset is
 #: used instead.  Measured (docs/benchmarks.md, "Registration"): pure CMV2000 noise peaks at 0.03-0.04
@@ -96,8 +103,10 @@ MIN_SIZE_PX = 8
 AUTO_SATURATION_MIN_PX = 4
 _SATURATION_GROW_PX = 2
 _SATURATION_SOFTNESS_PX = 1.5
-_SATURATION_MAX_CORRECTION_PX = 1.0
+_MAX_REFINE_CORRECTION_PX = 1.0
 _TUKEY_ALPHA = 0.5
+_TAYLOR_TERMS = 7
+_TAYLOR_RADIUS_PX = 0.2
 _BLOCK_CHUNK = 4096
 
 
@@ -453,10 +462,150 @@ def _poc_shift(ref_w: np.ndarray, mov_w: np.ndarray, band_limit: float, upsample
     return p1 * (shape[1] / big_m[1]), p0 * (shape[0] / big_m[0]), alpha
 
 
+def _window_at(n: int, kind: str, shift: float) -> np.ndarray:
+    """1-D window of ``n`` samples evaluated at ``i - shift`` (zero outside its support), float32."""
+    if kind == "none" or shift == 0.0:
+        return window_1d(n, kind)
+    u = (np.arange(n, dtype=np.float64) - shift) / (n - 1)
+    if kind == "hann":
+        w = 0.5 - 0.5 * np.cos(2.0 * np.pi * u)
+    else:  # tukey
+        a = _TUKEY_ALPHA
+        w = np.ones(n)
+        lo, hi = u < a / 2, u > 1 - a / 2
+        w[lo] = 0.5 - 0.5 * np.cos(2.0 * np.pi * u[lo] / a)
+        w[hi] = 0.5 - 0.5 * np.cos(2.0 * np.pi * (1.0 - u[hi]) / a)
+    w[(u < 0.0) | (u > 1.0)] = 0.0
+    return w.astype(np.float32)
+
+
+def _window_with(x: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Like :func:`_apply_window` with an explicit 2-D window."""
+    mean = np.einsum("ij,ij->", x, w) / np.float32(w.sum(dtype=np.float64))
+    return (x - np.float32(mean)) * w
+
+
+def _overlap(shape: tuple[int, int], sx: int, sy: int) -> tuple[slice, slice, slice, slice] | None:
+    """Slices of the reference and moving images that show the same content for an integer shift."""
+    h, w = shape
+    ya0, ya1 = max(0, -sy), min(h, h - sy)
+    xa0, xa1 = max(0, -sx), min(w, w - sx)
+    if ya1 - ya0 < max(MIN_SIZE_PX, h // 2) or xa1 - xa0 < max(MIN_SIZE_PX, w // 2):
+        return None
+    # Shrink (centred) to a 5-smooth FFT length: an overlap of e.g. 1021 px would make the FFT 3x slower.
+    ny, nx = _fast_len_below(ya1 - ya0), _fast_len_below(xa1 - xa0)
+    ya0 += (ya1 - ya0 - ny) // 2
+    xa0 += (xa1 - xa0 - nx) // 2
+    ya1, xa1 = ya0 + ny, xa0 + nx
+    return slice(ya0, ya1), slice(xa0, xa1), slice(ya0 + sy, ya1 + sy), slice(xa0 + sx, xa1 + sx)
+
+
+@functools.lru_cache(maxsize=256)
+def _fast_len_below(n: int) -> int:
+    """Largest 5-smooth even length ``<= n`` (fast for pocketfft's real transforms)."""
+    m = n
+    while m > 8:
+        k = m
+        for p in (2, 3, 5):
+            while k % p == 0:
+                k //= p
+        if k == 1 and m % 2 == 0:
+            return m
+        m -= 1
+    return n
+
+
+def _refine(a: np.ndarray, b: np.ndarray, dx: float, dy: float, window: str, band_limit: float,
+            iterations: int) -> tuple[float, float]:
+    """Re-estimate on the common overlap with the moving image's window moved by the sub-pixel shift.
+
+    The moving crop is ``b`` moved by ``round(d)``, so both crops show the same content up to the
+    fractional residual ``t = d - round(d)``; the moving crop's window is evaluated at ``x - t``, so
+    that for the right ``t`` the windowed moving crop is exactly the windowed reference moved by
+    ``t``: no window pull, no unshared margins.  The residual is measured and ``t`` updated.
+    """
+    cache = None
+    for _ in range(iterations):
+        sx, sy = round(dx), round(dy)
+        sl = _overlap(a.shape, sx, sy)
+        if sl is None:
+            break
+        ya, xa, yb, xb = sl
+        ra, rb = a[ya, xa], b[yb, xb]
+        if cache is None or cache[0] != (sx, sy):
+            cache = ((sx, sy), sfft.rfft2(_apply_window(ra, window), workers=-1))
+        f_ref = cache[1]
+        wb = _window_at(rb.shape[0], window, dy - sy)[:, None] * _window_at(rb.shape[1], window, dx - sx)[None, :]
+        f_mov = sfft.rfft2(_window_with(rb, wb), workers=-1)
+        shape = ra.shape
+        k = (band_size(shape[0], band_limit), band_size(shape[1], band_limit))
+        rx, ry = _weighted_peak(f_ref, f_mov, shape, k, dx - sx, dy - sy, SPECTRAL_WEIGHT_POWER)
+        dx, dy = sx + rx, sy + ry
+    return dx, dy
+
+
+def _weighted_peak(f_ref: np.ndarray, f_mov: np.ndarray, shape: tuple[int, int], k: tuple[int, int], dx: float,
+                   dy: float, power: float, iterations: int = 4) -> tuple[float, float]:
+    """Newton maximisation of the weighted correlation over the band, at continuous ``d``.
+
+    ``C(d) = Re sum_k W_k R_k exp(2 pi i k.d / N)`` with ``R = G F* / |G F*|`` and ``W = |G F*|^power``
+    (``power`` 0: the band-limited POC function itself, 1: cross-correlation).  All sums are
+    bilinear in the separable phase factors, so each Newton step costs three matrix-vector products.
+    """
+    n0, n1 = shape
+    k0, k1 = k
+    rows = np.r_[0:k0 + 1, n0 - k0:n0]
+    x = f_mov[rows, :k1 + 1] * np.conj(f_ref[rows, :k1 + 1])
+    mag = np.abs(x)
+    mag += np.float32(1e-30)
+    if power == 0.5:
+        np.sqrt(mag, out=mag)
+        x /= mag
+    else:
+        x *= mag ** np.float32(power - 1.0)
+    x[:, 1:] *= np.float32(2.0)  # the other half of the spectrum (Hermitian)
+    x[0, 0] = 0.0
+    wy = (2 * np.pi / n0) * np.r_[0:k0 + 1, -k0:0].astype(np.float64)
+    wx = (2 * np.pi / n1) * np.arange(k1 + 1, dtype=np.float64)
+    centre, q = None, None
+    for _ in range(iterations):
+        if centre is None or abs(dx - centre) > _TAYLOR_RADIUS_PX:
+            # Row sums q[:, m] = sum_j x_ij exp(i wx_j c) wx_j^m, once per centre c (no BLAS: a threaded
+            # gemv stalls for milliseconds on busy cores); exp(i wx dx) is then a Taylor series in dx - c.
+            centre = dx
+            z = x * np.exp(1j * wx * centre).astype(np.complex64)[None, :]
+            wx32 = wx.astype(np.float32)
+            q = np.empty((z.shape[0], _TAYLOR_TERMS + 3), dtype=np.complex128)
+            for m in range(q.shape[1]):
+                q[:, m] = z.sum(axis=1)
+                if m + 1 < q.shape[1]:
+                    z *= wx32
+        delta = dx - centre
+        coef = np.array([(1j * delta) ** m / math.factorial(m) for m in range(_TAYLOR_TERMS + 1)])
+        cols = np.stack([q[:, c:c + _TAYLOR_TERMS + 1] @ coef for c in range(3)], axis=1)  # x @ (e^{i wx dx} wx^c)
+        ey = np.exp(1j * wy * dy)
+        s0 = ey @ cols[:, 0]
+        sx_, sxx = ey @ cols[:, 1], ey @ cols[:, 2]
+        sy_, syy, sxy = (ey * wy) @ cols[:, 0], (ey * wy * wy) @ cols[:, 0], (ey * wy) @ cols[:, 1]
+        gx, gy = -sx_.imag, -sy_.imag
+        hxx, hyy, hxy = -sxx.real, -syy.real, -sxy.real
+        det = hxx * hyy - hxy * hxy
+        if not (hxx < 0 and det > 0 and s0.real > 0):
+            break
+        step_x = -(hyy * gx - hxy * gy) / det
+        step_y = -(hxx * gy - hxy * gx) / det
+        dx += float(np.clip(step_x, -0.5, 0.5))
+        dy += float(np.clip(step_y, -0.5, 0.5))
+        if abs(step_x) + abs(step_y) < 1e-4:
+            break
+    return dx, dy
+
+
 # ---------------------------------------------------------------------------------- public API
 def phase_correlate(reference, moving, *, window: str = DEFAULT_WINDOW, band_limit: float = DEFAULT_BAND_LIMIT,
                     upsample: float = DEFAULT_UPSAMPLE, preprocess: str = DEFAULT_PREPROCESS,
-                    saturation: float | str | None = None, fit_radius: int = DEFAULT_FIT_RADIUS) -> Registration:
+                    saturation: float | str | None = None, fit_radius: int = DEFAULT_FIT_RADIUS,
+                    refine: int = DEFAULT_REFINE, reference_valid=None, moving_valid=None) -> Registration:
     """Sub-pixel translation of ``moving`` relative to ``reference`` by band-limited POC (Eq. (3) + Takita 2003).
 
     Parameters
@@ -475,41 +624,76 @@ def phase_correlate(reference, moving, *, window: str = DEFAULT_WINDOW, band_lim
         ``"sqrt"`` (default), ``"none"``, ``"log"`` or ``"gradient"`` (see the module docstring).
     saturation
         ``None`` (default), a clipping level or ``"auto"`` (plateau at the maximum): clipped pixels
-        are faded out in a second pass.  Off by default: on the benchmark it removed the bias of
-        a few clipped suns but made some wrong estimates confident (docs/benchmarks.md).
+        are treated as invalid (see ``reference_valid``).
     fit_radius
         The peak model is fitted to ``(2 fit_radius + 1)^2`` samples.
+    refine
+        Number of refinement passes on the common overlap (0 = Takita's peak fit only; see
+        :func:`_refine`).
+    reference_valid, moving_valid
+        Optional boolean masks, ``(H, W)`` or ``(H, W, C)`` (``True`` = usable in every channel), e.g.
+        ``~HDRResult.saturated`` of an HDR merge: invalid pixels (and a 2 px margin) are faded
+        smoothly to the image mean before the correlation; for the refinement the union of both
+        images' invalid areas (carried over by the first estimate) is faded in both.
 
     Returns
     -------
     Registration
-        ``dx, dy`` with ``moving(x, y) ~= reference(x - dx, y - dy)``, and the peak height as
-        ``confidence``.  Shifts are found up to half the image size; accuracy is best below a
-        tenth of it (the overlap shrinks with the shift).
+        ``dx, dy`` with ``moving(x, y) ~= reference(x - dx, y - dy)``, and the peak height of the
+        first pass as ``confidence``.  Shifts are found up to half the image size; accuracy is best
+        below a tenth of it (the overlap shrinks with the shift).
     """
     _check_options(window, band_limit, upsample, preprocess, fit_radius)
+    if int(refine) != refine or not 0 <= refine <= 4:
+        raise ConfigurationError(f"refine must be an integer in 0..4, got {refine}")
     ref, mov = _check_pair(reference, moving)
     a, sat_a = _prepare(ref, "reference", preprocess, saturation)
     b, sat_b = _prepare(mov, "moving", preprocess, saturation)
-    dx, dy, alpha = _poc_shift(_apply_window(a, window), _apply_window(b, window), band_limit, upsample, fit_radius)
-    if sat_a is not None or sat_b is not None:
-        # Clipped areas (e.g. the sun) have aliased edges that bias the peak by tenths of a pixel.
-        # Fade out the union of both images' clipped areas, carried over by the first estimate so
-        # that the faded regions move with the content; the images may clip differently (other
-        # exposure, other filter, the sun cut by the frame).  The refined estimate must stay near
-        # the first one: a wrong first estimate must not create a consistent-looking artefact.
-        union_a = _union(sat_a, None if sat_b is None else _shift_mask(sat_b, -dx, -dy))
-        union_b = _union(sat_b, None if sat_a is None else _shift_mask(sat_a, dx, dy))
-        rdx, rdy, ralpha = _poc_shift(_apply_window(_fade_saturated(a, union_a), window),
-                                      _apply_window(_fade_saturated(b, union_b), window), band_limit, upsample,
-                                      fit_radius)
-        if np.hypot(rdx - dx, rdy - dy) <= _SATURATION_MAX_CORRECTION_PX:
-            dx, dy, alpha = rdx, rdy, ralpha
-    dx, dy, conf = float(dx), float(dy), float(alpha)
-    sat = max(_fraction(sat_a), _fraction(sat_b))
-    return Registration(dx=dx, dy=dy, confidence=conf, measured_dx=dx, measured_dy=dy, window=window,
-                        band_limit=band_limit, preprocess=preprocess, saturated_fraction=sat,
-                        shape=(int(a.shape[0]), int(a.shape[1])))
+    bad_a = _union(sat_a, _invalid(reference_valid, a.shape, "reference_valid"))
+    bad_b = _union(sat_b, _invalid(moving_valid, b.shape, "moving_valid"))
+    fa = a if bad_a is None else _fade_saturated(a, bad_a)
+    fb = b if bad_b is None else _fade_saturated(b, bad_b)
+    # Pass 1 (integer-level accuracy is enough for the refinement): on 2x2-binned images when large.
+    binned = refine > 0 and min(a.shape) >= COARSE_MIN_SIZE_PX
+    pa, pb = (_bin2(fa), _bin2(fb)) if binned else (fa, fb)
+    dx, dy, alpha = _poc_shift(_apply_window(pa, window), _apply_window(pb, window), band_limit, upsample, fit_radius)
+    dx, dy = (2.0 * float(dx), 2.0 * float(dy)) if binned else (float(dx), float(dy))
+    if refine:
+        if bad_a is not None or bad_b is not None:
+            # Invalid areas (e.g. a clipped sun) have sharp, aliased edges that bias the peak by tenths of a
+            # pixel; fade the union of both images' invalid areas, carried over by the first estimate, so the
+            # faded regions move with the content (the images may clip differently).
+            union_a = _union(bad_a, None if bad_b is None else _shift_mask(bad_b, -dx, -dy))
+            union_b = _union(bad_b, None if bad_a is None else _shift_mask(bad_a, dx, dy))
+            fa, fb = _fade_saturated(a, union_a), _fade_saturated(b, union_b)
+        rdx, rdy = _refine(fa, fb, dx, dy, window, band_limit, refine)
+        # The refinement corrects sub-pixel bias; it must not move a (possibly wrong) first estimate far.
+        if np.isfinite(rdx) and np.isfinite(rdy) and np.hypot(rdx - dx, rdy - dy) <= _MAX_REFINE_CORRECTION_PX:
+            dx, dy = rdx, rdy
+    sat = max(_fraction(bad_a), _fraction(bad_b))
+    return Registration(dx=float(dx), dy=float(dy), confidence=float(alpha), measured_dx=float(dx),
+                        measured_dy=float(dy), window=window, band_limit=band_limit, preprocess=preprocess,
+                        saturated_fraction=sat, shape=(int(a.shape[0]), int(a.shape[1])))
+
+
+def _invalid(valid, shape: tuple[int, int], name: str) -> np.ndarray | None:
+    """``(H, W)`` mask of invalid pixels from a validity mask ``(H, W)`` / ``(H, W, C)``, or ``None``."""
+    if valid is None:
+        return None
+    v = np.asarray(valid)
+    if v.ndim == 3:
+        v = v.all(axis=2)
+    if v.shape != shape:
+        raise ConfigurationError(f"{name}: mask of shape {np.shape(valid)} does not match the image {shape}")
+    bad = ~v.astype(bool)
+    return bad if bad.any() else None
+
+
+def _bin2(x: np.ndarray) -> np.ndarray:
+    """Mean of 2 x 2 pixel blocks (an odd last row / column is dropped)."""
+    h, w = x.shape[0] // 2 * 2, x.shape[1] // 2 * 2
+    v = x[:h, :w]
+    return np.float32(0.25) * (v[0::2, 0::2] + v[1::2, 0::2] + v[0::2, 1::2] + v[1::2, 1::2])
 
 
 def _union(a: np.ndarray | None, b: np.ndarray | None) -> np.ndarray:

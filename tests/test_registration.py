@@ -98,23 +98,38 @@ def test_ground_truth_is_not_circular(pairs):
 
 
 def test_same_band_subpixel_accuracy_beats_skimage(pairs):
-    from skimage.registration import phase_cross_correlation
-
     ours, theirs = [], []
     for p in pairs:
         ref, mov = p["same"]
         reg = phase_correlate(ref, mov)
         assert reg.confidence > DEFAULT_MIN_CONFIDENCE
         ours.append(error_px(reg, p["shift"]))
-        shift_yx = phase_cross_correlation(ref, mov, upsample_factor=100)[0]
-        theirs.append(float(np.hypot(-shift_yx[1] - p["shift"][0], -shift_yx[0] - p["shift"][1])))
+        theirs.append(skimage_error(ref, mov, p["shift"]))
     assert np.mean(ours) <= 0.02, ours
     assert np.mean(ours) < np.mean(theirs), (ours, theirs)
 
 
-def test_cross_band_accuracy(pairs):
-    errors = [error_px(phase_correlate(*p["cross"]), p["shift"]) for p in pairs]
-    assert np.mean(errors) <= 0.05, errors
+def skimage_error(ref, mov, shift) -> float:
+    from skimage.registration import phase_cross_correlation
+
+    shift_yx = phase_cross_correlation(ref, mov, upsample_factor=100)[0]
+    return float(np.hypot(-shift_yx[1] - shift[0], -shift_yx[0] - shift[1]))
+
+
+def test_cross_band_accuracy_against_skimage(pairs):
+    ours = [error_px(phase_correlate(*p["cross"]), p["shift"]) for p in pairs]
+    theirs = [skimage_error(*p["cross"], p["shift"]) for p in pairs]
+    assert np.mean(ours) <= 0.05, ours
+    # On these clean textured 256 px crops both reach ~0.011 px (measured 0.0114 vs 0.0106); ours pulls
+    # ahead on clipped suns and 1024 px crops (docs/benchmarks.md).  Guard against a regression only.
+    assert np.mean(ours) <= 1.25 * np.mean(theirs), (ours, theirs)
+
+
+def test_refinement_removes_window_bias(pairs):
+    """The overlap pass with a moved window beats Takita's peak fit alone on the same crops."""
+    fit_only = [error_px(phase_correlate(*p["same"], refine=0), p["shift"]) for p in pairs]
+    refined = [error_px(phase_correlate(*p["same"]), p["shift"]) for p in pairs]
+    assert np.mean(refined) < np.mean(fit_only), (refined, fit_only)
 
 
 def test_colour_input_and_integer_dtypes(pairs):
@@ -224,6 +239,10 @@ def test_bad_options():
         phase_correlate(img, img, window="gauss")
     with pytest.raises(ConfigurationError, match="band_limit"):
         phase_correlate(img, img, band_limit=0)
+    with pytest.raises(ConfigurationError, match="refine"):
+        phase_correlate(img, img, refine=-1)
+    with pytest.raises(ConfigurationError, match="does not match"):
+        phase_correlate(img, img, reference_valid=np.ones((10, 10), bool))
     with pytest.raises(ConfigurationError, match="calibrated_offset"):
         register_with_fallback(img, img, calibrated_offset=(1.0,))
     with pytest.raises(ConfigurationError, match="block"):

@@ -582,11 +582,13 @@ def _weighted_peak(f_ref: np.ndarray, f_mov: np.ndarray, shape: tuple[int, int],
                     z *= wx32
         delta = dx - centre
         coef = np.array([(1j * delta) ** m / math.factorial(m) for m in range(_TAYLOR_TERMS + 1)])
-        cols = np.stack([q[:, c:c + _TAYLOR_TERMS + 1] @ coef for c in range(3)], axis=1)  # x @ (e^{i wx dx} wx^c)
+        # x @ (e^{i wx dx} wx^c), and the sums over rows below, element-wise: no BLAS call (see above)
+        cols = np.stack([(q[:, c:c + _TAYLOR_TERMS + 1] * coef).sum(axis=1) for c in range(3)], axis=1)
         ey = np.exp(1j * wy * dy)
-        s0 = ey @ cols[:, 0]
-        sx_, sxx = ey @ cols[:, 1], ey @ cols[:, 2]
-        sy_, syy, sxy = (ey * wy) @ cols[:, 0], (ey * wy * wy) @ cols[:, 0], (ey * wy) @ cols[:, 1]
+        s0, sx_, sxx = (ey[:, None] * cols).sum(axis=0)
+        eyw = ey * wy
+        sy_, sxy = (eyw[:, None] * cols[:, :2]).sum(axis=0)
+        syy = (eyw * wy * cols[:, 0]).sum()
         gx, gy = -sx_.imag, -sy_.imag
         hxx, hyy, hxy = -sxx.real, -syy.real, -sxy.real
         det = hxx * hyy - hxy * hxy

@@ -29,6 +29,13 @@ registration based on phase-only correlation", IEICE Trans. Fundamentals E86-A(8
    maximum, giving ``delta`` and the peak height ``alpha``.  ``alpha`` is 1 for identical
    structure and about ``1/sqrt(L1 L2)`` for unrelated images: it is the confidence.
 
+4. **Refinement on the common overlap** (``refine``, default one pass).  Both images are cropped to
+   their overlap for ``round(d)``, the moving crop's window is evaluated at ``x - frac(d)`` so the
+   two windowed crops are exact shifts of each other, and the residual shift maximises the
+   ``|G F*|^0.5``-weighted correlation over the band (between POC, power 0, and cross-correlation,
+   power 1) by Newton steps on separable phase factors.  This removes the window's pull towards
+   zero shift; large images take the first pass on 2×2-binned pixels.
+
 Beyond the paper:
 
 - **Saturation.**  Clipped pixels (a sensor's full scale, e.g. the sun) have sharp, aliased

@@ -1,0 +1,152 @@
+"""Standard files from spectral and six-band panoramas: spectral OpenEXR, ENVI, Radiance HDR, RGB EXR, previews.
+
+Every writer takes NumPy arrays (a region or a pyramid level of a product), writes to a temporary name
+and renames into place.
+
+- :func:`write_spectral_exr`: the spectral OpenEXR layout of Fichet, Pacanowski & Wilkie, "An OpenEXR
+  Layout for Spectral Images", JCGT 10(3), 2021: emissive channels ``S0.<λ>nm`` (decimal comma, e.g.
+  ``S0.550,0nm``), ``spectralLayoutVersion = "1.0"``, ``emissiveUnits``, an sRGB preview in ``R,G,B``,
+  tiled, one level (the OpenEXR Python package writes corrupt mip-maps).  Readable by colour-science's
+  ``read_spectral_image_Fichet2021``.
+- :func:`write_envi`: ENVI via Spectral Python, band names and ``wavelength`` in nm.
+- :func:`write_rgb_exr` / :func:`write_radiance_hdr`: linear Rec.709/sRGB-primaries RGB for
+  image-based lighting (Blender, Mitsuba), from the spectra through the CIE 1931 observer.
+- :func:`tone_map_srgb` / :func:`write_preview`: an 8-bit sRGB preview (exposure to put the 99th
+  luminance percentile at 1, Reinhard 2002 global operator ``L/(1+L)`` rescaled, sRGB encoding).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from omnispectral.errors import ConfigurationError
+from omnispectral.io import atomic_path
+
+SPECTRAL_LAYOUT_VERSION = "1.0"
+
+
+def spectral_channel_name(wavelength_nm: float, stokes: int = 0) -> str:
+    """Fichet 2021 emissive channel name: ``S0.550,0nm`` (decimal comma, unit suffix)."""
+    text = repr(float(wavelength_nm)).replace(".", ",")
+    return f"S{stokes}.{text}nm"
+
+
+def spectra_to_xyz(spectra: np.ndarray, wavelength_nm: np.ndarray) -> np.ndarray:
+    """CIE 1931 2° tristimulus ``Σ S(λ) cmf(λ) Δλ`` of spectra ``(..., n)`` (no normalisation)."""
+    from omnispectral.spectral.metrics import cmfs_on_grid
+
+    cmfs = cmfs_on_grid(np.asarray(wavelength_nm, float)).T  # (n, 3)
+    dl = np.gradient(np.asarray(wavelength_nm, float))
+    return np.asarray(spectra, np.float32) @ (cmfs * dl[:, None]).astype(np.float32)
+
+
+def xyz_to_linear_srgb(xyz: np.ndarray) -> np.ndarray:
+    """Linear RGB with sRGB/Rec.709 primaries and D65 white (IEC 61966-2-1 matrix), no clipping."""
+    m = np.array([[3.2404542, -1.5371385, -0.4985314],
+                  [-0.9692660, 1.8760108, 0.0415560],
+                  [0.0556434, -0.2040259, 1.0572252]], np.float32)
+    return np.asarray(xyz, np.float32) @ m.T
+
+
+def spectra_to_linear_srgb(spectra: np.ndarray, wavelength_nm: np.ndarray) -> np.ndarray:
+    """Spectral radiance → linear sRGB-primaries RGB (Y = luminance in the spectra's units × Σȳ)."""
+    return xyz_to_linear_srgb(spectra_to_xyz(spectra, wavelength_nm))
+
+
+def tone_map_srgb(rgb_linear: np.ndarray, percentile: float = 99.0) -> np.ndarray:
+    """8-bit sRGB preview of linear RGB: scale so the ``percentile`` luminance is 1, Reinhard ``L/(1+L)``
+    (rescaled so that 1 maps to 0.9), sRGB transfer function; NaN → 0."""
+    rgb = np.nan_to_num(np.asarray(rgb_linear, np.float32), nan=0.0, posinf=0.0).clip(0)
+    lum = rgb @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    ref = float(np.percentile(lum[lum > 0], percentile)) if np.any(lum > 0) else 1.0
+    x = rgb / np.float32(ref)
+    lx = x @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    scale = np.where(lx > 0, (1.8 * lx / (1.0 + lx)) / np.maximum(lx, 1e-12), 0.0)[..., None]
+    y = np.clip(x * scale, 0, 1)
+    srgb = np.where(y <= 0.0031308, 12.92 * y, 1.055 * np.power(y, 1 / 2.4) - 0.055)
+    return np.round(srgb * 255).astype(np.uint8)
+
+
+def write_preview(path: str | Path, rgb_linear: np.ndarray) -> Path:
+    """sRGB PNG/JPEG preview of a linear RGB image (:func:`tone_map_srgb`)."""
+    import cv2
+
+    path = Path(path)
+    img = tone_map_srgb(rgb_linear)
+    with atomic_path(path) as tmp:
+        if not cv2.imwrite(str(tmp), np.ascontiguousarray(img[..., ::-1])):
+            raise ConfigurationError(f"{path}: OpenCV cannot write this format (use .png or .jpg)")
+    return path
+
+
+def write_spectral_exr(path: str | Path, spectra: np.ndarray, wavelength_nm: np.ndarray, *, units: str,
+                       attributes: Mapping[str, str] | None = None, tile: int = 64, half: bool = False) -> Path:
+    """Spectral OpenEXR (Fichet et al. 2021 layout, emissive), tiled, with an sRGB preview in R, G, B.
+
+    ``units`` is recorded in ``emissiveUnits`` (the layout's attribute; e.g. ``"W.m^-2.sr^-1"``, or the
+    product's relative unit) and the extra ``attributes`` as strings.
+    """
+    import OpenEXR
+
+    spectra = np.asarray(spectra, np.float32)
+    wl = np.asarray(wavelength_nm, float)
+    if spectra.ndim != 3 or spectra.shape[2] != wl.size:
+        raise ConfigurationError(f"spectra of shape {spectra.shape} do not match {wl.size} wavelengths")
+    dtype = np.float16 if half else np.float32
+    channels = {spectral_channel_name(w): np.ascontiguousarray(spectra[..., i].astype(dtype)) for i, w in
+                enumerate(wl)}
+    rgb = spectra_to_linear_srgb(spectra, wl)
+    for i, c in enumerate("RGB"):
+        channels[c] = np.ascontiguousarray(rgb[..., i].astype(dtype))
+    tiles = OpenEXR.TileDescription()
+    tiles.xSize, tiles.ySize, tiles.mode = tile, tile, OpenEXR.ONE_LEVEL  # no mip-maps (see module docstring)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.tiledimage, "tiles": tiles,
+              "spectralLayoutVersion": SPECTRAL_LAYOUT_VERSION, "emissiveUnits": units,
+              "polarisationHandedness": "right"}
+    for k, v in (attributes or {}).items():
+        header[k] = str(v)
+    path = Path(path)
+    with atomic_path(path) as tmp, OpenEXR.File(header, channels) as f:
+        f.write(str(tmp))
+    return path
+
+
+def write_envi(path: str | Path, cube: np.ndarray, wavelength_nm: np.ndarray | None = None,
+               band_names: list[str] | None = None, description: str = "") -> Path:
+    """ENVI image (``.hdr`` header + ``.img`` data, float32, BSQ by Spectral Python) with wavelengths in nm."""
+    import spectral.io.envi as envi
+
+    path = Path(path)
+    if path.suffix.lower() != ".hdr":
+        raise ConfigurationError(f"{path}: an ENVI export is named by its header, e.g. pano.hdr")
+    cube = np.asarray(cube, np.float32)
+    meta = {"description": description or "omnispectral export"}
+    if wavelength_nm is not None:
+        meta["wavelength"] = [f"{w:g}" for w in np.asarray(wavelength_nm, float)]
+        meta["wavelength units"] = "nm"
+    if band_names is not None:
+        meta["band names"] = list(band_names)
+    data = path.with_suffix(".img")
+    with atomic_path(path) as tmp_hdr, atomic_path(data) as tmp_img:
+        envi.save_image(str(tmp_hdr), cube, metadata=meta, force=True, ext=tmp_img.suffix)
+        # Spectral Python names the data file after the header; move it onto the reserved temporary name
+        written = tmp_hdr.with_suffix(tmp_img.suffix)
+        written.replace(tmp_img)
+    return path
+
+
+def write_rgb_exr(path: str | Path, rgb_linear: np.ndarray, attributes: Mapping[str, str] | None = None) -> Path:
+    """Linear RGB OpenEXR (float32) for image-based lighting."""
+    from omnispectral.imaging.bracket import write_float_image
+
+    return write_float_image(path, rgb_linear, ["R", "G", "B"], attributes)
+
+
+def write_radiance_hdr(path: str | Path, rgb_linear: np.ndarray) -> Path:
+    """Radiance RGBE ``.hdr`` (negative values clipped to 0)."""
+    from omnispectral.imaging.bracket import write_float_image
+
+    return write_float_image(path, np.clip(np.nan_to_num(rgb_linear), 0, None), ["R", "G", "B"])

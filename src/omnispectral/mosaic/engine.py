@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import resource
 import time
 from collections.abc import Callable
@@ -54,7 +55,7 @@ from omnispectral.mosaic.sources import BAND_NAMES, MergedDirections, SourceImag
 from omnispectral.mosaic.store import PanoramaStore
 
 DEFAULT_TILE = 512
-DEFAULT_INTERP = "cubic"
+DEFAULT_INTERP = "spline"
 N_BANDS = 6
 
 
@@ -77,6 +78,7 @@ class MosaicJob:
     geometry: list[SourceGeometry]
     gains: np.ndarray  # (n_sources, 3): per source, per band of its camera
     store_path: Path
+    run_id: str = ""  # recorded in the markers of the tiles this run computes
     axes: np.ndarray = field(init=False)
     radii: np.ndarray = field(init=False)
 
@@ -98,7 +100,7 @@ def build_job(merged: MergedDirections, store_path: Path, width: int, tile: int,
     if gains is None:
         gains = np.ones((len(images), 3), np.float32)
     return MosaicJob(Canvas(width, width // 2), tile, interp, blend, multiband_levels, images, geometry,
-                     np.asarray(gains, np.float32), Path(store_path))
+                     np.asarray(gains, np.float32), Path(store_path), run_id=f"{os.getpid()}-{time.time_ns()}")
 
 
 # ------------------------------------------------------------------------------------------ one tile
@@ -221,6 +223,8 @@ def tile_task(job: MosaicJob, ty: int, tx: int) -> dict:
     r0, r1, c0, c1 = store.chunk_rect(0, ty, tx)
     data, stats = render_tile(job, Rect(r0, r1, c0, c1))
     stats["seconds"] = round(time.perf_counter() - t0, 4)
+    stats["pixels"] = int(data.shape[0] * data.shape[1])
+    stats["run"] = job.run_id
     store.write_chunk(0, ty, tx, data, stats)
     return {"level": 0, "ty": ty, "tx": tx, **stats}
 
@@ -293,7 +297,7 @@ def mosaic(source: str | Path | MergedDirections, output: str | Path, *, width: 
            tile: int = DEFAULT_TILE, interp: str = DEFAULT_INTERP, blend: str = "linear",
            multiband_levels: int = DEFAULT_MULTIBAND_LEVELS, gain_compensation: bool = False,
            scheduler=None, workers: int | None = None, overwrite: bool = False, compression: str = "blosc-zstd",
-           merged_dir: str | Path | None = None, register=None,
+           merged_dir: str | Path | None = None, register=None, region: tuple[int, int, int, int] | None = None,
            progress: Callable[[str, dict, int, int], None] | None = None) -> dict:
     """Stitch a six-band panorama into a Zarr store; returns a summary (see :func:`summarise`).
 
@@ -315,6 +319,9 @@ def mosaic(source: str | Path | MergedDirections, output: str | Path, *, width: 
     scheduler, workers
         ``None`` for Dask's local threaded scheduler with ``workers`` threads (default: all cores),
         or a Dask distributed scheduler address / ``Client``.
+    region
+        ``(row0, row1, col0, col1)``: compute only the tiles meeting this window of level 0 (the
+        rest stays NaN; a later run can add more).
     progress
         ``progress(stage, result, done, total)`` per finished tile (``stage`` is ``"tiles"`` or ``"pyramid"``)
         and per merged direction (``"merge"``).
@@ -341,25 +348,42 @@ def mosaic(source: str | Path | MergedDirections, output: str | Path, *, width: 
     store = PanoramaStore.create(output, width // 2, width, N_BANDS, tile, attrs, fingerprint(merged, job),
                                  overwrite=overwrite, compression=compression)
     t_tiles = time.perf_counter()
-    computed = _run_level0(job, store, scheduler, workers, progress)
+    tiles = _tiles_in(store, region)
+    computed = _run_level0(job, store, tiles, scheduler, workers, progress)
     t_pyramid = time.perf_counter()
-    _run_pyramid(store, scheduler, workers, progress)
+    _run_pyramid(store, tiles, scheduler, workers, progress)
     t_end = time.perf_counter()
-    return summarise(store, computed, {"prepare": t_tiles - t_start, "tiles": t_pyramid - t_tiles,
-                                       "pyramid": t_end - t_pyramid, "total": t_end - t_start}, job)
+    return summarise(store, tiles, computed, {"prepare": t_tiles - t_start, "tiles": t_pyramid - t_tiles,
+                                              "pyramid": t_end - t_pyramid, "total": t_end - t_start}, job)
 
 
-def _pending(store: PanoramaStore, level: int) -> list[tuple[int, int]]:
-    ny, nx = store.n_chunks(level)
-    done = set(store.done_markers(level))
-    return [(ty, tx) for ty in range(ny) for tx in range(nx) if (ty, tx) not in done]
+def _tiles_in(store: PanoramaStore, region: tuple[int, int, int, int] | None) -> list[tuple[int, int]]:
+    """Level-0 chunks meeting ``region`` (all by default)."""
+    ny, nx = store.n_chunks(0)
+    if region is None:
+        return [(ty, tx) for ty in range(ny) for tx in range(nx)]
+    r0, r1, c0, c1 = (int(x) for x in region)
+    h, w = store.shapes[0]
+    if not (0 <= r0 < r1 <= h and 0 <= c0 < c1 <= w):
+        raise ConfigurationError(f"region {region} is not a window of the {w} x {h} panorama")
+    t = store.tile
+    return [(ty, tx) for ty in range(r0 // t, (r1 - 1) // t + 1) for tx in range(c0 // t, (c1 - 1) // t + 1)]
 
 
-def _run_level0(job, store, scheduler, workers, progress) -> int:
+def _ancestors(tiles: list[tuple[int, int]], level: int) -> list[tuple[int, int]]:
+    """Chunks of ``level`` computed from the given level-0 chunks (chunks keep their size, levels halve)."""
+    return sorted({(ty >> level, tx >> level) for ty, tx in tiles})
+
+
+def _run_level0(job, store, tiles, scheduler, workers, progress) -> int:
     import cv2
 
-    todo = _pending(store, 0)
-    total = int(np.prod(store.n_chunks(0)))
+    done = set(store.done_markers(0))
+    todo = [t for t in tiles if t not in done]
+    for level in range(1, len(store.shapes)):  # new level-0 chunks make their pyramid chunks stale
+        for ty, tx in _ancestors(todo, level):
+            store.unmark(level, ty, tx)
+    total = len(tiles)
     counter = [total - len(todo)]
 
     def on_tile(result):
@@ -376,17 +400,19 @@ def _run_level0(job, store, scheduler, workers, progress) -> int:
     return len(todo)
 
 
-def _run_pyramid(store, scheduler, workers, progress) -> None:
-    total = sum(int(np.prod(store.n_chunks(k))) for k in range(1, len(store.shapes)))
-    counter = [sum(len(store.done_markers(k)) for k in range(1, len(store.shapes)))]
+def _run_pyramid(store, tiles, scheduler, workers, progress) -> None:
+    wanted = {k: _ancestors(tiles, k) for k in range(1, len(store.shapes))}
+    done = {k: set(store.done_markers(k)) for k in wanted}
+    total = sum(len(v) for v in wanted.values())
+    counter = [sum(len(done[k] & set(v)) for k, v in wanted.items())]
 
     def on_chunk(result):
         counter[0] += 1
         if progress is not None:
             progress("pyramid", result, counter[0], total)
 
-    for level in range(1, len(store.shapes)):
-        todo = _pending(store, level)
+    for level, chunks in wanted.items():
+        todo = [c for c in chunks if c not in done[level]]
         run_tasks(pyramid_task, store.path, [(level, ty, tx) for ty, tx in todo], scheduler, workers, on_chunk)
 
 
@@ -453,14 +479,16 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def summarise(store: PanoramaStore, computed: int, seconds: dict, job: MosaicJob) -> dict:
+def summarise(store: PanoramaStore, tiles: list[tuple[int, int]], computed: int, seconds: dict,
+              job: MosaicJob) -> dict:
     """Summary of a run: output, sizes, tiles computed/skipped, holes, timings, throughput, peak memory."""
-    markers = store.done_markers(0)
-    n_tiles = int(np.prod(store.n_chunks(0)))
+    all_markers = store.done_markers(0)
+    markers = {t: all_markers[t] for t in tiles if t in all_markers}
+    n_tiles = len(tiles)
     h, w = store.shapes[0]
     holes = sum(int(m.get("holes", 0)) for m in markers.values())
     n_src = [int(m.get("n_sources", 0)) for m in markers.values()]
-    computed_px = computed / max(1, n_tiles) * h * w
+    computed_px = sum(int(m.get("pixels", 0)) for t, m in markers.items() if m.get("run") == job.run_id)
     return {"output": str(store.path), "width": w, "height": h, "bands": N_BANDS, "levels": [list(s) for s in
                                                                                              store.shapes],
             "tile": store.tile, "interp": job.interp, "blend": job.blend, "n_sources": len(job.images),

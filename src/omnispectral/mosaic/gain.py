@@ -9,8 +9,11 @@ their overlaps.  For every camera and band, gains ``g_i`` minimise
 where ``N_ij`` is the number of panorama pixels images ``i`` and ``j`` share and ``Ī_ij`` the mean
 of image ``i`` there.  The first term equalises overlaps, the second keeps the gains near 1 (so
 the absolute radiometry is kept on average).  Intensities are divided by their overall mean per
-band, so ``σ_N = 0.1`` and ``σ_g = 0.1`` are relative (Brown & Lowe's 10 grey levels out of ~100 and
-0.1); the normal equations are a small dense linear system per band.
+band, so ``σ_N = 0.1`` is relative (Brown & Lowe's 10 grey levels out of ~100).  Brown & Lowe's
+``σ_g = 0.1`` makes the prior as strong as the data, which suits small auto-exposure errors of LDR
+images but leaves a third of a 10 % drift in place; HDR radiance is calibrated, so here the prior
+only anchors the overall scale: ``σ_g = 1``.  The normal equations are a small dense linear
+system per band.
 
 Overlap means come from a coarse equirectangular grid (``width`` pixels around), sampled from
 every source at one pixel in ``decimate`` (rows read one at a time, so memory holds one decimated
@@ -27,7 +30,7 @@ from omnispectral.mosaic.maps import Canvas, Rect, SourceGeometry, source_map
 from omnispectral.mosaic.sources import CAMERAS, MergedDirections, SourceImage, read_npy_rows
 
 SIGMA_N = 0.1
-SIGMA_G = 0.1
+SIGMA_G = 1.0
 
 
 def coarse_width(fx_px: float, decimate: int) -> int:
@@ -54,7 +57,8 @@ def source_samples(img: SourceImage, geo: SourceGeometry, canvas: Canvas, decima
     w = feather_weight(sm.u, sm.v, geo.model.width, geo.model.height)
     ii, jj = np.nonzero(w > 0)
     small = read_decimated(img, decimate)
-    vals = remap(small, sm.u[ii, jj] / np.float32(decimate), sm.v[ii, jj] / np.float32(decimate), "linear")
+    scale = np.float32(1.0 / decimate)
+    vals = remap(small, (sm.u[ii, jj] * scale)[None], (sm.v[ii, jj] * scale)[None], "linear")[0]
     rows = ii + sm.row0
     cols = np.mod(jj + sm.col0, canvas.width)
     ok = np.isfinite(vals).all(axis=1) & (rows >= 0) & (rows < canvas.height)

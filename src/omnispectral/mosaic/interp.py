@@ -5,8 +5,10 @@ Methods (all separable kernels, evaluated at the exact floating-point position):
 ``linear``
     Bilinear (2 × 2 taps).
 ``cubic``
-    Cubic convolution with ``a = -0.75`` (4 × 4 taps; Keys, "Cubic convolution interpolation for
-    digital image processing", IEEE TASSP 29(6), 1981, with OpenCV's parameter).
+    Keys cubic convolution, ``a = -1/2`` (4 × 4 taps, third-order accurate, Catmull–Rom; Keys,
+    "Cubic convolution interpolation for digital image processing", IEEE TASSP 29(6), 1981).
+    OpenCV's ``INTER_CUBIC`` uses ``a = -3/4``, which reproduces constants but not ramps (first-order
+    error): on smooth HDR content it is worse than bilinear, so it is not used.
 ``spline``
     Cardinal cubic B-spline interpolation (Unser, Aldroubi & Eden, "Fast B-spline transforms for
     continuous image representation and interpolation", IEEE TPAMI 13(3), 1991): the source is
@@ -18,12 +20,14 @@ Methods (all separable kernels, evaluated at the exact floating-point position):
     Lanczos-3 (6 × 6 taps, weights normalised to sum 1; Duchon, "Lanczos filtering in one and two
     dimensions", J. Appl. Meteor. 18, 1979).
 
-Implementation.  OpenCV's ``cv2.remap`` is used for ``linear``, ``cubic`` and the bilinear fetches
-of ``spline`` when it interpolates at the exact position: OpenCV ≥ 5 does for ≤ 4 float32
-channels, OpenCV 4 rounds positions to 1/32 px (``INTER_BITS = 5``), and every version does so for
-Lanczos and for more than 4 channels.  :func:`opencv_is_exact` probes the installed OpenCV once;
-where it rounds, a NumPy gather with the same kernel is used.  ``lanczos`` is always the NumPy
-gather (OpenCV only has Lanczos-4, rounded).  Sources are cropped before remapping, so OpenCV's
+Implementation.  OpenCV's bilinear ``cv2.remap`` does the fetches when it interpolates at the exact
+position: OpenCV ≥ 5 does for ≤ 4 float32 channels, OpenCV 4 rounds positions to 1/32 px
+(``INTER_BITS = 5``), and every version does so for Lanczos and for more than 4 channels.
+:func:`opencv_is_exact` probes the installed OpenCV once; where it rounds, a NumPy gather with the
+same kernel is used.  ``cubic`` is three bilinear fetches per axis (nine in all: the two positive
+middle taps merged into one fetch between them, the negative outer taps fetched at their pixel);
+``spline`` four (all B-spline weights are positive).  ``lanczos`` is always the NumPy gather
+(OpenCV only has Lanczos-4, rounded).  Sources are cropped before remapping, so OpenCV's
 limit of 32767 px per side never applies (sources are sensor frames).  Borders replicate the edge
 pixel; the mosaic's feathering weight is zero at the sensor border, so they never show.
 """
@@ -42,7 +46,7 @@ KERNEL_RADIUS_PX = {"linear": 1, "cubic": 2, "spline": 2, "lanczos": 3}
 #: Extra source pixels prefiltered around a crop for ``spline``: the recursive filter's impulse response
 #: decays as ``|√3 - 2|^k``, below 2e-8 at 14 px.
 SPLINE_PREFILTER_MARGIN_PX = 14
-CUBIC_A = -0.75
+CUBIC_A = -0.5
 LANCZOS_A = 3
 _SPLINE_POLE = np.sqrt(3.0) - 2.0
 
@@ -99,12 +103,12 @@ def spline_prefilter(image: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------------ OpenCV
-_CV_FLAGS = {"linear": "INTER_LINEAR", "cubic": "INTER_CUBIC"}
+_CV_FLAGS = {"linear": "INTER_LINEAR"}
 
 
 @functools.cache
 def opencv_is_exact(method: str) -> bool:
-    """True if ``cv2.remap`` with ``method`` interpolates float32 3-channel images at the exact position.
+    """True if ``cv2.remap`` with ``method`` (``linear``) interpolates float32 3-channel images at the exact position.
 
     Probe: a 1/100-px shift of a random image must change the result by about 1/100 of the gradient
     (OpenCV 4 rounds positions to 1/32 px, so the shift would vanish).
@@ -186,27 +190,48 @@ def remap_reference(src: np.ndarray, u, v, method: str) -> np.ndarray:
     return out[..., 0] if squeeze else out
 
 
-def _spline_from_coefficients(coef: np.ndarray, u: np.ndarray, v: np.ndarray, exact_linear: bool) -> np.ndarray:
-    """Cubic B-spline of coefficients ``coef`` at ``(u, v)`` as four bilinear fetches (Sigg & Hadwiger 2005)."""
-    def split(x):
-        i = np.floor(x)
-        t = x - i
-        t2, t3 = t * t, t * t * t
-        w0 = (1.0 - 3.0 * t + 3.0 * t2 - t3) / 6.0
-        w1 = (4.0 - 6.0 * t2 + 3.0 * t3) / 6.0
-        w3 = t3 / 6.0
-        g0 = w0 + w1
-        g1 = 1.0 - g0
-        return g0.astype(np.float32), g1.astype(np.float32), (i - 1.0 + w1 / g0).astype(np.float32), \
-            (i + 1.0 + w3 / g1).astype(np.float32)
+def _spline_taps(x: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Cubic B-spline as two linear fetches per axis: ``[(weight, position), …]`` (Sigg & Hadwiger 2005)."""
+    i = np.floor(x)
+    t = x - i
+    t2 = t * t
+    t3 = t2 * t
+    w0 = (1.0 - 3.0 * t + 3.0 * t2 - t3) * np.float32(1 / 6)
+    w1 = (4.0 - 6.0 * t2 + 3.0 * t3) * np.float32(1 / 6)
+    w3 = t3 * np.float32(1 / 6)
+    g0 = w0 + w1
+    g1 = 1.0 - g0
+    return [(g0, i - 1.0 + w1 / g0), (g1, i + 1.0 + w3 / g1)]
 
-    gu0, gu1, hu0, hu1 = split(np.asarray(u, dtype=np.float64))
-    gv0, gv1, hv0, hv1 = split(np.asarray(v, dtype=np.float64))
-    fetch = (lambda a, b: _cv_remap(coef, a, b, "linear")) if exact_linear else \
-        (lambda a, b: _gather_remap(coef, a, b, linear_kernel, 1, False))
-    top = gu0[..., None] * fetch(hu0, hv0) + gu1[..., None] * fetch(hu1, hv0)
-    bottom = gu0[..., None] * fetch(hu0, hv1) + gu1[..., None] * fetch(hu1, hv1)
-    return gv0[..., None] * top + gv1[..., None] * bottom
+
+def _keys_taps(x: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Keys (a = -1/2) as three fetches per axis: the outer taps at their pixels, the middle two merged."""
+    i = np.floor(x)
+    t = x - i
+    t2 = t * t
+    t3 = t2 * t
+    wm1 = (-t3 + 2.0 * t2 - t) * np.float32(0.5)
+    w0 = (3.0 * t3 - 5.0 * t2 + 2.0) * np.float32(0.5)
+    w1 = (-3.0 * t3 + 4.0 * t2 + t) * np.float32(0.5)
+    w2 = (t3 - t2) * np.float32(0.5)
+    g = w0 + w1
+    return [(wm1, i - 1.0), (g, i + w1 / g), (w2, i + 2.0)]
+
+
+def _separable_fetches(src: np.ndarray, taps_u, taps_v, exact_linear: bool) -> np.ndarray:
+    """``Σ_a Σ_b wu_a wv_b · bilinear(src, pu_a, pv_b)`` (float32)."""
+    fetch = (lambda a, b: _cv_remap(src, a, b, "linear")) if exact_linear else \
+        (lambda a, b: _gather_remap(src, a, b, linear_kernel, 1, False))
+    out = None
+    for wv, pv in taps_v:
+        row = None
+        for wu, pu in taps_u:
+            term = fetch(pu, pv)
+            term *= wu[..., None]
+            row = term if row is None else np.add(row, term, out=row)
+        row *= wv[..., None]
+        out = row if out is None else np.add(out, row, out=out)
+    return out
 
 
 def remap(src: np.ndarray, u: np.ndarray, v: np.ndarray, method: str = "cubic",
@@ -226,8 +251,10 @@ def remap(src: np.ndarray, u: np.ndarray, v: np.ndarray, method: str = "cubic",
     v = np.ascontiguousarray(v, dtype=np.float32)
     if method == "spline":
         coef = src if prefiltered else spline_prefilter(src)
-        out = _spline_from_coefficients(coef, u, v, opencv_is_exact("linear"))
-    elif method != "lanczos" and opencv_is_exact(method):
+        out = _separable_fetches(coef, _spline_taps(u), _spline_taps(v), opencv_is_exact("linear"))
+    elif method == "cubic":
+        out = _separable_fetches(src, _keys_taps(u), _keys_taps(v), opencv_is_exact("linear"))
+    elif method == "linear" and opencv_is_exact("linear"):
         out = _cv_remap(src, u, v, method)
     else:
         kernel, radius = _KERNELS[method]

@@ -92,7 +92,7 @@ def polar_image(image: np.ndarray, f_px: float, cx: float | None = None, cy: flo
     theta = t0 + (np.arange(n_theta) + 0.5) * (t1 - t0) / n_theta
     phi = p0 + (np.arange(n_phi) + 0.5) * (p1 - p0) / n_phi
     x, y = polar_to_image_px(theta[None, :], phi[:, None], f_px)
-    u, v = x + cx, y + cy
+    u, v = np.broadcast_arrays(x + cx, y + cy)
     valid = (u >= -0.5) & (u <= w - 0.5) & (v >= -0.5) & (v <= h - 0.5)
     out = remap(img, u.astype(np.float32), v.astype(np.float32), interp)
     out[~valid] = np.nan

@@ -162,6 +162,10 @@ class PanoramaStore:
     def is_done(self, level: int, ty: int, tx: int) -> bool:
         return self._marker(level, ty, tx).is_file()
 
+    def unmark(self, level: int, ty: int, tx: int) -> None:
+        """Forget that a chunk is finished (it will be recomputed)."""
+        self._marker(level, ty, tx).unlink(missing_ok=True)
+
     def done_markers(self, level: int) -> dict[tuple[int, int], dict]:
         """Statistics recorded with every finished chunk of ``level``."""
         out = {}

@@ -64,16 +64,32 @@ def render_source(panorama_padded: np.ndarray, width: int, height: int, model: C
     return np.maximum(out, 0.0)
 
 
-def write_synthetic_merged(path: str | Path, panorama6: np.ndarray, cameras: dict[str, CameraModel],
+def render_scene(scene, model: CameraModel, camera: str, pan_deg: float, tilt_deg: float,
+                 offset_px: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
+    """``(H, W, 3)`` image of an analytic scene ``scene(rays (..., 3)) -> (..., 6)`` (exact, no interpolation)."""
+    v, u = np.mgrid[0:model.height, 0:model.width].astype(np.float64)
+    rays, valid = model.pixel_to_world(np.stack([u - offset_px[0], v - offset_px[1]], axis=-1), pan_deg, tilt_deg)
+    bands = list(CAMERA_BANDS[camera])
+    out = np.asarray(scene(np.nan_to_num(rays)), np.float32)[..., bands]
+    out[~valid] = np.nan
+    return out
+
+
+def write_synthetic_merged(path: str | Path, panorama6, cameras: dict[str, CameraModel],
                            directions: list[tuple[float, float]], offset_b_px: tuple[float, float] = (0.0, 0.0),
                            dtype: str = "float32", interp: str = "cubic", rig_name: str = "",
                            rig_toml: str = "", gains: np.ndarray | None = None) -> MergedDirections:
-    """Merged directions of ``panorama6`` (H, W, 6) seen from ``directions`` ``[(pan_deg, tilt_deg), …]``.
+    """Merged directions of ``panorama6`` seen from ``directions`` ``[(pan_deg, tilt_deg), …]``.
 
-    ``gains`` (n_directions, 6), if given, multiplies each direction's bands (a simulated exposure drift).
+    ``panorama6`` is an (H, W, 6) equirectangular image (looked up with ``interp``) or an analytic
+    scene, a callable ``rays (..., 3) -> (..., 6)`` (evaluated exactly).  ``gains`` (n_directions, 6),
+    if given, multiplies each direction's bands (a simulated exposure drift).
     """
-    h, w = panorama6.shape[:2]
-    padded = pad_over_poles(np.asarray(panorama6, np.float32))
+    if callable(panorama6):
+        padded, h, w = None, 0, 0
+    else:
+        h, w = panorama6.shape[:2]
+        padded = pad_over_poles(np.asarray(panorama6, np.float32))
     plan = [{"index": k, "pan_deg": p, "tilt_deg": t} for k, (p, t) in enumerate(directions)]
     writer = MergedDirectionsWriter.create(path, cameras, plan, rig_name=rig_name, rig_toml=rig_toml, dtype=dtype,
                                            session={"synthetic": "rendered from a panorama"})
@@ -83,7 +99,8 @@ def write_synthetic_merged(path: str | Path, panorama6: np.ndarray, cameras: dic
         images = {}
         for cam in ("A", "B"):
             offset = offset_b_px if cam == "B" else (0.0, 0.0)
-            img = render_source(padded, w, h, cameras[cam], cam, pan, tilt, offset, interp)
+            img = render_scene(panorama6, cameras[cam], cam, pan, tilt, offset) if padded is None else \
+                render_source(padded, w, h, cameras[cam], cam, pan, tilt, offset, interp)
             if gains is not None:
                 img *= np.asarray(gains[k], np.float32)[list(CAMERA_BANDS[cam])]
             images[cam] = img

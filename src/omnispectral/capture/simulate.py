@@ -58,14 +58,20 @@ def camera_model(rig: Rig, name: str) -> CameraModel:
 
 def rig_system(rig: Rig, wavelength_nm: np.ndarray | None = None) -> MultibandSystem:
     """The six-band system of a rig: camera A's sensitivity × filter A, then camera B's × filter B."""
+    pairs = tuple((rig.cameras[c].sensitivity, rig.cameras[c].filter) for c in ("A", "B"))
+    return two_camera_system(pairs, wavelength_nm, rig.name)
+
+
+def two_camera_system(pairs: tuple[tuple[str, str], tuple[str, str]], wavelength_nm: np.ndarray | None = None,
+                      name: str = "rig") -> MultibandSystem:
+    """Bands ``A:R … B:B`` of two cameras given as (sensitivity, filter) names or CSV files."""
     from omnispectral.spectral.library import load_camera, load_filter
 
-    parts = [build_system(load_camera(rig.cameras[c].sensitivity), [load_filter(rig.cameras[c].filter)],
-                          wavelength_nm) for c in ("A", "B")]
+    parts = [build_system(load_camera(sens), [load_filter(filt)], wavelength_nm) for sens, filt in pairs]
     return MultibandSystem(parts[0].wavelength_nm, np.vstack([p.sensitivity for p in parts]),
                            tuple(f"{c}:{b}" for c in ("A", "B") for b in ("R", "G", "B")),
                            np.array([0, 0, 0, 1, 1, 1]),
-                           f"{rig.name}: {parts[0].description} | {parts[1].description}")
+                           f"{name}: {parts[0].description} | {parts[1].description}")
 
 
 def sample_dn(electrons: np.ndarray, noise: SensorNoiseModel, rng: np.random.Generator) -> np.ndarray:

@@ -1,0 +1,59 @@
+"""The Wiener estimator attached to a product: fitted for the rig's six bands, described by parameters.
+
+A product stores six bands plus the estimator (DESIGN: "spectra are a linear view").  The estimator
+is stored twice over: as its parameters (rig sensitivities and filters, prior, σ², form), from which
+:func:`estimator_from_params` re-fits exactly the same estimator, and as ``WienerEstimator.to_dict()``
+(the per-component linear maps, usable without this package).  σ² is tuned on the calibration chart
+(CIE TCS + NIST CQS) measured through the rig's own noise model, and the ColorChecker is held out
+of prior and calibration, so an accuracy report on the chart in the panorama is not circular.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+
+from omnispectral.capture.rig import Rig
+from omnispectral.capture.simulate import two_camera_system
+from omnispectral.spectral.wiener import WienerEstimator
+
+HELD_OUT = "colorchecker"
+
+
+def estimator_params(rig: Rig, mixture: bool = True) -> dict:
+    """Everything :func:`estimator_from_params` needs, JSON-able (stored in the product)."""
+    a, b = rig.camera_a, rig.camera_b
+    return {"sensitivity_a": a.sensitivity, "filter_a": a.filter, "sensitivity_b": b.sensitivity,
+            "filter_b": b.filter, "full_well_e": a.full_well_e, "read_noise_e": a.read_noise_e,
+            "bit_depth": a.bit_depth, "mixture": bool(mixture), "normalized": True, "held_out": HELD_OUT}
+
+
+@functools.lru_cache(maxsize=4)
+def _fit_cached(params_json: str) -> tuple[WienerEstimator, str]:
+    from omnispectral.spectral.evaluate import Protocol, fit_for_protocol
+    from omnispectral.spectral.library import load_reflectances
+    from omnispectral.spectral.noise import SensorNoiseModel
+
+    p = json.loads(params_json)
+    system = _system_from_params(p)
+    noise = SensorNoiseModel(p["full_well_e"], p["read_noise_e"], p["bit_depth"])
+    protocol = Protocol(target=p["held_out"], noise=noise, normalized=p["normalized"], mixture=p["mixture"])
+    est, info = fit_for_protocol(system, protocol, [load_reflectances(p["held_out"]).resample(system.wavelength_nm)])
+    return est, json.dumps({"sigma2": info["sigma2"], "prior": info["prior"]}, default=str)
+
+
+def _system_from_params(p: dict):
+    return two_camera_system(((p["sensitivity_a"], p["filter_a"]), (p["sensitivity_b"], p["filter_b"])))
+
+
+def estimator_from_params(params: dict) -> tuple[WienerEstimator, dict]:
+    """Fit (or fetch from this process's cache) the estimator a product describes; returns it and its info."""
+    est, info = _fit_cached(json.dumps(params, sort_keys=True))
+    return est, json.loads(info)
+
+
+def rig_estimator(rig: Rig, mixture: bool = True) -> tuple[WienerEstimator, dict]:
+    """The estimator for a rig's six bands, with its parameters and fit information."""
+    params = estimator_params(rig, mixture)
+    est, info = estimator_from_params(params)
+    return est, {"params": params, **info}

@@ -180,7 +180,9 @@ def write_ground_truth(directory: str | Path, renderer: RigRenderer, width: int,
     (what the HDR merge of a noise-free capture gives), seen from the head's rotation centre.
     ``spectral.npy`` ``(h, w, n)`` at ``spectral_width``: spectral radiance in DN/s per unit of the
     system matrix (``bands = spectral @ matrix.T``), i.e. the unit a Wiener estimate of the bands is in.
-    ``wavelength_nm.npy``, ``system_matrix.npy`` ``(6, n)``; ``ground_truth.json`` describes all of it.
+    ``wavelength_nm.npy``, ``system_matrix.npy`` ``(6, n)``; for scenes with a chart
+    ``colorchecker_radiance.npy`` ``(24, n)`` (spectral radiance at each patch centre, same units) and
+    ``colorchecker_white.npy`` ``(n,)`` (a perfect white diffuser there); ``ground_truth.json`` describes it all.
     """
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
@@ -201,6 +203,17 @@ def write_ground_truth(directory: str | Path, renderer: RigRenderer, width: int,
     _save_npy(out / "wavelength_nm.npy", np.asarray(renderer.system.wavelength_nm, np.float32))
     _save_npy(out / "system_matrix.npy", matrix.astype(np.float32))
     patches = renderer.scene.colorchecker_patches() if hasattr(renderer.scene, "colorchecker_patches") else []
+    chart = {}
+    if patches:
+        from omnispectral.imaging.geometry import lonlat_to_ray
+
+        rays = lonlat_to_ray(np.array([p["lon_deg"] for p in patches]), np.array([p["lat_deg"] for p in patches]))
+        radiance = renderer.scene.spectral_radiance(rays) * np.float32(scale)
+        refl = np.array([p["reflectance"] for p in patches], np.float32)
+        white = radiance[np.argmax(refl.mean(axis=1))] / np.maximum(refl[np.argmax(refl.mean(axis=1))], 1e-6)
+        _save_npy(out / "colorchecker_radiance.npy", radiance.astype(np.float32))
+        _save_npy(out / "colorchecker_white.npy", white.astype(np.float32))
+        chart = {"colorchecker_radiance": "colorchecker_radiance.npy", "colorchecker_white": "colorchecker_white.npy"}
     meta = {"format": GROUND_TRUTH_FORMAT, "format_version": 1,
             "bands": {"file": "bands.npy", "shape": [height, width, 6], "names": list(renderer.system.band_names),
                       "units": "DN per second of exposure (noise-free, 12-bit codes per second)"},
@@ -211,7 +224,7 @@ def write_ground_truth(directory: str | Path, renderer: RigRenderer, width: int,
                     "world +Y up, longitude 0 = +Z, longitude +90 = -X (omnispectral.imaging.geometry)",
             "viewpoint": "the head's rotation centre (camera A's optical centre)",
             "electrons_per_unit": renderer.electrons_per_unit, "dn_per_second_per_unit": scale,
-            "scene": _jsonable(renderer.scene.describe()), "colorchecker_patches": _jsonable(patches)}
+            "scene": _jsonable(renderer.scene.describe()), "colorchecker_patches": _jsonable(patches), **chart}
     atomic_write_json(out / "ground_truth.json", meta)
     return meta
 

@@ -36,5 +36,8 @@ bench: $(STAMP)
 	$(BIN)/python benchmarks/bench_spectral.py
 	for b in benchmarks/bench_*.py; do [ "$$b" = benchmarks/bench_spectral.py ] || $(BIN)/python $$b; done
 
+bench-deps:  # Hugin's nona, the baseline of benchmarks/bench_mosaic.py (Debian hugin-tools)
+	command -v nona >/dev/null || { apt-get update -qq && apt-get install -y -qq --no-install-recommends hugin-tools; }
+
 clean:
 	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache build src/*.egg-info

@@ -174,25 +174,32 @@ def _touches(bad: np.ndarray, u: np.ndarray, v: np.ndarray, radius: int) -> np.n
 
 
 def render_tile(job: MosaicJob, rect: Rect) -> tuple[np.ndarray, dict]:
-    """The six-band tile ``rect`` (h, w, 6) float32 (NaN where no source covers it) and its statistics."""
+    """The six-band tile ``rect`` (h, w, 6) float32 (NaN where no source covers it) and its statistics.
+
+    Linear blending accumulates each source as soon as it is resampled, so a tile holds one
+    resampled source at a time; multi-band blending needs them all (on the tile plus its halo).
+    """
     halo = multiband_halo_px(job.multiband_levels) if job.blend == "multiband" else 0
     work = rect.grow(halo) if halo else rect
-    warped = [w for i in job.sources_for(work) if (w := warp_source(job, int(i), work)) is not None]
+    steps, errors = [], []
     if job.blend == "multiband":
+        warped = [w for i in job.sources_for(work) if (w := warp_source(job, int(i), work)) is not None]
+        steps, errors = [w.step for w in warped], [w.max_error_px for w in warped]
         out = _multiband(job, warped, work)[halo:halo + rect.shape[0], halo:halo + rect.shape[1]]
-        weight_sum = None
+        del warped
     else:
         acc = LinearBlend(rect.shape, N_BANDS)
-        for w in warped:
+        for i in job.sources_for(work):
+            w = warp_source(job, int(i), work)
+            if w is None:
+                continue
             acc.add(job.images[w.index].bands, w.row0 - rect.row0, w.col0 - rect.col0, w.values, w.weight)
+            steps.append(w.step)
+            errors.append(w.max_error_px)
         out = acc.result()
-        weight_sum = acc.weight_sum((0, 1, 2))
     holes = int((~np.isfinite(out)).any(axis=-1).sum())
-    stats = {"n_sources": len(warped), "holes": holes,
-             "map_step_min": min((w.step for w in warped), default=0),
-             "map_error_px": max((w.max_error_px for w in warped), default=0.0)}
-    if weight_sum is not None and warped:
-        stats["min_weight_sum"] = float(weight_sum.min())
+    stats = {"n_sources": len(steps), "holes": holes, "map_step_min": min(steps, default=0),
+             "map_error_px": max(errors, default=0.0)}
     return out, stats
 
 

@@ -150,3 +150,63 @@ def write_radiance_hdr(path: str | Path, rgb_linear: np.ndarray) -> Path:
     from omnispectral.imaging.bracket import write_float_image
 
     return write_float_image(path, np.clip(np.nan_to_num(rgb_linear), 0, None), ["R", "G", "B"])
+
+
+FORMATS = ("spectral-exr", "envi", "rgb-exr", "hdr", "png", "jpg", "uncertainty")
+
+
+def export_product(product: str | Path, fmt: str, output: str | Path, region: tuple[int, int, int, int] | None = None,
+                   level: int = 0, max_bytes: int | None = None) -> dict:
+    """Write one standard file from a processed product (a region and/or a pyramid level of it).
+
+    ``region`` is ``(row0, row1, col0, col1)`` in pixels of ``level``.  Spectral formats hold ``n``
+    float32 values per pixel; an export whose array would exceed ``max_bytes`` (default: half the
+    machine's memory) is refused before anything is computed, naming the size and the way out.
+    """
+    import os
+
+    from omnispectral.product.spectra import bands_to_linear_srgb, estimate_image, open_product
+
+    if fmt not in FORMATS:
+        raise ConfigurationError(f"unknown format {fmt!r}; expected one of {', '.join(FORMATS)}")
+    index, store, estimator = open_product(product)
+    if not 0 <= level < len(store.shapes):
+        raise ConfigurationError(f"level {level} does not exist; the product has levels 0-{len(store.shapes) - 1} "
+                                 f"({', '.join(f'{w}x{h}' for h, w in store.shapes)})")
+    h, w = store.shapes[level]
+    r0, r1, c0, c1 = region if region is not None else (0, h, 0, w)
+    if not (0 <= r0 < r1 <= h and 0 <= c0 < c1 <= w):
+        raise ConfigurationError(f"region rows {r0}-{r1}, columns {c0}-{c1} is outside level {level} ({w}x{h})")
+    n = len(estimator.wavelength_nm)
+    per_px = {"spectral-exr": n + 3, "envi": n, "uncertainty": 2 * n}.get(fmt, 6)
+    need = (r1 - r0) * (c1 - c0) * per_px * 4 * 2
+    limit = max_bytes if max_bytes is not None else os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // 2
+    if need > limit:
+        raise ConfigurationError(f"a {fmt} export of {c1 - c0}x{r1 - r0} px needs about {need / 2**30:.1f} GiB of "
+                                 f"memory (limit {limit / 2**30:.1f} GiB): use --level (e.g. {level + 1}) or --region")
+    bands = store.read(level, slice(r0, r1), slice(c0, c1))
+    wl = np.asarray(estimator.wavelength_nm)
+    units = f"{index['units']} per unit of the system matrix"
+    attrs = {"omnispectral_product": str(Path(product).resolve()), "omnispectral_units": units,
+             "omnispectral_region": f"level {level} rows {r0}-{r1} cols {c0}-{c1}",
+             "omnispectral_geometry": "equirectangular; row 0 at latitude +90 of the full panorama, column 0 at -180"}
+    if fmt in ("png", "jpg"):
+        path = write_preview(output, bands_to_linear_srgb(bands, estimator))
+    elif fmt in ("rgb-exr", "hdr"):
+        rgb = bands_to_linear_srgb(bands, estimator)
+        path = write_rgb_exr(output, rgb, attrs) if fmt == "rgb-exr" else write_radiance_hdr(output, rgb)
+    elif fmt == "uncertainty":
+        spectra, std = estimate_image(bands, estimator, with_std=True)
+        rms = np.sqrt(np.mean(std**2, axis=2))
+        rel = rms / np.maximum(np.sqrt(np.mean(spectra**2, axis=2)), 1e-30)
+        from omnispectral.imaging.bracket import write_float_image
+
+        path = write_float_image(output, np.stack([rel, rms], axis=2), ["relative_std", "std_rms"], attrs)
+    else:
+        spectra = estimate_image(bands, estimator)
+        if fmt == "spectral-exr":
+            path = write_spectral_exr(output, spectra, wl, units=units, attributes=attrs)
+        else:
+            path = write_envi(output, spectra, wl, description=f"omnispectral {attrs['omnispectral_region']}")
+    return {"output": str(path), "format": fmt, "level": level, "region": [r0, r1, c0, c1],
+            "width": c1 - c0, "height": r1 - r0}

@@ -1,0 +1,208 @@
+"""``process``: a capture session into an HDR six-band panorama with its spectral estimator (paper Sec. 4).
+
+Stages (each timed, with progress; the whole run is resumable):
+
+1. **check** the session against its plan (:func:`~omnispectral.capture.session.verify_session`): a
+   missing or damaged frame stops the run with its name, unless ``skip_bad`` leaves out the
+   directions concerned (recorded as holes in ``product.json``);
+2. **merge + register**, one direction at a time (memory holds one direction): the HDR merge of each
+   camera's bracket (Eq. (1), inverse-variance weight by default), then camera B registered to A by
+   POC through the geometry (:func:`~omnispectral.product.align.align_direction`, falling back to the
+   calibrated offset when the confidence is low), written to ``PRODUCT/merged/``;
+3. **mosaic**: :func:`omnispectral.mosaic.engine.mosaic` into ``PRODUCT/panorama.zarr`` (one resampling
+   per pixel, linear blending, pyramid; local threads or a Dask cluster).  Interpolation defaults to
+   bilinear here: it never overshoots, which keeps small high-contrast targets (a ColorChecker patch a
+   few pixels wide) radiometrically right — on the ``small`` demo the chart patches read +5 % (cubic)
+   and +10 % (spline) too bright, and the six-band PSNR against the truth is 45.7 dB (linear) vs
+   39.1 (cubic) and 33.3 (spline);
+4. **estimator**: the Wiener estimator for the rig's six bands (ColorChecker held out), stored in the
+   panorama's attributes and in ``product.json``: spectra are computed on demand from the six bands.
+
+``PRODUCT/product.json`` indexes it all (see docs/product.md).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from omnispectral.errors import InputFileError
+from omnispectral.io import atomic_write_json
+
+PRODUCT_FORMAT = "omnispectral-product"
+PANORAMA = "panorama.zarr"
+MERGED = "merged"
+
+
+def product_paths(product: str | Path) -> dict[str, Path]:
+    root = Path(product)
+    return {"root": root, "index": root / "product.json", "panorama": root / PANORAMA, "merged": root / MERGED,
+            "report": root / "report"}
+
+
+def bad_directions(report: dict) -> dict[int, list[str]]:
+    """Directions with missing or damaged frames, and what is wrong with each frame."""
+    out: dict[int, list[str]] = {}
+    for item in report["missing"] + report["damaged"]:
+        out.setdefault(int(item["direction"]), []).append(f"{item['file']}: {item['problem']}")
+    return out
+
+
+def _check_session(session_path: Path, skip_bad: bool) -> tuple[dict, dict[int, list[str]]]:
+    from omnispectral.capture.session import verify_session
+
+    report = verify_session(session_path, check_pixels=False)
+    bad = bad_directions(report)
+    if report["journal_bad_lines"]:
+        first = report["journal_bad_lines"][0]
+        raise InputFileError(session_path / "journal.jsonl", f"line {first['line']}: {first['problem']}")
+    if bad and not skip_bad:
+        first = next(iter(bad.values()))[0]
+        raise InputFileError(session_path / first.split(":")[0],
+                             f"{first.split(': ', 1)[1]} ({report['n_missing']} missing and {report['n_damaged']} "
+                             f"damaged frames in {len(bad)} directions; --skip-bad processes the rest)")
+    return report, bad
+
+
+def merge_and_register(session_path: Path, out: Path, skip: set[int], min_confidence: float, progress=None,
+                       timings: dict | None = None, hdr_weight: str = "noise") -> tuple[object, list[dict]]:
+    """Stage 2: per direction HDR merge of both cameras and registration of B to A, streamed to ``out``."""
+    from omnispectral.capture.rig import rig_toml
+    from omnispectral.capture.session import Session
+    from omnispectral.capture.simulate import camera_model
+    from omnispectral.mosaic.sources import MergedDirections, MergedDirectionsWriter, merge_direction
+    from omnispectral.product.align import align_direction
+
+    session = Session.open(session_path)
+    rig, plan = session.rig(), session.plan()
+    models = {c: camera_model(rig, c) for c in ("A", "B")}
+    keep = [d for d in plan.directions if d.index not in skip]
+    meta = session.metadata()
+    writer = MergedDirectionsWriter.create(out, models, [d.to_dict() for d in keep], rig_name=rig.name,
+                                           rig_toml=rig_toml(rig),
+                                           session={"path": str(Path(session_path).resolve()),
+                                                    **{k: meta[k] for k in ("kind", "rig", "created_utc")
+                                                       if k in meta}})
+    done = writer.done()
+    alignments = [d.get("alignment") for d in writer.meta["directions"] if d.get("alignment")]
+    t_merge = t_reg = 0.0
+    for i, d in enumerate(keep):
+        if d.index not in done:
+            t0 = time.perf_counter()
+            img_a, (pan, tilt) = merge_direction(session, d.index, "A", len(plan.exposures_s), weight=hdr_weight)
+            img_b, _ = merge_direction(session, d.index, "B", len(plan.exposures_s), weight=hdr_weight)
+            t1 = time.perf_counter()
+            al = align_direction(d.index, img_a, img_b, models["A"], models["B"], pan, tilt, min_confidence)
+            t_merge += t1 - t0
+            t_reg += time.perf_counter() - t1
+            writer.add(d.index, pan, tilt, {"A": img_a, "B": img_b}, {"B": al.offset_px},
+                       {"pan_deg_commanded": d.pan_deg, "tilt_deg_commanded": d.tilt_deg,
+                        "alignment": al.to_dict()})
+            alignments.append(al.to_dict())
+            del img_a, img_b
+        if progress is not None:
+            progress(i + 1, len(keep))
+    if timings is not None:
+        timings["hdr_merge"] = timings.get("hdr_merge", 0.0) + t_merge
+        timings["registration"] = timings.get("registration", 0.0) + t_reg
+    return MergedDirections.open(out), sorted(alignments, key=lambda a: a["direction"])
+
+
+def process(session: str | Path, output: str | Path, *, width: int | None = None, tile: int | None = None,
+            interp: str | None = None, scheduler=None, workers: int | None = None, skip_bad: bool = False,
+            min_confidence: float | None = None, hdr_weight: str = "noise", report: bool = True,
+            progress: bool = True) -> dict:
+    """Run stages 1-4 (module docstring) and write ``product.json`` and, by default, the report.
+
+    ``hdr_weight`` defaults to the inverse-variance weight: the paper's triangle weight lets 1-DN
+    values of the shortest exposures bias dark regions upwards (+36 % at 360 DN in the longest
+    exposure on the simulated rig; docs/benchmarks.md), which would show in the spectra.
+    """
+    from omnispectral.capture.session import Session
+    from omnispectral.imaging.registration import DEFAULT_MIN_CONFIDENCE
+    from omnispectral.mosaic import engine
+    from omnispectral.mosaic.store import PanoramaStore
+    from omnispectral.product.estimator import rig_estimator
+
+    session_path = Path(session)
+    paths = product_paths(output)
+    paths["root"].mkdir(parents=True, exist_ok=True)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    check, bad = _check_session(session_path, skip_bad)
+    timings["check"] = time.perf_counter() - t0
+    s = Session.open(session_path)
+    rig = s.rig()
+    bar = _Progress(progress)
+    try:
+        merged, alignments = merge_and_register(session_path, paths["merged"], set(bad),
+                                                DEFAULT_MIN_CONFIDENCE if min_confidence is None else min_confidence,
+                                                bar.callback("merge + register"), timings, hdr_weight)
+        t1 = time.perf_counter()
+        kwargs = {k: v for k, v in (("width", width), ("tile", tile)) if v is not None}
+        kwargs["interp"] = interp or "linear"
+        summary = engine.mosaic(merged, paths["panorama"], scheduler=scheduler, workers=workers,
+                                progress=bar.stage_callback(), **kwargs)
+        timings["mosaic"] = time.perf_counter() - t1
+    finally:
+        bar.stop()
+    t2 = time.perf_counter()
+    est, est_info = rig_estimator(rig)
+    estimator = {"params": est_info["params"], "sigma2": est_info["sigma2"], "prior": est_info["prior"],
+                 "linear_maps": est.to_dict()}
+    store = PanoramaStore.open(paths["panorama"])
+    store.update_attrs({"omnispectral": {**store.attrs()["omnispectral"], "estimator": estimator}})
+    timings["estimator"] = time.perf_counter() - t2
+    timings["total"] = time.perf_counter() - t0
+    index = {"format": PRODUCT_FORMAT, "format_version": 1, "session": str(session_path.resolve()),
+             "session_kind": s.metadata().get("kind"), "rig": rig.name, "panorama": PANORAMA, "merged": MERGED,
+             "width": summary["width"], "height": summary["height"], "bands": list(merged.meta["band_names"]),
+             "units": merged.meta["units"], "hdr_weight": hdr_weight,
+             "estimator": {k: estimator[k] for k in ("params", "sigma2", "prior")},
+             "registration": {"min_confidence": DEFAULT_MIN_CONFIDENCE if min_confidence is None else min_confidence,
+                              "directions": alignments},
+             "skipped_directions": [{"direction": d, "problems": p} for d, p in sorted(bad.items())],
+             "session_check": {k: check[k] for k in ("n_planned", "n_ok", "n_missing", "n_damaged")},
+             "mosaic": {k: v for k, v in summary.items() if k not in ("output",)},
+             "timings_s": timings}
+    atomic_write_json(paths["index"], index)
+    if report:
+        from omnispectral.product.report import write_report
+
+        t3 = time.perf_counter()
+        rep = write_report(paths["root"])
+        index["timings_s"]["report"] = time.perf_counter() - t3
+        index["report"] = rep["files"]
+        atomic_write_json(paths["index"], index)
+    return index
+
+
+class _Progress:
+    """Rich progress bars for the stages (or nothing)."""
+
+    def __init__(self, enabled: bool):
+        self.bar = None
+        self.tasks: dict[str, int] = {}
+        if enabled:
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+            self.bar = Progress(TextColumn("{task.description:>16}"), BarColumn(), MofNCompleteColumn(),
+                                TimeElapsedColumn(), transient=False)
+            self.bar.start()
+
+    def _update(self, name: str, done: int, total: int) -> None:
+        if self.bar is None:
+            return
+        if name not in self.tasks:
+            self.tasks[name] = self.bar.add_task(name, total=total)
+        self.bar.update(self.tasks[name], completed=done, total=total)
+
+    def callback(self, name: str):
+        return lambda done, total: self._update(name, done, total)
+
+    def stage_callback(self):
+        return lambda stage, result, done, total: self._update(stage, done, total)
+
+    def stop(self) -> None:
+        if self.bar is not None:
+            self.bar.stop()

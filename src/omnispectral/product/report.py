@@ -1,0 +1,226 @@
+"""The report of a product: preview, timings, registration per direction and, for simulations, accuracy.
+
+``PRODUCT/report/report.json`` (keys at least ``accuracy`` and ``timings_s``) and ``report.html`` with
+PNG plots.  Accuracy against the simulator's ground truth (``SESSION/ground_truth``):
+
+- ``six_band_psnr_db``: ``10 log10(peak² / MSE)`` of the six bands (DN/s) against the ground truth
+  resampled to the panorama grid (area average), over pixels the panorama covers and where the truth
+  is below the shortest exposure's saturation (the sun disk saturates every exposure and is flagged,
+  not measured); ``peak`` = the largest ground-truth value on those pixels.
+- ``spectral_nrmse``: mean per-pixel NRMSE (unit-L2-norm spectra, as in the spectral core) of the
+  Wiener estimate from the panorama's bands, on the ground truth's spectral grid (the panorama is
+  area-averaged onto it), over the same kind of pixels.
+- ``colorchecker``: the 24 patches located in the panorama from their directions (mean of the six
+  bands within half the patch's angular size), estimated, against the patch spectral radiance:
+  NRMSE and ΔE*ab (CIE 1976, white = a perfect diffuser at the chart), per patch and mean.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text
+
+
+def _resize_to(image: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Area average (or linear when enlarging) onto an equirect grid of ``height × width`` (same conventions)."""
+    import cv2
+
+    h, w = image.shape[:2]
+    if (h, w) == (height, width):
+        return image
+    interp = cv2.INTER_AREA if h >= height else cv2.INTER_LINEAR
+    chans = [cv2.resize(np.ascontiguousarray(image[..., c]), (width, height), interpolation=interp)
+             for c in range(image.shape[2])]
+    return np.stack(chans, axis=-1)
+
+
+def _saturated_mask(gt_bands: np.ndarray, level: float, height: int, width: int, margin_px: int = 3) -> np.ndarray:
+    """Pixels of a ``height × width`` grid touched by ground truth at or above ``level`` (with a margin for the
+    interpolation kernel): the sun saturates every exposure and is flagged, not measured."""
+    import cv2
+
+    sat = (gt_bands.max(axis=2) >= level).astype(np.float32)
+    small = cv2.resize(sat, (width, height), interpolation=cv2.INTER_AREA) > 0
+    return cv2.dilate(small.astype(np.uint8), np.ones((2 * margin_px + 1,) * 2, np.uint8)) > 0
+
+
+def psnr_db(estimate: np.ndarray, truth: np.ndarray, valid: np.ndarray) -> float:
+    """PSNR over ``valid`` pixels (all bands) with the ground truth's maximum there as the peak."""
+    e, t = estimate[valid], truth[valid]
+    mse = float(np.mean((e.astype(np.float64) - t) ** 2))
+    return float(10 * np.log10(float(t.max()) ** 2 / mse)) if mse > 0 else float("inf")
+
+
+def patch_bands(bands: np.ndarray, lon_deg: float, lat_deg: float, radius_deg: float) -> np.ndarray:
+    """Mean six-band value within ``radius_deg`` of a direction on an equirect panorama (NaNs ignored)."""
+    from omnispectral.imaging.geometry import lonlat_to_equirect_pixel, lonlat_to_ray
+
+    h, w = bands.shape[:2]
+    col, row = lonlat_to_equirect_pixel(lon_deg, lat_deg, w, h)
+    r_px = max(1.0, radius_deg / 360.0 * w / max(np.cos(np.radians(lat_deg)), 0.05))
+    r0, r1 = int(max(0, np.floor(row - r_px - 1))), int(min(h, np.ceil(row + r_px + 2)))
+    c0, c1 = int(max(0, np.floor(col - r_px - 1))), int(min(w, np.ceil(col + r_px + 2)))
+    rr, cc = np.mgrid[r0:r1, c0:c1]
+    from omnispectral.imaging.geometry import equirect_pixel_to_lonlat
+
+    lon, lat = equirect_pixel_to_lonlat(cc, rr, w, h)
+    centre = lonlat_to_ray(lon_deg, lat_deg)
+    ang = np.degrees(np.arccos(np.clip(lonlat_to_ray(lon, lat) @ centre, -1, 1)))
+    sel = bands[r0:r1, c0:c1][ang <= radius_deg]
+    return np.nanmean(sel, axis=0) if sel.size else np.full(bands.shape[2], np.nan)
+
+
+def accuracy(bands: np.ndarray, estimator, gt_dir: Path, shortest_s: float, max_dn: int) -> dict:
+    """Accuracy of a panorama against the simulator's ground truth (module docstring)."""
+    from omnispectral.spectral.metrics import colour_differences, nrmse
+
+    meta = json.loads((gt_dir / "ground_truth.json").read_text())
+    h, w = bands.shape[:2]
+    gt_bands = np.load(gt_dir / "bands.npy", mmap_mode="r")
+    truth = _resize_to(np.asarray(gt_bands, np.float32), h, w)
+    unsaturated = ~_saturated_mask(np.asarray(gt_bands), max_dn / shortest_s, h, w)
+    covered = np.isfinite(bands).all(axis=2)
+    valid = covered & unsaturated
+    out: dict = {"six_band_psnr_db": psnr_db(bands, truth, valid),
+                 "pixels_compared_fraction": float(valid.mean()), "uncovered_fraction": float(1 - covered.mean())}
+    spectral = np.load(gt_dir / "spectral.npy")
+    sh, sw = spectral.shape[:2]
+    small = _resize_to(np.where(covered[..., None], bands, np.nan).astype(np.float32), sh, sw)
+    ok = np.isfinite(small).all(axis=2) & ~_saturated_mask(np.asarray(gt_bands), max_dn / shortest_s, sh, sw)
+    est = estimator.estimate(small[ok])
+    out["spectral_nrmse"] = float(np.mean(nrmse(est, spectral[ok])))
+    out["spectral_pixels"] = int(ok.sum())
+    patches = meta.get("colorchecker_patches") or []
+    if patches and (gt_dir / "colorchecker_radiance.npy").exists():
+        true = np.load(gt_dir / "colorchecker_radiance.npy")
+        white = np.load(gt_dir / "colorchecker_white.npy")
+        measured = np.array([patch_bands(bands, p["lon_deg"], p["lat_deg"], 0.5 * p["half_size_deg"])
+                             for p in patches])
+        est = estimator.estimate(measured)
+        wl = np.asarray(estimator.wavelength_nm)
+        errs = nrmse(est, true)
+        de = colour_differences(est, true, white, wl)["delta_e_ab"]
+        out["colorchecker"] = {"nrmse": float(np.nanmean(errs)), "delta_e_ab": float(np.nanmean(de)),
+                               "delta_e_ab_max": float(np.nanmax(de)),
+                               "per_patch": [{"name": p["name"], "nrmse": float(e), "delta_e_ab": float(d)}
+                                             for p, e, d in zip(patches, errs, de, strict=True)],
+                               "estimated": est.tolist(), "true": true.tolist(), "wavelength_nm": wl.tolist()}
+    return out
+
+
+def _plot_registration(alignments: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    d = [a["direction"] for a in alignments]
+    fig, ax = plt.subplots(2, 1, figsize=(7, 4.5), dpi=110, sharex=True)
+    ax[0].plot(d, [a["offset_dx_px"] for a in alignments], "o-", label="dx")
+    ax[0].plot(d, [a["offset_dy_px"] for a in alignments], "s-", label="dy")
+    ax[0].set_ylabel("camera B offset (px)")
+    ax[0].legend(fontsize=8)
+    ax[1].bar(d, [a["confidence"] for a in alignments],
+              color=["tab:red" if a["used_fallback"] else "tab:blue" for a in alignments])
+    ax[1].set_ylabel("POC confidence")
+    ax[1].set_xlabel("direction (red: calibrated offset used)")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+
+
+def _plot_chart(chart: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    wl = np.asarray(chart["wavelength_nm"])
+    est, true = np.asarray(chart["estimated"]), np.asarray(chart["true"])
+    fig, axes = plt.subplots(4, 6, figsize=(12, 7), dpi=90, sharex=True)
+    for i, ax in enumerate(axes.ravel()):
+        n = np.linalg.norm(true[i]) or 1.0
+        ax.plot(wl, true[i] / n, "k-", lw=1.2)
+        ax.plot(wl, est[i] / max(np.linalg.norm(est[i]), 1e-30), "r--", lw=1.2)
+        p = chart["per_patch"][i]
+        ax.set_title(f"{p['name'][:14]}  ΔE {p['delta_e_ab']:.1f}", fontsize=7)
+        ax.tick_params(labelsize=6)
+    fig.suptitle("ColorChecker in the panorama: ground truth (black) vs estimate (red dashed), unit-norm spectra")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+
+
+def write_report(product: str | Path, preview_width: int = 2048) -> dict:
+    """Write ``report/report.json``, ``report.html`` and its PNGs for a processed product."""
+    from omnispectral.capture.session import Session
+    from omnispectral.mosaic.store import PanoramaStore
+    from omnispectral.product.estimator import estimator_from_params
+    from omnispectral.product.exports import write_preview
+    from omnispectral.product.process import product_paths
+    from omnispectral.product.spectra import bands_to_linear_srgb
+
+    paths = product_paths(product)
+    index = json.loads(paths["index"].read_text())
+    out_dir = paths["report"]
+    out_dir.mkdir(parents=True, exist_ok=True)
+    store = PanoramaStore.open(paths["panorama"])
+    level = next((k for k, (_, w) in enumerate(store.shapes) if w <= preview_width), len(store.shapes) - 1)
+    estimator, _ = estimator_from_params(index["estimator"]["params"])
+    preview = store.read(level)
+    files = {"preview": str(write_preview(out_dir / "preview.png", bands_to_linear_srgb(preview, estimator)))}
+    alignments = index["registration"]["directions"]
+    if alignments:
+        _plot_registration(alignments, out_dir / "registration.png")
+        files["registration_plot"] = str(out_dir / "registration.png")
+    report = {"product": str(paths["root"]), "rig": index["rig"], "session": index["session"],
+              "size": [index["height"], index["width"]], "timings_s": index["timings_s"],
+              "registration": alignments, "skipped_directions": index["skipped_directions"], "accuracy": None}
+    gt_dir = Path(index["session"]) / "ground_truth"
+    if (gt_dir / "ground_truth.json").exists():
+        s = Session.open(index["session"])
+        rig = s.rig()
+        bands = store.read(0)
+        report["accuracy"] = accuracy(bands, estimator, gt_dir, min(s.plan().exposures_s), rig.camera_a.max_dn)
+        if "colorchecker" in report["accuracy"]:
+            _plot_chart(report["accuracy"]["colorchecker"], out_dir / "colorchecker.png")
+            files["colorchecker_plot"] = str(out_dir / "colorchecker.png")
+    report["files"] = files
+    atomic_write_json(out_dir / "report.json", report)
+    atomic_write_text(out_dir / "report.html", _html(report))
+    files["json"] = str(out_dir / "report.json")
+    files["html"] = str(out_dir / "report.html")
+    return {"report": report, "files": files}
+
+
+def _html(report: dict) -> str:
+    acc = report.get("accuracy")
+    rows = "".join(f"<tr><td>{k}</td><td>{v:.2f} s</td></tr>" for k, v in report["timings_s"].items())
+    acc_html = "<p>No ground truth (not a simulated session).</p>"
+    if acc:
+        cc = acc.get("colorchecker", {})
+        acc_html = (f"<table><tr><td>six-band PSNR</td><td>{acc['six_band_psnr_db']:.2f} dB</td></tr>"
+                    f"<tr><td>spectral NRMSE (panorama)</td><td>{acc['spectral_nrmse']:.4f}</td></tr>"
+                    + (f"<tr><td>ColorChecker NRMSE</td><td>{cc['nrmse']:.4f}</td></tr>"
+                       f"<tr><td>ColorChecker ΔE*ab (mean / max)</td><td>{cc['delta_e_ab']:.2f} / "
+                       f"{cc['delta_e_ab_max']:.2f}</td></tr>" if cc else "") + "</table>"
+                    + ('<img src="colorchecker.png" width="900">' if cc else ""))
+    n_fallback = sum(a["used_fallback"] for a in report["registration"])
+    return f"""<!doctype html><html><head><meta charset="utf-8"><title>omnispectral report: {report['rig']}</title>
+<style>body{{font-family:sans-serif;max-width:1000px;margin:2em auto}}td{{padding:2px 12px}}</style></head><body>
+<h1>omnispectral report</h1><p>Product {report['product']} from session {report['session']} (rig {report['rig']}),
+{report['size'][1]} × {report['size'][0]} px, six bands.</p>
+<h2>Preview</h2><img src="preview.png" width="960">
+<p>sRGB rendering of the Wiener estimate, global Reinhard tone map.</p>
+<h2>Accuracy against ground truth</h2>{acc_html}
+<h2>Registration of camera B to A</h2><p>{len(report['registration'])} directions, {n_fallback} used the calibrated
+offset (low confidence).</p><img src="registration.png" width="760">
+<h2>Timings</h2><table>{rows}</table>
+<p>Skipped directions: {len(report['skipped_directions'])}.</p></body></html>
+"""

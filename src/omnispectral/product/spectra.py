@@ -1,0 +1,105 @@
+"""Spectra as a linear view of the six bands: per-pixel spectra, uncertainty and colour on demand.
+
+The product stores six bands (DN/s) and the estimator's parameters.  A spectrum at a direction is the
+Wiener estimate of the six bands there (mixture prior: per-pixel posterior weights), with its
+posterior standard deviation.  Whole images use the mixture per pixel (exports) or, for colour
+previews, the single linear map the mixture becomes for the region's mean component weights
+(``WienerEstimator.linear_map``), folded with the CIE 1931 observer into one 3 × 6 matrix.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from omnispectral.errors import ConfigurationError
+
+
+def region_weights(bands: np.ndarray, estimator, n_sample: int = 20000, seed: int = 0) -> np.ndarray | None:
+    """Mean posterior component weights over (a sample of) the finite pixels; ``None`` for a single Gaussian."""
+    if estimator.n_components == 1:
+        return None
+    flat = bands.reshape(-1, bands.shape[-1])
+    ok = np.flatnonzero(np.isfinite(flat).all(axis=1) & (flat.sum(axis=1) > 0))
+    if ok.size == 0:
+        return np.asarray(estimator.weights, float)
+    pick = np.random.default_rng(seed).choice(ok, min(n_sample, ok.size), replace=False)
+    return np.asarray(estimator.component_posterior(flat[pick]), float).mean(axis=0)
+
+
+def bands_to_linear_srgb(bands: np.ndarray, estimator) -> np.ndarray:
+    """Linear sRGB-primaries RGB of a six-band image through the region's linear spectral map (NaN kept)."""
+    from omnispectral.product.exports import spectra_to_xyz, xyz_to_linear_srgb
+
+    m, b = estimator.linear_map(region_weights(bands, estimator))
+    wl = np.asarray(estimator.wavelength_nm)
+    to_rgb = xyz_to_linear_srgb(spectra_to_xyz(np.eye(wl.size, dtype=np.float32), wl))  # (n, 3)
+    mat = (np.asarray(m).T @ to_rgb).astype(np.float32)  # (6, 3)
+    return np.asarray(bands, np.float32) @ mat + (np.asarray(b, np.float32) @ to_rgb)
+
+
+def estimate_image(bands: np.ndarray, estimator, with_std: bool = False):
+    """Per-pixel mixture estimate of an image ``(H, W, 6)`` → ``(H, W, n)`` (NaN where bands are not finite)."""
+    h, w, c = bands.shape
+    flat = bands.reshape(-1, c)
+    ok = np.isfinite(flat).all(axis=1)
+    spectra = np.full((flat.shape[0], len(estimator.wavelength_nm)), np.nan, np.float32)
+    spectra[ok] = estimator.estimate(flat[ok])
+    if not with_std:
+        return spectra.reshape(h, w, -1)
+    std = np.full_like(spectra, np.nan)
+    std[ok] = estimator.posterior_std(flat[ok])
+    return spectra.reshape(h, w, -1), std.reshape(h, w, -1)
+
+
+def open_product(product: str | Path):
+    """``(index, PanoramaStore, estimator)`` of a processed product directory."""
+    from omnispectral.errors import InputFileError
+    from omnispectral.mosaic.store import PanoramaStore
+    from omnispectral.product.estimator import estimator_from_params
+    from omnispectral.product.process import product_paths
+
+    paths = product_paths(product)
+    try:
+        index = json.loads(paths["index"].read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputFileError(paths["root"], "not a processed product (no product.json)") from None
+    except (OSError, ValueError) as exc:
+        raise InputFileError(paths["index"], f"unreadable ({exc})") from None
+    store = PanoramaStore.open(paths["panorama"])
+    estimator, _ = estimator_from_params(index["estimator"]["params"])
+    return index, store, estimator
+
+
+def spectrum_at(product: str | Path, lon_deg: float, lat_deg: float, level: int = 0) -> dict:
+    """The six bands, estimated spectrum, its posterior std and colour at a direction (bilinear in the bands)."""
+    from omnispectral.imaging.geometry import lonlat_to_equirect_pixel
+    from omnispectral.product.exports import spectra_to_linear_srgb, spectra_to_xyz
+
+    if not (np.isfinite(lon_deg) and np.isfinite(lat_deg)) or abs(lat_deg) > 90:
+        raise ConfigurationError(f"no direction at lon {lon_deg}, lat {lat_deg} (latitude must be in [-90, 90])")
+    index, store, estimator = open_product(product)
+    if not 0 <= level < len(store.shapes):
+        raise ConfigurationError(f"level {level} does not exist (0-{len(store.shapes) - 1})")
+    h, w = store.shapes[level]
+    lon = (lon_deg + 180.0) % 360.0 - 180.0
+    col, row = lonlat_to_equirect_pixel(lon, lat_deg, w, h)
+    c0, r0 = int(np.floor(col)), int(np.clip(np.floor(row), 0, h - 2))
+    fc, fr = float(col - c0), float(np.clip(row - r0, 0, 1))
+    cols = [c0 % w, (c0 + 1) % w]
+    patch = np.stack([store.read(level, slice(r0, r0 + 2), slice(c, c + 1))[:, 0] for c in cols], axis=1)
+    wts = np.array([[(1 - fr) * (1 - fc), (1 - fr) * fc], [fr * (1 - fc), fr * fc]])
+    if not np.isfinite(patch).all():
+        raise ConfigurationError(f"lon {lon_deg}, lat {lat_deg} is not covered by the panorama (no direction saw it)")
+    bands = np.tensordot(wts, patch, axes=([0, 1], [0, 1]))
+    spectrum = estimator.estimate(bands[None])[0]
+    std = estimator.posterior_std(bands[None])[0]
+    wl = np.asarray(estimator.wavelength_nm)
+    return {"lon_deg": lon, "lat_deg": float(lat_deg), "level": level, "pixel": [float(col), float(row)],
+            "units": index["units"] + " per unit of the system matrix (spectral radiance, relative)",
+            "bands": dict(zip(index["bands"], map(float, bands), strict=True)),
+            "wavelength_nm": wl.tolist(), "spectrum": spectrum.tolist(), "std": std.tolist(),
+            "XYZ": spectra_to_xyz(spectrum[None], wl)[0].tolist(),
+            "linear_srgb": spectra_to_linear_srgb(spectrum[None], wl)[0].tolist()}

@@ -21,7 +21,7 @@ $(STAMP): pyproject.toml
 	@touch $(STAMP)
 
 demo: $(STAMP)
-	@mkdir -p $(DEMO_OUT)
+	$(BIN)/omnispectral demo --out $(DEMO_OUT)
 	$(BIN)/omnispectral spectral evaluate --plot $(DEMO_OUT)/spectral_evaluation.png \
 		--json-out $(DEMO_OUT)/spectral_evaluation.json
 

@@ -8,7 +8,7 @@ import sys
 from rich.console import Console
 
 console = Console(stderr=False)
-err_console = Console(stderr=True)
+err_console = Console(stderr=True, soft_wrap=True)  # one-line errors stay one line
 
 
 def print_json(data) -> None:

@@ -60,6 +60,7 @@ def patch_bands(bands: np.ndarray, lon_deg: float, lat_deg: float, radius_deg: f
     from omnispectral.imaging.geometry import lonlat_to_equirect_pixel, lonlat_to_ray
 
     h, w = bands.shape[:2]
+    radius_deg = max(radius_deg, 0.75 * 360.0 / w)  # at least the nearest pixel centre
     col, row = lonlat_to_equirect_pixel(lon_deg, lat_deg, w, h)
     r_px = max(1.0, radius_deg / 360.0 * w / max(np.cos(np.radians(lat_deg)), 0.05))
     r0, r1 = int(max(0, np.floor(row - r_px - 1))), int(min(h, np.ceil(row + r_px + 2)))
@@ -100,11 +101,20 @@ def accuracy(bands: np.ndarray, estimator, gt_dir: Path, shortest_s: float, max_
         white = np.load(gt_dir / "colorchecker_white.npy")
         measured = np.array([patch_bands(bands, p["lon_deg"], p["lat_deg"], 0.5 * p["half_size_deg"])
                              for p in patches])
-        est = estimator.estimate(measured)
+        seen = np.isfinite(measured).all(axis=1)
+        if not seen.any():
+            out["colorchecker"] = None
+            out["colorchecker_note"] = "the chart is not covered by the panorama"
+            return out
+        est = np.full(true.shape, np.nan)
+        est[seen] = estimator.estimate(measured[seen])
         wl = np.asarray(estimator.wavelength_nm)
-        errs = nrmse(est, true)
-        de = colour_differences(est, true, white, wl)["delta_e_ab"]
-        out["colorchecker"] = {"nrmse": float(np.nanmean(errs)), "delta_e_ab": float(np.nanmean(de)),
+        errs = np.full(len(patches), np.nan)
+        de = np.full(len(patches), np.nan)
+        errs[seen] = nrmse(est[seen], true[seen])
+        de[seen] = colour_differences(est[seen], true[seen], white, wl)["delta_e_ab"]
+        out["colorchecker"] = {"n_patches_seen": int(seen.sum()), "nrmse": float(np.nanmean(errs)),
+                               "delta_e_ab": float(np.nanmean(de)),
                                "delta_e_ab_max": float(np.nanmax(de)),
                                "per_patch": [{"name": p["name"], "nrmse": float(e), "delta_e_ab": float(d)}
                                              for p, e, d in zip(patches, errs, de, strict=True)],
@@ -188,7 +198,7 @@ def write_report(product: str | Path, preview_width: int = 2048) -> dict:
         rig = s.rig()
         bands = store.read(0)
         report["accuracy"] = accuracy(bands, estimator, gt_dir, min(s.plan().exposures_s), rig.camera_a.max_dn)
-        if "colorchecker" in report["accuracy"]:
+        if report["accuracy"].get("colorchecker"):
             _plot_chart(report["accuracy"]["colorchecker"], out_dir / "colorchecker.png")
             files["colorchecker_plot"] = str(out_dir / "colorchecker.png")
     report["files"] = files
@@ -204,7 +214,7 @@ def _html(report: dict) -> str:
     rows = "".join(f"<tr><td>{k}</td><td>{v:.2f} s</td></tr>" for k, v in report["timings_s"].items())
     acc_html = "<p>No ground truth (not a simulated session).</p>"
     if acc:
-        cc = acc.get("colorchecker", {})
+        cc = acc.get("colorchecker") or {}
         acc_html = (f"<table><tr><td>six-band PSNR</td><td>{acc['six_band_psnr_db']:.2f} dB</td></tr>"
                     f"<tr><td>spectral NRMSE (panorama)</td><td>{acc['spectral_nrmse']:.4f}</td></tr>"
                     + (f"<tr><td>ColorChecker NRMSE</td><td>{cc['nrmse']:.4f}</td></tr>"

@@ -1,0 +1,145 @@
+"""End to end on simulated sessions: process → product → spectra, exports read back, report; bad sessions."""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from omnispectral.capture.rig import load_preset, rig_from_dict
+from omnispectral.capture.simulate import simulate_session
+from omnispectral.cli import main
+from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.product.process import process
+
+NOON = dt.datetime(2017, 6, 21, 12, 0, tzinfo=dt.UTC)
+
+
+@pytest.fixture(scope="module")
+def product(tmp_path_factory):
+    from omnispectral.capture.scenes import ProceduralOutdoorScene
+
+    root = tmp_path_factory.mktemp("e2e")
+    simulate_session(root / "s", load_preset("small"), ProceduralOutdoorScene(time_hhmm="12:00", day_of_year=172),
+                     start=NOON, progress=False)
+    index = process(root / "s", root / "p", progress=False)
+    return root, index
+
+
+@pytest.mark.slow
+def test_product_accuracy_against_ground_truth(product):
+    root, index = product
+    report = json.loads((root / "p" / "report" / "report.json").read_text())
+    acc = report["accuracy"]
+    assert acc["six_band_psnr_db"] > 40
+    assert acc["spectral_nrmse"] < 0.02
+    # close to the spectral core's chart-level figures (0.0128 / 0.87 with 32x32 px patches)
+    assert acc["colorchecker"]["nrmse"] < 0.02 and acc["colorchecker"]["delta_e_ab"] < 2.0
+    assert set(report["timings_s"]) >= {"hdr_merge", "registration", "mosaic", "estimator"}
+    assert len(report["registration"]) == 36 and (root / "p" / "report" / "report.html").exists()
+    assert index["session_check"]["n_ok"] == 1080 and index["skipped_directions"] == []
+
+
+@pytest.mark.slow
+def test_spectrum_at_a_chart_patch_matches_the_truth(product, capsys):
+    from omnispectral.spectral.metrics import nrmse
+
+    root, _ = product
+    gt = json.loads((root / "s" / "ground_truth" / "ground_truth.json").read_text())
+    patch = gt["colorchecker_patches"][18]  # white
+    truth = np.load(root / "s" / "ground_truth" / "colorchecker_radiance.npy")[18]
+    assert main(["spectrum", str(root / "p"), "--lon", str(patch["lon_deg"]), "--lat", str(patch["lat_deg"]),
+                 "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert float(nrmse(np.array(out["spectrum"]), truth)) < 0.03
+    assert np.sum(out["spectrum"]) == pytest.approx(truth.sum(), rel=0.05)
+    assert len(out["std"]) == len(out["wavelength_nm"]) == 61 and min(out["std"]) > 0
+    with pytest.raises(ConfigurationError, match="latitude must be in"):
+        from omnispectral.product.spectra import spectrum_at
+
+        spectrum_at(root / "p", 0.0, 95.0)
+
+
+@pytest.mark.slow
+def test_exports_read_back(product, tmp_path):
+    import cv2
+    import spectral.io.envi as envi
+    from colour.io import read_spectral_image_Fichet2021
+
+    from omnispectral.product.exports import export_product
+    from omnispectral.product.spectra import estimate_image, open_product
+
+    root, index = product
+    export_product(root / "p", "spectral-exr", tmp_path / "s.exr", region=(200, 260, 500, 580))
+    components = read_spectral_image_Fichet2021(tmp_path / "s.exr")
+    wl, values = components["S0"]
+    assert values.shape == (60, 80, 61) and wl[0] == 400
+    export_product(root / "p", "envi", tmp_path / "e.hdr", level=1)
+    img = envi.open(str(tmp_path / "e.hdr"))
+    assert img.shape[2] == 61 and img.shape[1] == index["width"] // 2
+    _, store, estimator = open_product(root / "p")
+    expected = estimate_image(store.read(1, slice(30, 40), slice(100, 110)), estimator)
+    np.testing.assert_allclose(np.asarray(img.load())[30:40, 100:110], expected, rtol=1e-5)
+    export_product(root / "p", "png", tmp_path / "p.png")
+    assert cv2.imread(str(tmp_path / "p.png")).shape == (index["height"], index["width"], 3)
+    with pytest.raises(ConfigurationError, match=r"needs about .* GiB of memory"):
+        export_product(root / "p", "spectral-exr", tmp_path / "big.exr", max_bytes=1 << 20)
+    assert not (tmp_path / "big.exr").exists()
+
+
+# ------------------------------------------------------------------ bad sessions
+def tiny_rig():
+    import tomllib
+
+    text = load_preset("small").toml_text
+    for old, new in (("width_px = 256", "width_px = 96"), ("height_px = 136", "height_px = 52"),
+                     ("count = 15", "count = 6"), ("shortest_s = 0.000015", "shortest_s = 0.0002"),
+                     ("n_pan = 12", "n_pan = 6"), ("n_tilt = 3", "n_tilt = 2")):
+        text = text.replace(old, new)
+    text = text.replace("hfov_deg = 95.0", "hfov_deg = 120.0")
+    return rig_from_dict(tomllib.loads(text), "tiny", text)
+
+
+@pytest.fixture(scope="module")
+def tiny_session(tmp_path_factory):
+    from omnispectral.capture.scenes import ProceduralOutdoorScene
+
+    root = tmp_path_factory.mktemp("tiny")
+    simulate_session(root / "s", tiny_rig(), ProceduralOutdoorScene(time_hhmm="12:00"), start=NOON,
+                     ground_truth_width=128, progress=False)
+    return root / "s"
+
+
+def _damaged_copy(src, dst, damage):
+    shutil.copytree(src, dst)
+    damage(dst)
+    return dst
+
+
+@pytest.mark.parametrize(("damage", "message"), [
+    (lambda s: (s / "frames/d0003/B_e02.tif").unlink(), r"d0003/B_e02.tif.*file missing"),
+    (lambda s: (s / "frames/d0005/A_e04.tif").write_bytes((s / "frames/d0005/A_e04.tif").read_bytes()[:300]),
+     r"d0005/A_e04.tif.*checksum mismatch"),
+    (lambda s: (s / "journal.jsonl").write_text((s / "journal.jsonl").read_text()[:-40]),
+     r"d0011/B_e05.tif.*not in the journal"),
+])
+def test_bad_sessions_name_the_frame_and_skip_bad_processes_the_rest(tiny_session, tmp_path, damage, message):
+    bad = _damaged_copy(tiny_session, tmp_path / "bad", damage)
+    with pytest.raises(InputFileError, match=message):
+        process(bad, tmp_path / "p", progress=False, report=False)
+    index = process(bad, tmp_path / "p2", progress=False, skip_bad=True)
+    assert len(index["skipped_directions"]) == 1
+    hole = index["skipped_directions"][0]["direction"]
+    assert len(index["registration"]["directions"]) == 11 and hole in (3, 5, 11)
+    rep = json.loads((tmp_path / "p2" / "report" / "report.json").read_text())
+    assert rep["skipped_directions"][0]["direction"] == hole and rep["accuracy"]["six_band_psnr_db"] > 20
+
+
+def test_cli_process_reports_a_bad_session_in_one_line(tiny_session, tmp_path, capsys):
+    bad = _damaged_copy(tiny_session, tmp_path / "bad", lambda s: (s / "frames/d0001/A_e00.tif").unlink())
+    assert main(["process", str(bad), "-o", str(tmp_path / "p")]) == 2
+    err = capsys.readouterr().err
+    assert "d0001/A_e00.tif" in err and "--skip-bad" in err and "Traceback" not in err

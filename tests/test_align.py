@@ -52,3 +52,14 @@ def test_textureless_direction_falls_back_to_the_calibrated_offset(setup):
     res = align_direction(0, flat + noise, flat - noise, r.models["A"], r.models["B"], 0.0, 60.0,
                           calibrated_offset_px=(0.3, -0.2))
     assert res.used_fallback and res.offset_px == (0.3, -0.2)
+
+
+def test_b_onto_a_map_does_not_depend_on_the_head_direction(setup):
+    from omnispectral.product.align import b_onto_a_maps
+
+    a, b = setup.models["A"], setup.models["B"]
+    m0 = b_onto_a_maps(a, b, 0.0, 0.0, step=4)
+    m1 = b_onto_a_maps(a, b, 75.0, -40.0, step=4)
+    ok = m0[0] > -1e5
+    np.testing.assert_allclose(m1[0][ok], m0[0][ok], atol=1e-3)
+    np.testing.assert_allclose(m1[1][ok], m0[1][ok], atol=1e-3)

@@ -40,14 +40,32 @@ class DirectionAlignment:
                 "confidence": self.confidence, "used_fallback": self.used_fallback}
 
 
-def b_onto_a_maps(model_a: CameraModel, model_b: CameraModel, pan_deg: float, tilt_deg: float,
+def b_onto_a_maps(model_a: CameraModel, model_b: CameraModel, pan_deg: float = 0.0, tilt_deg: float = 0.0,
                   step: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """For each of A's pixels (every ``step``), where the same ray at infinity lands on B's sensor (float32 maps)."""
+    """For each of A's pixels (every ``step``), where the same ray at infinity lands on B's sensor (float32 maps).
+
+    Both cameras turn with the head, so for points at infinity the map does not depend on the head's
+    pan and tilt (the head rotation cancels): compute it once per rig (:func:`cached_maps`).
+    """
     v, u = np.mgrid[0:model_a.height:step, 0:model_a.width:step]
     rays, ok = model_a.pixel_to_world(np.stack([u, v], axis=-1).astype(np.float64), pan_deg, tilt_deg)
     px, ok_b = model_b.world_to_pixel(np.nan_to_num(rays), pan_deg, tilt_deg, margin_px=None)
     px = np.where((ok & ok_b)[..., None], px, -1e6)
     return px[..., 0].astype(np.float32), px[..., 1].astype(np.float32)
+
+
+_MAPS_CACHE: dict = {}
+
+
+def cached_maps(model_a: CameraModel, model_b: CameraModel) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`b_onto_a_maps` at pan = tilt = 0, computed once per pair of camera models in this process."""
+    import json
+
+    key = json.dumps([model_a.to_dict(), model_b.to_dict()], sort_keys=True)
+    if key not in _MAPS_CACHE:
+        _MAPS_CACHE.clear()
+        _MAPS_CACHE[key] = b_onto_a_maps(model_a, model_b)
+    return _MAPS_CACHE[key]
 
 
 def warp_b_onto_a(image_b: np.ndarray, maps: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -95,7 +113,7 @@ def align_direction(direction: int, image_a: np.ndarray, image_b: np.ndarray, mo
                     min_confidence: float = DEFAULT_MIN_CONFIDENCE,
                     calibrated_offset_px: tuple[float, float] = (0.0, 0.0)) -> DirectionAlignment:
     """Camera B's sensor offset for one direction (module docstring); images are merged radiance (H, W, C)."""
-    warped, seen = warp_b_onto_a(image_b, b_onto_a_maps(model_a, model_b, pan_deg, tilt_deg))
+    warped, seen = warp_b_onto_a(image_b, cached_maps(model_a, model_b))
     rows, cols = common_crop(seen)
     if rows.stop - rows.start < 32:
         return DirectionAlignment(direction, calibrated_offset_px, (float("nan"), float("nan")), 0.0, True)

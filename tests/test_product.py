@@ -143,3 +143,35 @@ def test_cli_process_reports_a_bad_session_in_one_line(tiny_session, tmp_path, c
     assert main(["process", str(bad), "-o", str(tmp_path / "p")]) == 2
     err = capsys.readouterr().err
     assert "d0001/A_e00.tif" in err and "--skip-bad" in err and "Traceback" not in err
+
+
+@pytest.mark.slow
+def test_process_series_stacks_slots_and_tracks_region_spectra(tmp_path, capsys):
+    from omnispectral.capture.devices import FakeClock
+    from omnispectral.capture.scenes import ProceduralOutdoorScene
+    from omnispectral.capture.timelapse import run_timelapse, slot_times
+
+    rig = tiny_rig()
+    slots = slot_times(NOON.replace(hour=7), NOON.replace(hour=15), 4 * 3600)
+    clock = FakeClock(slots[0])
+
+    def capture(session_dir, t):
+        res = simulate_session(session_dir, rig, ProceduralOutdoorScene(time_hhmm=f"{t:%H:%M}"), start=clock.now(),
+                               ground_truth_width=64, progress=False)
+        clock.sleep(res["simulated_s"])
+        return res
+
+    run_timelapse(tmp_path / "series", slots, clock, capture)
+    assert main(["process-series", str(tmp_path / "series"), "-o", str(tmp_path / "out"), "--json",
+                 "--region", "sky:-180,180,45,75", "--region", "ground:-180,180,-75,-45"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["n_slots"] == 3 and out["stack_shape"][0] == 3
+    spectra = json.loads((tmp_path / "out" / "region_spectra.json").read_text())
+    sky = np.array(spectra["regions"]["sky"]["spd"])
+    # the sky is brightest at 11:00 (sun highest) and bluer (more short-wave power) than the ground
+    assert sky.sum(axis=1).argmax() == 1
+    ground = np.array(spectra["regions"]["ground"]["spd"])
+    wl = np.array(spectra["wavelength_nm"])
+    blue = lambda s: s[:, wl < 480].sum(axis=1) / s[:, wl > 600].sum(axis=1)  # noqa: E731
+    assert np.all(blue(sky) > blue(ground))
+    assert (tmp_path / "out" / "region_spectra.png").stat().st_size > 10_000

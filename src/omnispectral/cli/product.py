@@ -149,8 +149,22 @@ def cmd_demo(args) -> int:
     return 0
 
 
+def cmd_process_series(args) -> int:
+    from omnispectral.product.series import DEFAULT_REGIONS, parse_region, process_series
+
+    regions = dict(parse_region(r) for r in args.region) if args.region else dict(DEFAULT_REGIONS)
+    out = process_series(args.series, args.output, regions, progress=not args.json)
+    if args.json:
+        print_json(out)
+    else:
+        console.print(f"{out['n_slots']} time slots processed into {out['output']}; time stack {out['timestack']} "
+                      f"{tuple(out['stack_shape'])}; region spectra (Fig. 13) {out['region_spectra']} and "
+                      f"{out['plot']}")
+    return 0
+
+
 def add_commands(sub) -> None:
-    """Register ``process``, ``spectrum``, ``export``, ``report`` and ``demo``."""
+    """Register ``process``, ``process-series``, ``spectrum``, ``export``, ``report`` and ``demo``."""
     from omnispectral.product.exports import FORMATS
 
     p = sub.add_parser("process", help="a capture session into an HDR six-band panorama with its estimator",
@@ -172,6 +186,17 @@ def add_commands(sub) -> None:
                    help="leave out directions with missing or damaged frames instead of stopping")
     p.add_argument("--json", action="store_true", help="print the product index as JSON")
     p.set_defaults(func=cmd_process)
+
+    ps = sub.add_parser("process-series", help="process a time-lapse series; region spectra over the day",
+                        description="Process every complete slot of a time-lapse series, stack the panoramas in "
+                                    "time and estimate the spectral power distribution of regions (sky, a wall) at "
+                                    "every time (paper Fig. 13) as JSON and PNG.")
+    ps.add_argument("series", metavar="SERIES")
+    ps.add_argument("-o", "--output", required=True, metavar="OUT")
+    ps.add_argument("--region", action="append", default=None, metavar="NAME:LON0,LON1,LAT0,LAT1",
+                    help="region to analyse (repeat; default: sky 45-75° and ground -75 to -45° all around)")
+    ps.add_argument("--json", action="store_true")
+    ps.set_defaults(func=cmd_process_series)
 
     s = sub.add_parser("spectrum", help="the estimated spectrum at a direction of a product",
                        description="Six bands, Wiener spectrum and its posterior std at a longitude/latitude.")

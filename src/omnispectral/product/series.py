@@ -1,0 +1,134 @@
+"""Time-lapse products (paper Sec. 5.3, Fig. 13): every slot processed, a time stack, region spectra over the day.
+
+``process_series(SERIES, OUT)`` processes each complete session of a time-lapse series
+(:mod:`omnispectral.capture.timelapse`) into ``OUT/slot_HHMM/`` (resumable: finished products are kept),
+stacks one pyramid level of every panorama into ``OUT/timestack.zarr`` (array ``(t, y, x, band)``,
+float32 DN/s, attribute ``times``), and for each region (a longitude/latitude box) estimates the
+spectral power distribution of the region's median band values at every time: ``OUT/region_spectra.json``
+and ``OUT/region_spectra.png`` (one panel per region, one curve per time — the paper's Fig. 13).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.io import atomic_path, atomic_write_json
+
+#: Default regions: the sky high above the horizon and the ground near the rig.
+DEFAULT_REGIONS = {"sky": (-180.0, 180.0, 45.0, 75.0), "ground": (-180.0, 180.0, -75.0, -45.0)}
+
+
+def parse_region(text: str) -> tuple[str, tuple[float, float, float, float]]:
+    """``NAME:LON0,LON1,LAT0,LAT1`` (degrees) → name and box."""
+    try:
+        name, box = text.split(":", 1)
+        lon0, lon1, lat0, lat1 = (float(v) for v in box.split(","))
+    except ValueError:
+        raise ConfigurationError(f"region {text!r} is not NAME:LON0,LON1,LAT0,LAT1 (degrees)") from None
+    if not (-180 <= lon0 < lon1 <= 180 and -90 <= lat0 < lat1 <= 90):
+        raise ConfigurationError(f"region {text!r}: need -180 <= LON0 < LON1 <= 180 and -90 <= LAT0 < LAT1 <= 90")
+    return name, (lon0, lon1, lat0, lat1)
+
+
+def region_pixels(box, height: int, width: int) -> tuple[slice, slice]:
+    """Rows and columns of an equirect grid whose pixel centres fall in a lon/lat box."""
+    lon0, lon1, lat0, lat1 = box
+    cols = np.flatnonzero(((np.arange(width) + 0.5) / width * 360 - 180 >= lon0)
+                          & ((np.arange(width) + 0.5) / width * 360 - 180 <= lon1))
+    rows = np.flatnonzero((90 - (np.arange(height) + 0.5) / height * 180 >= lat0)
+                          & (90 - (np.arange(height) + 0.5) / height * 180 <= lat1))
+    if rows.size == 0 or cols.size == 0:
+        raise ConfigurationError(f"region {box} holds no pixel of a {width}x{height} panorama")
+    return slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1)
+
+
+def process_series(series: str | Path, output: str | Path, regions: dict | None = None, stack_width: int = 1024,
+                   progress: bool = True) -> dict:
+    """Process every complete slot of a series, stack the panoramas and analyse region spectra over time."""
+    import zarr
+
+    from omnispectral.product.process import process
+    from omnispectral.product.spectra import open_product
+
+    series, out = Path(series), Path(output)
+    try:
+        index = json.loads((series / "series.json").read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputFileError(series, "not a time-lapse series (no series.json)") from None
+    slots = [e for e in index["slots"] if e["status"] == "complete"]
+    if not slots:
+        raise InputFileError(series / "series.json", "no complete slot to process")
+    regions = regions or DEFAULT_REGIONS
+    out.mkdir(parents=True, exist_ok=True)
+    products, times = [], []
+    for i, e in enumerate(slots):
+        prod = out / e["session"]
+        if not (prod / "product.json").exists():
+            if progress:
+                print(f"[{i + 1}/{len(slots)}] processing {e['session']} ({e['time'][11:16]})", flush=True)
+            process(series / e["session"], prod, progress=False, report=True)
+        products.append(prod)
+        times.append(e["time"])
+    # time stack of one pyramid level
+    first_index, store, estimator = open_product(products[0])
+    level = next((k for k, (_, w) in enumerate(store.shapes) if w <= stack_width), len(store.shapes) - 1)
+    h, w = store.shapes[level]
+    stack_path = out / "timestack.zarr"
+    group = zarr.open_group(str(stack_path), mode="w", zarr_format=3)
+    arr = group.create_array("bands", shape=(len(products), h, w, 6), chunks=(1, min(h, 512), min(w, 512), 6),
+                             dtype="float32", fill_value=np.nan, dimension_names=("t", "y", "x", "band"))
+    analysis: dict = {"times": times, "regions": {}, "wavelength_nm": list(map(float, estimator.wavelength_nm))}
+    for name in regions:
+        analysis["regions"][name] = {"box_deg": list(regions[name]), "spd": [], "median_bands": []}
+    for t, prod in enumerate(products):
+        _, st, est = open_product(prod)
+        if st.shapes[level] != (h, w):
+            raise InputFileError(prod, f"panorama level {level} is {st.shapes[level]}, the series' is {(h, w)}")
+        bands = st.read(level)
+        arr[t] = bands
+        for name, box in regions.items():
+            rows, cols = region_pixels(box, h, w)
+            px = bands[rows, cols].reshape(-1, 6)
+            px = px[np.isfinite(px).all(axis=1)]
+            med = np.median(px, axis=0) if px.size else np.full(6, np.nan)
+            spd = est.estimate(med[None])[0] if px.size else np.full(len(est.wavelength_nm), np.nan)
+            analysis["regions"][name]["median_bands"].append(med.tolist())
+            analysis["regions"][name]["spd"].append(spd.tolist())
+    group.attrs.update({"times": times, "level": level, "units": first_index["units"],
+                        "bands": first_index["bands"], "products": [str(p) for p in products]})
+    atomic_write_json(out / "region_spectra.json", analysis)
+    _plot_region_spectra(analysis, out / "region_spectra.png")
+    summary = {"output": str(out), "n_slots": len(products), "timestack": str(stack_path),
+               "stack_shape": [len(products), h, w, 6], "region_spectra": str(out / "region_spectra.json"),
+               "plot": str(out / "region_spectra.png"), "regions": list(regions)}
+    atomic_write_json(out / "series_product.json", summary)
+    return summary
+
+
+def _plot_region_spectra(analysis: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    wl = np.asarray(analysis["wavelength_nm"])
+    names = list(analysis["regions"])
+    fig, axes = plt.subplots(1, len(names), figsize=(5.5 * len(names), 4), dpi=110, squeeze=False)
+    cmap = plt.get_cmap("viridis")
+    n = len(analysis["times"])
+    for ax, name in zip(axes[0], names, strict=True):
+        for t, spd in enumerate(analysis["regions"][name]["spd"]):
+            ax.plot(wl, spd, color=cmap(t / max(n - 1, 1)), label=analysis["times"][t][11:16])
+        ax.set_title(f"{name}: spectral power distribution over the day")
+        ax.set_xlabel("wavelength (nm)")
+        ax.set_ylabel("spectral radiance (DN/s per unit of R)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)

@@ -175,3 +175,13 @@ def test_process_series_stacks_slots_and_tracks_region_spectra(tmp_path, capsys)
     blue = lambda s: s[:, wl < 480].sum(axis=1) / s[:, wl > 600].sum(axis=1)  # noqa: E731
     assert np.all(blue(sky) > blue(ground))
     assert (tmp_path / "out" / "region_spectra.png").stat().st_size > 10_000
+
+
+def test_process_resumes_without_redoing_finished_work(tiny_session, tmp_path):
+    first = process(tiny_session, tmp_path / "p", progress=False, report=False)
+    assert first["mosaic"]["tiles_computed"] == first["mosaic"]["tiles"]
+    # an interruption after the mosaic: the index is gone, merged directions and tiles are on disk
+    (tmp_path / "p" / "product.json").unlink()
+    again = process(tiny_session, tmp_path / "p", progress=False, report=False)
+    assert again["mosaic"]["tiles_computed"] == 0 and again["mosaic"]["tiles_skipped"] == first["mosaic"]["tiles"]
+    assert again["timings_s"]["hdr_merge"] == 0 and again["registration"] == first["registration"]

@@ -243,14 +243,25 @@ def test_multiband_blend_keeps_identical_overlaps_and_blends_different_ones():
 
 
 # ------------------------------------------------------------------------------------------ the engine
+UNIFORM = np.array([3.0, 0.25, 1e4, 7.0, 0.5, 123.0], np.float32)
+
+
+@pytest.fixture(scope="module")
+def uniform(tmp_path_factory):
+    flat = np.broadcast_to(UNIFORM, (64, 128, 6)).copy()
+    return write_synthetic_merged(tmp_path_factory.mktemp("uniform") / "m", flat, small_cameras(), grid_directions(),
+                                  (0.4, -0.3))
+
+
 @pytest.mark.parametrize(("interp", "blend"), [("linear", "linear"), ("cubic", "linear"), ("spline", "linear"),
-                                               ("lanczos", "linear"), ("cubic", "multiband")])
-def test_uniform_scene_stitches_to_a_uniform_panorama(tmp_path, interp, blend):
+                                               pytest.param("lanczos", "linear", marks=pytest.mark.slow),
+                                               ("spline", "multiband")])
+def test_uniform_scene_stitches_to_a_uniform_panorama(uniform, tmp_path, interp, blend):
     """Distorted portrait lenses, camera B misaligned and offset, poles and seam: every pixel keeps the value."""
-    value = np.array([3.0, 0.25, 1e4, 7.0, 0.5, 123.0], np.float32)
-    flat = np.broadcast_to(value, (64, 128, 6)).copy()
-    merged = write_synthetic_merged(tmp_path / "m", flat, small_cameras(), grid_directions(), (0.4, -0.3))
-    s = mosaic(merged, tmp_path / "u.zarr", width=WIDTH, tile=64, interp=interp, blend=blend, workers=2)
+    value = UNIFORM
+    merged = uniform
+    s = mosaic(merged, tmp_path / "u.zarr", width=WIDTH, tile=128 if blend == "multiband" else 64, interp=interp,
+               blend=blend, multiband_levels=3, workers=2)
     pano = PanoramaStore.open(tmp_path / "u.zarr").read(0)
     assert s["holes_px"] == 0 and np.isfinite(pano).all()
     np.testing.assert_allclose(pano, np.broadcast_to(value, pano.shape), rtol=2e-6 if blend == "linear" else 1e-4)
@@ -259,14 +270,20 @@ def test_uniform_scene_stitches_to_a_uniform_panorama(tmp_path, interp, blend):
 def test_known_scene_gives_the_known_panorama(known, tmp_path):
     merged, truth = known
     results = {}
-    for interp in METHODS:
+    for interp in ("linear", "cubic", "spline"):
         mosaic(merged, tmp_path / "k.zarr", width=WIDTH, tile=64, interp=interp, overwrite=True, workers=2)
         results[interp] = psnr(PanoramaStore.open(tmp_path / "k.zarr").read(0), truth)
     # measured: linear 93, cubic 128, spline 116 (both near float32 rounding), lanczos 86 dB (Lanczos-3 does not
     # reproduce ramps exactly, so on smooth content it falls behind)
     assert results["linear"] > 85.0 and results["cubic"] > 110.0 and results["spline"] > 105.0
-    assert results["lanczos"] > 80.0
     assert min(results["spline"], results["cubic"]) > results["linear"] + 10.0
+
+
+@pytest.mark.slow
+def test_known_scene_with_lanczos(known, tmp_path):
+    merged, truth = known
+    mosaic(merged, tmp_path / "l.zarr", width=WIDTH, tile=64, interp="lanczos", workers=2)
+    assert psnr(PanoramaStore.open(tmp_path / "l.zarr").read(0), truth) > 80.0
 
 
 def test_pole_directions_are_covered_without_holes(tmp_path):

@@ -230,6 +230,7 @@ class Session:
             tifffile.imwrite(tmp, frame, photometric="rgb" if frame.ndim == 3 else "minisblack",
                              description=json.dumps(record), metadata=None)
         record["sha256"] = sha256_of(target)
+        record["bytes"] = target.stat().st_size
         self._append_line(self.journal_path, record)
         return record
 
@@ -250,11 +251,13 @@ class Session:
         return data, meta
 
 
-def verify_session(path: str | Path, check_pixels: bool = False) -> dict:
+def verify_session(path: str | Path, check_pixels: bool = False, checksums: bool = True) -> dict:
     """Completeness and integrity of a session against its plan; names every missing or damaged frame.
 
     Checks: every planned frame has a journal line, its file exists and its SHA-256 matches; journal
-    lines that do not parse; a cut last line.  ``check_pixels`` also decodes each TIFF.
+    lines that do not parse; a cut last line.  ``check_pixels`` also decodes each TIFF.  With
+    ``checksums=False`` only the file size recorded in the journal is compared (catches truncation;
+    a fast check before processing, which decodes every frame anyway).
     """
     s = Session.open(path)
     plan = s.plan()
@@ -272,7 +275,9 @@ def verify_session(path: str | Path, check_pixels: bool = False) -> dict:
         problem = None
         if not p.exists():
             problem = "file missing"
-        elif sha256_of(p) != rec.get("sha256"):
+        elif not checksums and "bytes" in rec and p.stat().st_size != rec["bytes"]:
+            problem = f"size {p.stat().st_size} bytes, the journal recorded {rec['bytes']} (truncated or changed)"
+        elif (checksums or "bytes" not in rec) and sha256_of(p) != rec.get("sha256"):
             problem = "checksum mismatch (file changed or truncated)"
         elif check_pixels:
             try:

@@ -16,7 +16,7 @@ def cmd_process(args) -> int:
 
     index = process(args.session, args.output, width=args.width, tile=args.tile, interp=args.interp,
                     scheduler=args.scheduler, skip_bad=args.skip_bad, min_confidence=args.min_confidence,
-                    hdr_weight=args.hdr_weight, progress=not args.json)
+                    hdr_weight=args.hdr_weight, progress=not args.json, verify_checksums=args.verify_checksums)
     if args.json:
         print_json(index)
         return 0
@@ -184,6 +184,8 @@ def add_commands(sub) -> None:
     p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="Dask distributed scheduler address")
     p.add_argument("--skip-bad", action="store_true",
                    help="leave out directions with missing or damaged frames instead of stopping")
+    p.add_argument("--verify-checksums", action="store_true",
+                   help="check every frame's SHA-256 first (default: sizes against the journal)")
     p.add_argument("--json", action="store_true", help="print the product index as JSON")
     p.set_defaults(func=cmd_process)
 

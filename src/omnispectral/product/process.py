@@ -2,9 +2,10 @@
 
 Stages (each timed, with progress; the whole run is resumable):
 
-1. **check** the session against its plan (:func:`~omnispectral.capture.session.verify_session`): a
-   missing or damaged frame stops the run with its name, unless ``skip_bad`` leaves out the
-   directions concerned (recorded as holes in ``product.json``);
+1. **check** the session against its plan (:func:`~omnispectral.capture.session.verify_session`; file
+   sizes against the journal, SHA-256 with ``verify_checksums``): a missing or damaged frame stops the
+   run with its name, unless ``skip_bad`` leaves out the directions concerned (recorded as holes in
+   ``product.json``);
 2. **merge + register**, one direction at a time (memory holds one direction): the HDR merge of each
    camera's bracket (Eq. (1), inverse-variance weight by default), then camera B registered to A by
    POC through the geometry (:func:`~omnispectral.product.align.align_direction`, falling back to the
@@ -48,10 +49,10 @@ def bad_directions(report: dict) -> dict[int, list[str]]:
     return out
 
 
-def _check_session(session_path: Path, skip_bad: bool) -> tuple[dict, dict[int, list[str]]]:
+def _check_session(session_path: Path, skip_bad: bool, verify_checksums: bool) -> tuple[dict, dict[int, list[str]]]:
     from omnispectral.capture.session import verify_session
 
-    report = verify_session(session_path, check_pixels=False)
+    report = verify_session(session_path, check_pixels=False, checksums=verify_checksums)
     bad = bad_directions(report)
     if report["journal_bad_lines"]:
         first = report["journal_bad_lines"][0]
@@ -111,7 +112,7 @@ def merge_and_register(session_path: Path, out: Path, skip: set[int], min_confid
 def process(session: str | Path, output: str | Path, *, width: int | None = None, tile: int | None = None,
             interp: str | None = None, scheduler=None, workers: int | None = None, skip_bad: bool = False,
             min_confidence: float | None = None, hdr_weight: str = "noise", report: bool = True,
-            progress: bool = True) -> dict:
+            progress: bool = True, verify_checksums: bool = False) -> dict:
     """Run stages 1-4 (module docstring) and write ``product.json`` and, by default, the report.
 
     ``hdr_weight`` defaults to the inverse-variance weight: the paper's triangle weight lets 1-DN
@@ -129,7 +130,7 @@ def process(session: str | Path, output: str | Path, *, width: int | None = None
     paths["root"].mkdir(parents=True, exist_ok=True)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    check, bad = _check_session(session_path, skip_bad)
+    check, bad = _check_session(session_path, skip_bad, verify_checksums)
     timings["check"] = time.perf_counter() - t0
     s = Session.open(session_path)
     rig = s.rig()

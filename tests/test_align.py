@@ -63,3 +63,12 @@ def test_b_onto_a_map_does_not_depend_on_the_head_direction(setup):
     ok = m0[0] > -1e5
     np.testing.assert_allclose(m1[0][ok], m0[0][ok], atol=1e-3)
     np.testing.assert_allclose(m1[1][ok], m0[1][ok], atol=1e-3)
+
+
+def test_an_implausibly_large_offset_is_rejected(setup):
+    r = setup
+    pan, tilt = -15.0, 0.0
+    img_a = r.electrons_per_second("A", pan, tilt)
+    img_b = np.roll(r.electrons_per_second("B", pan, tilt), 9, axis=1)  # a 9 px "offset": a false peak
+    res = align_direction(1, img_a, img_b, r.models["A"], r.models["B"], pan, tilt, max_offset_px=4.0)
+    assert res.used_fallback and res.offset_px == (0.0, 0.0) and abs(res.measured_px[0]) > 5

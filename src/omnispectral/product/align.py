@@ -108,11 +108,22 @@ def common_crop(seen: np.ndarray, step: int = 4) -> tuple[slice, slice]:
     return slice(0, 0), slice(0, 0)
 
 
+#: A measured offset farther than this from the calibrated one is not a calibration residual but parallax
+#: of near objects (ground 1.5 m away: ~30 px over a 60 mm baseline at the paper's resolution) or a false
+#: peak: the calibrated offset is used instead.
+DEFAULT_MAX_OFFSET_PX = 2.0
+
+
 def align_direction(direction: int, image_a: np.ndarray, image_b: np.ndarray, model_a: CameraModel,
                     model_b: CameraModel, pan_deg: float, tilt_deg: float,
                     min_confidence: float = DEFAULT_MIN_CONFIDENCE,
-                    calibrated_offset_px: tuple[float, float] = (0.0, 0.0)) -> DirectionAlignment:
-    """Camera B's sensor offset for one direction (module docstring); images are merged radiance (H, W, C)."""
+                    calibrated_offset_px: tuple[float, float] = (0.0, 0.0),
+                    max_offset_px: float = DEFAULT_MAX_OFFSET_PX) -> DirectionAlignment:
+    """Camera B's sensor offset for one direction (module docstring); images are merged radiance (H, W, C).
+
+    Falls back to ``calibrated_offset_px`` when the POC confidence is below ``min_confidence`` or the
+    measured offset lies more than ``max_offset_px`` from the calibrated one.
+    """
     warped, seen = warp_b_onto_a(image_b, cached_maps(model_a, model_b))
     rows, cols = common_crop(seen)
     if rows.stop - rows.start < 32:
@@ -124,4 +135,6 @@ def align_direction(direction: int, image_a: np.ndarray, image_b: np.ndarray, mo
         return DirectionAlignment(direction, calibrated_offset_px, measured, float(reg.confidence), True)
     jac = offset_jacobian(model_a, model_b, pan_deg, tilt_deg)
     off = jac @ np.array([reg.dx, reg.dy])
+    if np.hypot(off[0] - calibrated_offset_px[0], off[1] - calibrated_offset_px[1]) > max_offset_px:
+        return DirectionAlignment(direction, calibrated_offset_px, measured, float(reg.confidence), True)
     return DirectionAlignment(direction, (float(off[0]), float(off[1])), measured, float(reg.confidence), False)

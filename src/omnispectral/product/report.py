@@ -72,7 +72,8 @@ def patch_bands(bands: np.ndarray, lon_deg: float, lat_deg: float, radius_deg: f
     centre = lonlat_to_ray(lon_deg, lat_deg)
     ang = np.degrees(np.arccos(np.clip(lonlat_to_ray(lon, lat) @ centre, -1, 1)))
     sel = bands[r0:r1, c0:c1][ang <= radius_deg]
-    return np.nanmean(sel, axis=0) if sel.size else np.full(bands.shape[2], np.nan)
+    sel = sel[np.isfinite(sel).all(axis=1)] if sel.size else sel
+    return sel.mean(axis=0) if sel.size else np.full(bands.shape[2], np.nan)
 
 
 def accuracy(bands: np.ndarray, estimator, gt_dir: Path, shortest_s: float, max_dn: int) -> dict:

@@ -185,3 +185,19 @@ def test_process_resumes_without_redoing_finished_work(tiny_session, tmp_path):
     again = process(tiny_session, tmp_path / "p", progress=False, report=False)
     assert again["mosaic"]["tiles_computed"] == 0 and again["mosaic"]["tiles_skipped"] == first["mosaic"]["tiles"]
     assert again["timings_s"]["hdr_merge"] == 0 and again["registration"] == first["registration"]
+
+
+@pytest.mark.slow
+def test_process_on_a_dask_cluster_matches_the_local_run(tiny_session, tmp_path):
+    import distributed
+
+    from omnispectral.mosaic.store import PanoramaStore
+
+    local = process(tiny_session, tmp_path / "local", progress=False, report=False)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cl:
+        remote = process(tiny_session, tmp_path / "remote", progress=False, report=False,
+                         scheduler=cl.scheduler_address)
+    assert remote["width"] == local["width"]
+    a = PanoramaStore.open(tmp_path / "local" / "panorama.zarr").read(0)
+    b = PanoramaStore.open(tmp_path / "remote" / "panorama.zarr").read(0)
+    np.testing.assert_array_equal(a, b)

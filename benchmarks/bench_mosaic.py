@@ -74,10 +74,17 @@ def timelapse_cameras(width_px: int, height_px: int, hfov_deg: float = 95.0) -> 
 
 
 def gigapixel_cameras() -> dict[str, CameraModel]:
-    """The gigapixel telephoto (14.5° × 10.8°, landscape, 2048 × 1088, k1 = -0.02 as in the preset)."""
-    return {"A": CameraModel.from_fov(2048, 1088, 14.5, (-0.02, 0.0, 0.0, 0.0, 0.0), Mounting()),
-            "B": CameraModel.from_fov(2048, 1088, 14.5, (-0.02, 0.0, 0.0, 0.0, 0.0),
-                                      Mounting(misalignment_deg=MISALIGNMENT_B_DEG))}
+    """The gigapixel telephoto as the paper states it: 14.5° × 10.8° on 2048 × 1088 px (landscape, k1 = -0.02).
+
+    Square pixels would give 14.5° × 7.7°, less than the 60 × 21 grid's 8.6° tilt step (gaps between
+    rows); the stated angles need ``fy / fx = 0.71``, so the model takes them as they are.
+    """
+    fx = 1024.0 / np.tan(np.radians(14.5 / 2))
+    fy = 544.0 / np.tan(np.radians(10.8 / 2))
+    dist = (-0.02, 0.0, 0.0, 0.0, 0.0)
+    return {c: CameraModel(2048, 1088, fx, fy, 1023.5, 543.5, dist,
+                           Mounting(misalignment_deg=MISALIGNMENT_B_DEG if c == "B" else (0.0, 0.0, 0.0)))
+            for c in ("A", "B")}
 
 
 def grid(n_pan: int, n_tilt: int) -> list[tuple[float, float]]:

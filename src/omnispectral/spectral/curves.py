@@ -21,6 +21,7 @@ import colour
 import numpy as np
 
 from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.io import read_text_file
 
 DEFAULT_WAVELENGTH_NM = np.arange(400.0, 700.0 + 1e-9, 5.0)
 """The default wavelength grid: 400-700 nm every 5 nm (61 samples)."""
@@ -213,12 +214,7 @@ def read_spectral_csv(path: str | Path, kind: str, percent: bool | None = None) 
     path = Path(path)
     if kind not in KINDS:
         raise ConfigurationError(f"unknown spectral kind {kind!r}; expected one of {KINDS}")
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise InputFileError(path, "file not found") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputFileError(path, f"cannot read file ({exc})") from None
+    text = read_text_file(path, encoding="utf-8-sig")
 
     rows: list[tuple[int, list[str]]] = []
     for line_no, row in enumerate(csv.reader(text.splitlines()), start=1):

@@ -5,7 +5,8 @@ TIFF; a truncated or unreadable file is an :class:`~omnispectral.errors.InputFil
 Exposure times come, in this order of precedence, from the caller (``--times``), from a list file
 (Debevec's ``hdr_image_list.txt`` format: ``name seconds`` per line, ``1/1024`` allowed), or from
 the EXIF ``ExposureTime`` tag.  Float results are written atomically as OpenEXR (float32, any
-channel count), Radiance ``.hdr`` (3 channels), float TIFF or ``.npy``.
+channel count), Radiance ``.hdr`` (3 channels), float TIFF or ``.npy``; ``read_exr`` (from
+:mod:`omnispectral.imaging.imageio`) reads EXR back.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.imaging.imageio import decode_with_opencv, read_exr  # noqa: F401  (read_exr: re-exported)
 from omnispectral.imaging.response import CameraResponse
 from omnispectral.io import atomic_path
 
@@ -69,15 +71,11 @@ def read_frame(path: str | Path) -> np.ndarray:
         except Exception as exc:  # tifffile raises many types for damaged files
             raise InputFileError(path, f"cannot read TIFF ({exc})") from None
     else:
-        import cv2
-
         if suffix in (".jpg", ".jpeg"):
             _check_jpeg_complete(path)
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        img = decode_with_opencv(path)
         if img is None:
             raise InputFileError(path, "not a readable image (truncated or unknown format)")
-        if img.ndim == 3 and img.shape[2] in (3, 4):
-            img = img[..., [2, 1, 0, 3][: img.shape[2]]]
     if not np.issubdtype(img.dtype, np.integer) or img.dtype.itemsize > 2:
         raise InputFileError(path, f"pixel type {img.dtype} is not an 8- or 16-bit integer frame")
     return np.ascontiguousarray(img)
@@ -237,24 +235,6 @@ def _write_exr(path: Path, img: np.ndarray, names: Sequence[str] | None, attribu
     channels = {n: np.ascontiguousarray(img[..., i]) for i, n in enumerate(names)}
     with OpenEXR.File(header, channels) as f:
         f.write(str(path))
-
-
-def read_exr(path: str | Path) -> tuple[np.ndarray, list[str]]:
-    """Read every channel of a single-part OpenEXR file as float32 ``(H, W, C)`` and the channel names.
-
-    Channel order is R, G, B, A first (when present), then the rest alphabetically.
-    """
-    import OpenEXR
-
-    path = Path(path)
-    try:
-        with OpenEXR.File(str(path), separate_channels=True) as f:
-            chans = {n: np.asarray(c.pixels, dtype=np.float32) for n, c in f.channels().items()}
-    except Exception as exc:  # OpenEXR raises RuntimeError/OSError for damaged files
-        raise InputFileError(path, f"cannot read OpenEXR ({exc})") from None
-    first = [n for n in ("R", "G", "B", "A") if n in chans]
-    names = first + sorted(n for n in chans if n not in first)
-    return np.stack([chans[n] for n in names], axis=-1), names
 
 
 def guess_bit_depth(frames: Sequence[np.ndarray]) -> int:

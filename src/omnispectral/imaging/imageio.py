@@ -38,9 +38,9 @@ def read_image(path: str | Path) -> np.ndarray:
         raise InputFileError(path, "not a regular file")
     suffix = path.suffix.lower()
     if suffix == ".exr":
-        image = _read_exr(path)
+        image, _ = read_exr(path)
     else:
-        image = _read_cv2(path)
+        image = decode_with_opencv(path)
         if image is None and suffix in (".tif", ".tiff"):
             image = _read_tiff(path)
         if image is None:
@@ -48,7 +48,8 @@ def read_image(path: str | Path) -> np.ndarray:
     return _as_hwc_float32(image, path)
 
 
-def _read_cv2(path: Path) -> np.ndarray | None:
+def decode_with_opencv(path: Path) -> np.ndarray | None:
+    """The file's pixels as stored (any depth), channels in R, G, B(, A) order; ``None`` if OpenCV cannot."""
     import cv2
 
     # np.fromfile + imdecode copes with non-ASCII paths, which cv2.imread does not on every platform.
@@ -76,8 +77,12 @@ def _read_tiff(path: Path) -> np.ndarray | None:
     return image
 
 
-def _read_exr(path: Path) -> np.ndarray:
+def read_exr(path: str | Path) -> tuple[np.ndarray, list[str]]:
+    """Every channel of a single-part OpenEXR file, ``(H, W, C)`` float32, and the channel names
+    (R, G, B, A, Y first when present, then the rest alphabetically)."""
     import OpenEXR
+
+    path = Path(path)
 
     try:
         with OpenEXR.File(str(path), separate_channels=True) as exr:
@@ -91,7 +96,7 @@ def _read_exr(path: Path) -> np.ndarray:
     if len(shapes) != 1:
         raise InputFileError(path, f"OpenEXR channels have different sizes {sorted(shapes)} (subsampled channels "
                                    "are not supported)")
-    return np.stack([channels[n] for n in names], axis=-1)
+    return np.stack([channels[n] for n in names], axis=-1).astype(np.float32, copy=False), names
 
 
 def _as_hwc_float32(image: np.ndarray, path: Path) -> np.ndarray:

@@ -40,7 +40,7 @@ import datetime as _dt
 import json
 import math
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -280,8 +280,9 @@ def _utc_now() -> str:
 
 
 # ------------------------------------------------------------------------------------------ sessions
-#: ``register(direction, image_a, image_b) -> (dx, dy)``: camera B's offset for one direction.
-Registration = Callable[[int, np.ndarray, np.ndarray], tuple[float, float]]
+#: ``register(direction, image_a, image_b) -> (dx, dy)``: camera B's offset for one direction; it may also
+#: return ``(dx, dy, extra)`` with a dict recorded in the direction's entry of ``merged.json``.
+Registration = Callable[[int, np.ndarray, np.ndarray], tuple]
 
 
 def calibrated_offset(offset_px: tuple[float, float] = (0.0, 0.0)) -> Registration:
@@ -310,14 +311,15 @@ def merge_direction(session, direction: int, camera: str, n_exposures: int,
 
 def merge_session(session_path: str | Path, output: str | Path, *, register: Registration | None = None,
                   dtype: str = "float16", progress: Callable[[int, int], None] | None = None,
-                  **merge_options) -> MergedDirections:
+                  skip: Collection[int] = (), **merge_options) -> MergedDirections:
     """Stream a raw capture session into a merged-directions directory, one direction at a time.
 
     Each direction's brackets are merged (:func:`omnispectral.imaging.merge_exposures`, options passed
     through), camera B's offset comes from ``register`` (default: the calibrated offset 0 — the
     end-to-end pipeline plugs phase-only correlation in here), the pan/tilt recorded is the mean
     position the head reported during the bracket, and the images are written before the next
-    direction is read, so memory holds one direction.  Directions already written are skipped.
+    direction is read, so memory holds one direction.  Directions already written are skipped, and
+    so are the planned directions in ``skip`` (e.g. ones with damaged frames), which are not planned here.
     """
     from omnispectral.capture.rig import rig_toml
     from omnispectral.capture.session import Session
@@ -328,18 +330,19 @@ def merge_session(session_path: str | Path, output: str | Path, *, register: Reg
     plan = session.plan()
     register = register or calibrated_offset()
     cameras = {c: camera_model(rig, c) for c in CAMERAS}
+    directions = [d for d in plan.directions if d.index not in set(skip)]
     writer = MergedDirectionsWriter.create(
-        output, cameras, [d.to_dict() for d in plan.directions], rig_name=rig.name, rig_toml=rig_toml(rig),
+        output, cameras, [d.to_dict() for d in directions], rig_name=rig.name, rig_toml=rig_toml(rig),
         session={"path": str(Path(session_path).resolve()), **_session_summary(session)}, dtype=dtype)
     done = writer.done()
-    n = len(plan.directions)
-    for i, d in enumerate(plan.directions):
+    n = len(directions)
+    for i, d in enumerate(directions):
         if d.index not in done:
             img_a, (pan, tilt) = merge_direction(session, d.index, "A", len(plan.exposures_s), **merge_options)
             img_b, _ = merge_direction(session, d.index, "B", len(plan.exposures_s), **merge_options)
-            dx, dy = register(d.index, img_a, img_b)
+            dx, dy, *rest = register(d.index, img_a, img_b)
             writer.add(d.index, pan, tilt, {"A": img_a, "B": img_b}, {"B": (dx, dy)},
-                       {"pan_deg_commanded": d.pan_deg, "tilt_deg_commanded": d.tilt_deg})
+                       {"pan_deg_commanded": d.pan_deg, "tilt_deg_commanded": d.tilt_deg, **(rest[0] if rest else {})})
             del img_a, img_b
         if progress is not None:
             progress(i + 1, n)

@@ -67,46 +67,34 @@ def _check_session(session_path: Path, skip_bad: bool, verify_checksums: bool) -
 
 def merge_and_register(session_path: Path, out: Path, skip: set[int], min_confidence: float, progress=None,
                        timings: dict | None = None, hdr_weight: str = "noise") -> tuple[object, list[dict]]:
-    """Stage 2: per direction HDR merge of both cameras and registration of B to A, streamed to ``out``."""
-    from omnispectral.capture.rig import rig_toml
+    """Stage 2: :func:`omnispectral.mosaic.sources.merge_session` (streamed per direction) with camera B
+    registered to A by :func:`~omnispectral.product.align.align_direction`; returns the merged directions
+    and the alignment of every direction."""
     from omnispectral.capture.session import Session
     from omnispectral.capture.simulate import camera_model
-    from omnispectral.mosaic.sources import MergedDirections, MergedDirectionsWriter, merge_direction
+    from omnispectral.mosaic.sources import merge_session
     from omnispectral.product.align import align_direction
 
-    session = Session.open(session_path)
-    rig, plan = session.rig(), session.plan()
+    rig = Session.open(session_path).rig()
     models = {c: camera_model(rig, c) for c in ("A", "B")}
-    keep = [d for d in plan.directions if d.index not in skip]
-    meta = session.metadata()
-    writer = MergedDirectionsWriter.create(out, models, [d.to_dict() for d in keep], rig_name=rig.name,
-                                           rig_toml=rig_toml(rig),
-                                           session={"path": str(Path(session_path).resolve()),
-                                                    **{k: meta[k] for k in ("kind", "rig", "created_utc")
-                                                       if k in meta}})
-    done = writer.done()
-    alignments = [d.get("alignment") for d in writer.meta["directions"] if d.get("alignment")]
-    t_merge = t_reg = 0.0
-    for i, d in enumerate(keep):
-        if d.index not in done:
-            t0 = time.perf_counter()
-            img_a, (pan, tilt) = merge_direction(session, d.index, "A", len(plan.exposures_s), weight=hdr_weight)
-            img_b, _ = merge_direction(session, d.index, "B", len(plan.exposures_s), weight=hdr_weight)
-            t1 = time.perf_counter()
-            al = align_direction(d.index, img_a, img_b, models["A"], models["B"], pan, tilt, min_confidence)
-            t_merge += t1 - t0
-            t_reg += time.perf_counter() - t1
-            writer.add(d.index, pan, tilt, {"A": img_a, "B": img_b}, {"B": al.offset_px},
-                       {"pan_deg_commanded": d.pan_deg, "tilt_deg_commanded": d.tilt_deg,
-                        "alignment": al.to_dict()})
-            alignments.append(al.to_dict())
-            del img_a, img_b
-        if progress is not None:
-            progress(i + 1, len(keep))
+    t_reg, n_merged = 0.0, 0
+
+    def register(direction: int, img_a, img_b):
+        nonlocal t_reg, n_merged
+        n_merged += 1
+        t0 = time.perf_counter()
+        # for points at infinity the A-to-B relation does not depend on the head direction (product.align)
+        al = align_direction(direction, img_a, img_b, models["A"], models["B"], 0.0, 0.0, min_confidence)
+        t_reg += time.perf_counter() - t0
+        return (*al.offset_px, {"alignment": al.to_dict()})
+
+    t0 = time.perf_counter()
+    merged = merge_session(session_path, out, register=register, skip=skip, progress=progress, weight=hdr_weight)
     if timings is not None:
-        timings["hdr_merge"] = timings.get("hdr_merge", 0.0) + t_merge
+        merging = time.perf_counter() - t0 - t_reg if n_merged else 0.0  # a resumed run may merge nothing
+        timings["hdr_merge"] = timings.get("hdr_merge", 0.0) + merging
         timings["registration"] = timings.get("registration", 0.0) + t_reg
-    return MergedDirections.open(out), sorted(alignments, key=lambda a: a["direction"])
+    return merged, [d["alignment"] for d in merged.directions if "alignment" in d]
 
 
 def process(session: str | Path, output: str | Path, *, width: int | None = None, tile: int | None = None,

@@ -38,13 +38,12 @@ def _resize_to(image: np.ndarray, height: int, width: int) -> np.ndarray:
     return np.stack(chans, axis=-1)
 
 
-def _saturated_mask(gt_bands: np.ndarray, level: float, height: int, width: int, margin_px: int = 3) -> np.ndarray:
-    """Pixels of a ``height × width`` grid touched by ground truth at or above ``level`` (with a margin for the
-    interpolation kernel): the sun saturates every exposure and is flagged, not measured."""
+def _saturated_mask(saturated: np.ndarray, height: int, width: int, margin_px: int = 3) -> np.ndarray:
+    """Pixels of a ``height × width`` grid touched by the ground truth's ``saturated`` pixels (with a margin
+    for the interpolation kernel): the sun saturates every exposure and is flagged, not measured."""
     import cv2
 
-    sat = (gt_bands.max(axis=2) >= level).astype(np.float32)
-    small = cv2.resize(sat, (width, height), interpolation=cv2.INTER_AREA) > 0
+    small = cv2.resize(saturated.astype(np.float32), (width, height), interpolation=cv2.INTER_AREA) > 0
     return cv2.dilate(small.astype(np.uint8), np.ones((2 * margin_px + 1,) * 2, np.uint8)) > 0
 
 
@@ -82,9 +81,11 @@ def accuracy(bands: np.ndarray, estimator, gt_dir: Path, shortest_s: float, max_
 
     meta = json.loads((gt_dir / "ground_truth.json").read_text())
     h, w = bands.shape[:2]
-    gt_bands = np.load(gt_dir / "bands.npy", mmap_mode="r")
-    truth = _resize_to(np.asarray(gt_bands, np.float32), h, w)
-    unsaturated = ~_saturated_mask(np.asarray(gt_bands), max_dn / shortest_s, h, w)
+    gt_bands = np.load(gt_dir / "bands.npy")
+    saturated = gt_bands.max(axis=2) >= max_dn / shortest_s  # read and reduced once
+    truth = _resize_to(gt_bands, h, w)
+    del gt_bands
+    unsaturated = ~_saturated_mask(saturated, h, w)
     covered = np.isfinite(bands).all(axis=2)
     valid = covered & unsaturated
     out: dict = {"six_band_psnr_db": psnr_db(bands, truth, valid),
@@ -92,7 +93,7 @@ def accuracy(bands: np.ndarray, estimator, gt_dir: Path, shortest_s: float, max_
     spectral = np.load(gt_dir / "spectral.npy")
     sh, sw = spectral.shape[:2]
     small = _resize_to(np.where(covered[..., None], bands, np.nan).astype(np.float32), sh, sw)
-    ok = np.isfinite(small).all(axis=2) & ~_saturated_mask(np.asarray(gt_bands), max_dn / shortest_s, sh, sw)
+    ok = np.isfinite(small).all(axis=2) & ~_saturated_mask(saturated, sh, sw)
     est = estimator.estimate(small[ok])
     out["spectral_nrmse"] = float(np.mean(nrmse(est, spectral[ok])))
     out["spectral_pixels"] = int(ok.sum())

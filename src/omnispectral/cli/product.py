@@ -135,10 +135,11 @@ def cmd_demo(args) -> int:
                "exports": exports}
     from omnispectral.io import atomic_write_json
 
-    atomic_write_json(out / "report.json", {**summary, "accuracy": {
-        k: v for k, v in report["accuracy"].items() if k != "colorchecker"} | {
-        "colorchecker": {k: v for k, v in report["accuracy"]["colorchecker"].items()
-                         if k in ("nrmse", "delta_e_ab", "delta_e_ab_max", "per_patch")}}})
+    accuracy = dict(report["accuracy"])
+    if accuracy.get("colorchecker"):  # the summary keeps the numbers, the product's report keeps the spectra
+        accuracy["colorchecker"] = {k: v for k, v in accuracy["colorchecker"].items()
+                                    if k not in ("estimated", "true", "wavelength_nm")}
+    atomic_write_json(out / "report.json", {**summary, "accuracy": accuracy})
     _print_accuracy(report["accuracy"])
     console.print(f"Done in {summary['total_s']:.0f} s. Everything is in {out}/:")
     for label, path in (("session (raw frames, journal, ground truth)", out / "session"),

@@ -160,7 +160,7 @@ def _merge_rows(model: _Model, frames: list[np.ndarray], rows: slice):
             num, den = np.zeros_like(x), np.zeros_like(x)
             vnum = np.zeros_like(x) if model.weight == "triangle" else None
         den += w
-        lin *= inv_t
+        lin *= inv_t  # in place: for a linear sensor ``lin`` is ``x``, which is not used after the weight
         num += w * lin
         if vnum is not None:
             w *= w

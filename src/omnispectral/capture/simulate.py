@@ -57,6 +57,28 @@ def camera_model(rig: Rig, name: str) -> CameraModel:
                             mounting)
 
 
+#: Largest error (deg, per axis) of camera B's true mounting against the rig file's in a simulation.
+DEFAULT_MOUNTING_ERROR_DEG = 0.5
+
+
+def true_mounting_error_deg(seed: int, max_error_deg: float = DEFAULT_MOUNTING_ERROR_DEG) -> tuple[float, float, float]:
+    """The (yaw, pitch, roll) by which a simulated camera B really differs from the rig file (uniform, per seed).
+
+    A real rig's camera B is never mounted exactly as its rig file says; the simulator renders B with
+    this unknown error so that processing has to estimate B's mounting (``product.rigcal``) and is
+    tested against a truth it cannot read (only ``ground_truth/ground_truth.json`` records it).
+    """
+    rng = np.random.default_rng([int(seed), 0x4D4F554E])
+    return tuple(float(x) for x in rng.uniform(-max_error_deg, max_error_deg, 3))
+
+
+def perturbed_model(model: CameraModel, error_deg: tuple[float, float, float]) -> CameraModel:
+    """``model`` with ``error_deg`` added to its mounting's misalignment (yaw, pitch, roll)."""
+    from dataclasses import replace
+
+    return replace(model, mounting=model.mounting.with_misalignment_change(error_deg))
+
+
 def _model_from_fovs(width: int, height: int, hfov_deg: float, vfov_deg: float, dist, mounting) -> CameraModel:
     """A camera with the rig file's two fields of view: ``fx`` from the horizontal one (solved through the
     distortion), ``fy`` so that the vertical one holds for the pinhole part (non-square pixels when the
@@ -112,6 +134,11 @@ class RigRenderer:
     scene: object
     noise: bool = True
     electrons_per_unit: float | None = None
+    #: camera B's true mounting error against the rig file (see :func:`true_mounting_error_deg`)
+    b_mounting_error_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: rays per pixel side: a pixel integrates the light over its area (box filter, 100 % fill factor)
+    #: instead of sampling its centre, which would alias edges and bias sub-pixel registration
+    supersample: int = 2
     system: MultibandSystem = field(init=False)
     models: dict = field(init=False)
     _rays: dict = field(init=False, default_factory=dict)
@@ -120,6 +147,7 @@ class RigRenderer:
     def __post_init__(self):
         self.system = rig_system(self.rig, np.asarray(self.scene.wavelength_nm))
         self.models = {c: camera_model(self.rig, c) for c in ("A", "B")}
+        self.models["B"] = perturbed_model(self.models["B"], self.b_mounting_error_deg)
         if self.electrons_per_unit is None:
             self.electrons_per_unit = calibrate_exposure(self.rig, self.scene, self.system)
 
@@ -129,12 +157,16 @@ class RigRenderer:
         return self.system.matrix[rows]
 
     def camera_rays(self, camera: str) -> tuple[np.ndarray, np.ndarray]:
-        """Unit camera-frame rays of every pixel centre (H*W, 3) and their validity (cached)."""
+        """Unit camera-frame rays (H*W*s², 3) of ``s × s`` points spread evenly over every pixel's area
+        (``s`` = :attr:`supersample`; pixel-major order) and their validity (cached)."""
         if camera not in self._rays:
             m = self.models[camera]
-            v, u = np.mgrid[0:m.height, 0:m.width]
-            rays, valid = m.unproject(np.stack([u.ravel(), v.ravel()], axis=-1).astype(np.float64))
-            self._rays[camera] = (np.nan_to_num(rays), valid)
+            s = max(1, int(self.supersample))
+            sub = (np.arange(s) + 0.5) / s - 0.5
+            v, u, dv, du = np.meshgrid(np.arange(m.height), np.arange(m.width), sub, sub, indexing="ij")
+            px = np.stack([(u + du).ravel(), (v + dv).ravel()], axis=-1).astype(np.float64)
+            rays, valid = m.unproject(px)
+            self._rays[camera] = (np.nan_to_num(rays).astype(np.float32), valid)
         return self._rays[camera]
 
     def electrons_per_second(self, camera: str, pan_deg: float, tilt_deg: float) -> np.ndarray:
@@ -149,8 +181,9 @@ class RigRenderer:
         bands = np.zeros((rays.shape[0], 3), np.float32)
         if valid.any():
             bands[valid] = self.scene.band_radiance(world[valid], self.band_matrix(camera), origin_m=origin_m)
-        img = (bands * np.float32(self.electrons_per_unit)).reshape(m.height, m.width, 3)
-        self._last[camera] = (key, img)
+        s2 = max(1, int(self.supersample)) ** 2
+        img = (bands.reshape(m.height, m.width, s2, 3).mean(axis=2) * np.float32(self.electrons_per_unit))
+        self._last[camera] = (key, img.astype(np.float32))
         return img
 
     def __call__(self, camera: str, pan_deg: float, tilt_deg: float, exposure_s: float,
@@ -192,7 +225,8 @@ def write_ground_truth(directory: str | Path, renderer: RigRenderer, width: int,
     centres at +0.5, see :mod:`omnispectral.imaging.geometry`):
 
     ``bands.npy`` ``(H, W, 6)``: noise-free response of bands ``A:R … B:B`` in DN per second of exposure
-    (what the HDR merge of a noise-free capture gives), seen from the head's rotation centre.
+    (what the HDR merge of a noise-free capture gives), seen from the head's rotation centre, averaged
+    over each pixel's area (2 × 2 points, like the sensor's pixels).
     ``spectral.npy`` ``(h, w, n)`` at ``spectral_width``: spectral radiance in DN/s per unit of the
     system matrix (``bands = spectral @ matrix.T``), i.e. the unit a Wiener estimate of the bands is in.
     ``wavelength_nm.npy``, ``system_matrix.npy`` ``(6, n)``; for scenes with a chart
@@ -239,21 +273,29 @@ def write_ground_truth(directory: str | Path, renderer: RigRenderer, width: int,
                     "world +Y up, longitude 0 = +Z, longitude +90 = -X (omnispectral.imaging.geometry)",
             "viewpoint": "the head's rotation centre (camera A's optical centre)",
             "electrons_per_unit": renderer.electrons_per_unit, "dn_per_second_per_unit": scale,
+            "camera_b_true": {"mounting_error_deg": list(renderer.b_mounting_error_deg),
+                              "model": renderer.models["B"].to_dict(),
+                              "note": "what processing must estimate; never read by processing"},
             "scene": _jsonable(renderer.scene.describe()), "colorchecker_patches": _jsonable(patches), **chart}
     atomic_write_json(out / "ground_truth.json", meta)
     return meta
 
 
-def _fill_equirect(arr: np.ndarray, fn, rows_per_chunk: int) -> None:
+def _fill_equirect(arr: np.ndarray, fn, rows_per_chunk: int, supersample: int = 2) -> None:
+    """Fill an equirect array with ``fn(rays)`` averaged over ``supersample²`` points spread over each pixel's
+    area: the truth is the mean radiance of the pixel's solid angle, as the simulated sensor's pixels
+    integrate over their area (:attr:`RigRenderer.supersample`), so that edges compare like with like."""
     from omnispectral.imaging.geometry import equirect_pixel_to_lonlat, lonlat_to_ray
 
     h, w = arr.shape[:2]
-    cols = np.arange(w)
+    s = max(1, int(supersample))
+    sub = (np.arange(s) + 0.5) / s - 0.5
     for r0 in range(0, h, rows_per_chunk):
         r1 = min(h, r0 + rows_per_chunk)
-        col, row = np.meshgrid(cols, np.arange(r0, r1))
-        rays = lonlat_to_ray(*equirect_pixel_to_lonlat(col.ravel(), row.ravel(), w, h))
-        arr[r0:r1] = np.asarray(fn(rays), np.float32).reshape(r1 - r0, w, -1)
+        row, col, dr, dc = np.meshgrid(np.arange(r0, r1), np.arange(w), sub, sub, indexing="ij")
+        rays = lonlat_to_ray(*equirect_pixel_to_lonlat((col + dc).ravel(), (row + dr).ravel(), w, h))
+        values = np.asarray(fn(rays), np.float32)
+        arr[r0:r1] = values.reshape(r1 - r0, w, s * s, -1).mean(axis=2)
 
 
 def _save_npy(path: Path, array: np.ndarray) -> None:
@@ -267,15 +309,20 @@ def _jsonable(x):
 
 def simulate_session(output: str | Path, rig: Rig, scene, *, start: _dt.datetime, noise: bool = True,
                      seed: int = 0, ground_truth_width: int | None = None, progress: bool = True,
-                     overlap: float | None = None) -> dict:
-    """``capture`` with the simulated rig plus the ground truth; resumable like any capture."""
+                     overlap: float | None = None, mounting_error_deg: float = DEFAULT_MOUNTING_ERROR_DEG) -> dict:
+    """``capture`` with the simulated rig plus the ground truth; resumable like any capture.
+
+    Camera B is rendered with an unknown mounting error of up to ``mounting_error_deg`` per axis drawn
+    from ``seed`` (:func:`true_mounting_error_deg`; 0 renders the rig file's mounting exactly).
+    """
     from omnispectral.capture.devices import FakeClock, SimulatedCamera, SimulatedHead
     from omnispectral.capture.plan import make_plan
     from omnispectral.capture.run import RetryPolicy, run_capture
     from omnispectral.capture.session import Session
 
     plan = make_plan(rig, overlap=overlap)
-    renderer = RigRenderer(rig, scene, noise=noise)
+    renderer = RigRenderer(rig, scene, noise=noise,
+                           b_mounting_error_deg=true_mounting_error_deg(seed, mounting_error_deg))
     session = Session.create(output, rig, plan, kind="simulation",
                              extra={"simulation": {"scene": _jsonable(scene.describe()), "noise": noise, "seed": seed,
                                                    "start": start.isoformat(),

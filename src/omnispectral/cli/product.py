@@ -6,6 +6,7 @@ import datetime as _dt
 import time
 from pathlib import Path
 
+from rich.markup import escape
 from rich.table import Table
 
 from omnispectral.cli._common import console, print_json
@@ -16,7 +17,8 @@ def cmd_process(args) -> int:
 
     index = process(args.session, args.output, width=args.width, tile=args.tile, interp=args.interp,
                     scheduler=args.scheduler, skip_bad=args.skip_bad, min_confidence=args.min_confidence,
-                    hdr_weight=args.hdr_weight, progress=not args.json, verify_checksums=args.verify_checksums)
+                    hdr_weight=args.hdr_weight, progress=not args.json, verify_checksums=args.verify_checksums,
+                    registration=args.registration, rig_calibration=args.rig_calibration)
     if args.json:
         print_json(index)
         return 0
@@ -25,11 +27,20 @@ def cmd_process(args) -> int:
 
 
 def _print_summary(index: dict) -> None:
-    reg = index["registration"]["directions"]
-    n_fb = sum(a["used_fallback"] for a in reg)
+    registration = index["registration"]
+    reg = registration["directions"]
+    if registration.get("method") == "parallax":
+        cal = registration["rig_calibration"]
+        d = cal["delta_from_rig_file_deg"]
+        how = (f"camera B's mounting fitted from {cal['n_inliers']} blocks (yaw {d['yaw']:+.3f}°, pitch "
+               f"{d['pitch']:+.3f}°, roll {d['roll']:+.3f}° from the rig file), per-pixel parallax")
+    else:
+        n_fb = sum(a["used_fallback"] for a in reg)
+        how = f"camera B registered by POC in {len(reg) - n_fb}, calibrated offset in {n_fb}"
     console.print(f"[bold]{index['width']}×{index['height']}[/bold] six-band panorama of {index['rig']} "
-                  f"({len(reg)} directions; camera B registered by POC in {len(reg) - n_fb}, calibrated offset in "
-                  f"{n_fb}; {len(index['skipped_directions'])} directions skipped as bad).")
+                  f"({len(reg)} directions; {how}; {len(index['skipped_directions'])} directions skipped as bad).")
+    for w in registration.get("warnings", []):
+        console.print(f"[yellow]warning:[/yellow] {escape(w)}")
     t = Table(title="Timings")
     for k in index["timings_s"]:
         t.add_column(k, justify="right")
@@ -114,7 +125,8 @@ def cmd_demo(args) -> int:
     console.print(f"[bold]1/4 simulate[/bold] the {rig.name} rig ({rig.camera_a.width_px}×{rig.camera_a.height_px}, "
                   f"36 directions × 2 cameras × {len(rig.bracket.exposures_s)} exposures) on the procedural scene "
                   f"at {args.time}")
-    sim = simulate_session(out / "session", rig, build_scene("procedural", None, start), start=start, seed=args.seed)
+    sim = simulate_session(out / "session", rig, build_scene("procedural", None, start, seed=args.seed), start=start,
+                           seed=args.seed)
     console.print(f"[bold]2/4 process[/bold] into {out / 'product'}")
     index = process(out / "session", out / "product", report=True)
     console.print("[bold]3/4 export[/bold]")
@@ -164,14 +176,48 @@ def cmd_process_series(args) -> int:
     return 0
 
 
+def cmd_calibrate_rig(args) -> int:
+    from omnispectral.product.rigcal import calibrate_session
+
+    cal = calibrate_session(args.session, args.output, args.work)
+    if args.json:
+        print_json(cal.to_dict())
+        return 0
+    d = cal.delta_deg
+    console.print(f"Camera B's mounting from {cal.n_inliers} of {cal.n_blocks} block measurements: "
+                  f"yaw {d[0]:+.3f}°, "
+                  f"pitch {d[1]:+.3f}°, roll {d[2]:+.3f}° from the rig file; RMS residual across the epipolar lines "
+                  f"{cal.rms_perpendicular_px:.3f} px; infinity anchored on "
+                  f"{cal.far_anchor.get('n_blocks', 0)} blocks.")
+    for w in cal.warnings():
+        console.print(f"[yellow]warning:[/yellow] {escape(w)}")
+    console.print(f"Written: {args.output} (use: omnispectral process SESSION -o PRODUCT --rig-calibration "
+                  f"{args.output})")
+    return 0
+
+
 def add_commands(sub) -> None:
-    """Register ``process``, ``process-series``, ``spectrum``, ``export``, ``report`` and ``demo``."""
+    """Register ``process``, ``process-series``, ``spectrum``, ``export``, ``report``, ``demo`` and
+    ``calibrate rig``."""
+    from omnispectral.cli.lens import calibrate_group
     from omnispectral.product.exports import FORMATS
 
+    c = calibrate_group(sub).add_parser(
+        "rig", help="camera B's mounting relative to camera A, fitted from a session's images",
+        description="Merges the session's brackets and fits camera B's rotation relative to A from block "
+                    "correspondences of every direction (residuals across the epipolar lines; the farthest content "
+                    "taken to be at infinity). The file is reused with 'process --rig-calibration'.")
+    c.add_argument("session", metavar="SESSION")
+    c.add_argument("-o", "--output", required=True, metavar="FILE.json")
+    c.add_argument("--work", default=None, metavar="DIR", help="keep the merged directions here (default: temporary)")
+    c.add_argument("--json", action="store_true", help="print the calibration as JSON")
+    c.set_defaults(func=cmd_calibrate_rig)
+
     p = sub.add_parser("process", help="a capture session into an HDR six-band panorama with its estimator",
-                       description="HDR merge per direction and camera, registration of camera B to A (POC, "
-                                   "fallback to the calibrated offset), mosaic into a six-band Zarr panorama, "
-                                   "Wiener estimator attached, report. Streams one direction at a time; resumable.")
+                       description="HDR merge per direction and camera; camera B's mounting fitted from the "
+                                   "session (or --rig-calibration) and per-pixel parallax (or the paper's one POC "
+                                   "offset per direction); mosaic into a six-band Zarr panorama with a "
+                                   "registration-quality layer; Wiener estimator attached; report. Resumable.")
     p.add_argument("session", metavar="SESSION")
     p.add_argument("-o", "--output", required=True, metavar="PRODUCT", help="product directory")
     p.add_argument("--width", type=int, default=None, help="panorama width in px (default: the sensor's resolution)")
@@ -180,8 +226,13 @@ def add_commands(sub) -> None:
                    help="interpolation (default linear: no overshoot on small targets)")
     p.add_argument("--hdr-weight", default="noise", choices=["noise", "triangle"],
                    help="HDR weight (default inverse variance; 'triangle' is the paper's Eq. (2))")
-    p.add_argument("--min-confidence", type=float, default=None, help="POC confidence below which the "
-                                                                      "calibrated offset is used")
+    p.add_argument("--registration", default="parallax", choices=["parallax", "paper"],
+                   help="camera B to A: rig calibration + per-pixel parallax (default), or the paper's one POC "
+                        "offset per direction")
+    p.add_argument("--rig-calibration", default=None, metavar="FILE.json",
+                   help="camera B's mounting from 'omnispectral calibrate rig' (default: fitted from this session)")
+    p.add_argument("--min-confidence", type=float, default=None, help="with --registration paper: POC confidence "
+                                                                      "below which the calibrated offset is used")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="Dask distributed scheduler address")
     p.add_argument("--skip-bad", action="store_true",
                    help="leave out directions with missing or damaged frames instead of stopping")

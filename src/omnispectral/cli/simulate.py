@@ -12,14 +12,17 @@ from omnispectral.errors import ConfigurationError
 DEFAULT_DATE = _dt.date(2017, 6, 21)  # summer solstice; the paper's captures are from 2016-2017 in Japan
 
 
-def build_scene(scene: str, cube: str | None, when: _dt.datetime, wavelength_nm=None):
+def build_scene(scene: str, cube: str | None, when: _dt.datetime, wavelength_nm=None, seed: int = 0,
+                chart_distance_m: float | None = None, chart_patch_m: float | None = None):
     """The scene named on the command line: ``procedural``, an HDR panorama file, optionally a cube on a wall."""
     from omnispectral.capture import scenes
 
     kwargs = {} if wavelength_nm is None else {"wavelength_nm": wavelength_nm}
     if scene == "procedural":
+        chart = {k: v for k, v in (("chart_distance_m", chart_distance_m), ("chart_patch_m", chart_patch_m))
+                 if v is not None}
         base = scenes.ProceduralOutdoorScene(time_hhmm=f"{when:%H:%M}", day_of_year=when.timetuple().tm_yday,
-                                             **kwargs)
+                                             seed=seed, **chart, **kwargs)
     else:
         if cube:
             raise ConfigurationError("--cube mounts the cube on a wall of the procedural scene; use --scene procedural")
@@ -39,9 +42,11 @@ def cmd_simulate(args) -> int:
 
     rig = rig_from_args(args, default_preset="small")
     start = _start_time(args.time, args.date)
-    scene = build_scene(args.scene, args.cube, start)
+    scene = build_scene(args.scene, args.cube, start, seed=args.seed, chart_distance_m=args.chart_distance,
+                        chart_patch_m=args.chart_patch)
     out = simulate_session(args.output, rig, scene, start=start, noise=args.noise == "on", seed=args.seed,
-                           ground_truth_width=args.gt_width, progress=not args.json)
+                           ground_truth_width=args.gt_width, progress=not args.json,
+                           mounting_error_deg=args.mounting_error)
     out["rig"] = rig.name
     if args.json:
         print_json(out)
@@ -75,9 +80,11 @@ def cmd_timelapse(args) -> int:
     clock = FakeClock(start)  # simulated devices: simulated time
 
     def capture(session_dir: Path, t: _dt.datetime) -> dict:
-        scene = build_scene(args.scene, args.cube, t)
+        scene = build_scene(args.scene, args.cube, t, seed=args.seed, chart_distance_m=args.chart_distance,
+                            chart_patch_m=args.chart_patch)
         res = simulate_session(session_dir, rig, scene, start=clock.now(), noise=args.noise == "on",
-                               seed=args.seed, ground_truth_width=args.gt_width, progress=False)
+                               seed=args.seed, ground_truth_width=args.gt_width, progress=False,
+                               mounting_error_deg=args.mounting_error)
         clock.sleep(res["simulated_s"])
         return res
 
@@ -103,7 +110,15 @@ def _add_scene_args(p) -> None:
                    help="hyperspectral reflectance cube mounted on a wall of the procedural scene")
     p.add_argument("--date", default=None, metavar="YYYY-MM-DD", help=f"day of the capture (default {DEFAULT_DATE})")
     p.add_argument("--noise", choices=["on", "off"], default="on", help="CMV2000 sensor noise")
-    p.add_argument("--seed", type=int, default=0, help="random seed of the noise")
+    p.add_argument("--seed", type=int, default=0,
+                   help="random seed of the noise, of camera B's unknown mounting error and of the scene's materials")
+    p.add_argument("--mounting-error", type=float, default=0.5, metavar="DEG",
+                   help="camera B is mounted up to this far (per axis) from what the rig file says, drawn from the "
+                        "seed and recorded only in the ground truth (default 0.5; 0 = exactly as the rig file)")
+    p.add_argument("--chart-distance", type=float, default=None, metavar="M",
+                   help="distance of the ColorChecker from the rig (procedural scene; default 2.5 m)")
+    p.add_argument("--chart-patch", type=float, default=None, metavar="M",
+                   help="ColorChecker patch size (procedural scene; default 0.05 m)")
     p.add_argument("--gt-width", type=int, default=None, metavar="W",
                    help="width of the ground-truth panorama (default: the paper's 7260 px scaled to the sensor)")
 

@@ -211,6 +211,11 @@ class Mounting:
         yaw, pitch, roll = self.misalignment_deg
         return rot_y(yaw) @ rot_x(pitch) @ rot_z(roll + self.roll_deg)
 
+    def with_misalignment_change(self, delta_deg) -> Mounting:
+        """This mounting with ``delta_deg = (yaw, pitch, roll)`` added to its misalignment."""
+        mis = tuple(float(a) + float(b) for a, b in zip(self.misalignment_deg, delta_deg, strict=True))
+        return Mounting(self.roll_deg, mis, self.baseline_mm)
+
     def to_dict(self) -> dict[str, Any]:
         yaw, pitch, roll = self.misalignment_deg
         return {"roll_deg": self.roll_deg,

@@ -57,6 +57,9 @@ from omnispectral.mosaic.store import PanoramaStore
 DEFAULT_TILE = 512
 DEFAULT_INTERP = "spline"
 N_BANDS = 6
+#: Registration-quality layer of a panorama whose camera B carries parallax maps: blended registration
+#: confidence (0..1) and occluded (1 where every direction that sees the pixel with B has it hidden).
+N_QUALITY = 2
 
 
 def native_width(fx_px: float) -> int:
@@ -81,10 +84,20 @@ class MosaicJob:
     run_id: str = ""  # recorded in the markers of the tiles this run computes
     axes: np.ndarray = field(init=False)
     radii: np.ndarray = field(init=False)
+    #: for a camera-B source with a parallax map: the index of camera A's source of the same direction
+    partner: dict = field(init=False)
 
     def __post_init__(self):
         self.axes = np.array([g.axis for g in self.geometry]).reshape(-1, 3)
         self.radii = np.array([g.radius_rad for g in self.geometry])
+        a_of = {s.direction: i for i, s in enumerate(self.images) if s.camera == "A"}
+        self.partner = {i: a_of[s.direction] for i, s in enumerate(self.images)
+                        if s.parallax is not None and s.direction in a_of}
+
+    @property
+    def has_quality(self) -> bool:
+        """Whether the panorama carries a registration-quality layer (some source has a parallax map)."""
+        return bool(self.partner)
 
     def sources_for(self, rect: Rect) -> np.ndarray:
         """Indices of the sources whose cones meet the cone of ``rect`` (vectorised test)."""
@@ -115,6 +128,52 @@ class Warped:
     weight: np.ndarray
     step: int
     max_error_px: float
+    #: camera B with parallax: registration confidence and occlusion per pixel (else None)
+    confidence: np.ndarray | None = None
+    occluded: np.ndarray | None = None
+
+
+#: Weight factor of an occluded camera-B pixel: it counts only where no direction sees the surface.
+OCCLUDED_WEIGHT = 1e-6
+#: Camera B's blending weight is multiplied by ``(CONFIDENCE_FLOOR + registration confidence)²``.
+CONFIDENCE_FLOOR = 0.1
+
+
+def parallax_positions(job: MosaicJob, i: int, row0: int, col0: int, u: np.ndarray,
+                       v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Camera B's sensor positions corrected for parallax, with confidence and occlusion, for the output
+    pixels ``[row0, row0 + h) × [col0, col0 + w)`` whose positions for points at infinity are ``u, v``.
+
+    The output pixel's ray gives A's pixel (camera A of the same direction: the head's rotation centre,
+    so A has no parallax), where the direction's parallax map holds the inverse depth ``w`` (nearest
+    pixel: never a blend of two surfaces); B sees that point along ``ray − w · c_B`` (``c_B``, B's
+    optical centre), evaluated exactly where ``w > 0`` — still one interpolation of B's image.
+    """
+    from omnispectral.mosaic.maps import exact_map
+    from omnispectral.mosaic.sources import read_npy_rows
+
+    geo, img = job.geometry[i], job.images[i]
+    a_geo = job.geometry[job.partner[i]]
+    h, w = u.shape
+    rows, cols = np.arange(row0, row0 + h), np.arange(col0, col0 + w)
+    pa = exact_map(a_geo, job.canvas, rows, cols)
+    ma = a_geo.model
+    ia = np.clip(np.rint(np.nan_to_num(pa[..., 0], nan=-1.0)), 0, ma.width - 1).astype(np.int64)
+    ja = np.clip(np.rint(np.nan_to_num(pa[..., 1], nan=-1.0)), 0, ma.height - 1).astype(np.int64)
+    r_lo, r_hi = int(ja.min()), int(ja.max()) + 1
+    par = read_npy_rows(img.parallax, r_lo, r_hi)
+    sample = par[ja - r_lo, ia].astype(np.float32)
+    inv_depth, conf, occ = sample[..., 0], sample[..., 1], sample[..., 2] > 0.5
+    near = np.isfinite(inv_depth) & (inv_depth > 0)
+    u, v = u.copy(), v.copy()
+    if near.any():
+        rays = job.canvas.rays(rows, cols)[near]
+        centre_m = geo.model.camera_center_mm(geo.pan_deg, geo.tilt_deg) / 1000.0
+        px, _ = geo.model.world_to_pixel(rays - inv_depth[near, None] * centre_m, geo.pan_deg, geo.tilt_deg,
+                                         margin_px=None)
+        u[near] = px[:, 0] + geo.offset_px[0]
+        v[near] = px[:, 1] + geo.offset_px[1]
+    return u, v, conf, occ
 
 
 def warp_source(job: MosaicJob, i: int, rect: Rect) -> Warped | None:
@@ -125,7 +184,15 @@ def warp_source(job: MosaicJob, i: int, rect: Rect) -> Warped | None:
     sm = source_map(geo, job.canvas, rect, margin_px=radius + 1.0)
     if sm is None:
         return None
+    conf = occ = None
+    if i in job.partner:
+        sm.u, sm.v, conf, occ = parallax_positions(job, i, sm.row0, sm.col0, sm.u, sm.v)
     weight = feather_weight(sm.u, sm.v, m.width, m.height)
+    if occ is not None:
+        # directions that registered the pixel confidently dominate those that did not; occluded ones
+        # count only where no direction sees the surface
+        trust = (np.float32(CONFIDENCE_FLOOR) + np.nan_to_num(conf)) ** 2
+        weight = (weight * np.where(occ, np.float32(OCCLUDED_WEIGHT), trust)).astype(np.float32)
     rows_any = np.flatnonzero(weight.any(axis=1))
     if rows_any.size == 0:
         return None
@@ -138,7 +205,9 @@ def warp_source(job: MosaicJob, i: int, rect: Rect) -> Warped | None:
         weight = np.where(bad, 0.0, weight).astype(np.float32)
         values[bad] = 0.0
     values *= job.gains[i]
-    return Warped(i, sm.row0 + int(r_lo), sm.col0 + int(c_lo), values, weight, sm.step, sm.max_error_px)
+    if conf is not None:
+        conf, occ = conf[r_lo:r_hi, c_lo:c_hi], occ[r_lo:r_hi, c_lo:c_hi]
+    return Warped(i, sm.row0 + int(r_lo), sm.col0 + int(c_lo), values, weight, sm.step, sm.max_error_px, conf, occ)
 
 
 def sample_crop(img: SourceImage, u: np.ndarray, v: np.ndarray, used: np.ndarray, interp: str, width: int,
@@ -189,17 +258,27 @@ def render_tile(job: MosaicJob, rect: Rect) -> tuple[np.ndarray, dict]:
         del warped
     else:
         acc = LinearBlend(rect.shape, N_BANDS)
+        quality = LinearBlend(rect.shape, N_QUALITY) if job.has_quality else None
         for i in job.sources_for(work):
             w = warp_source(job, int(i), work)
             if w is None:
                 continue
             acc.add(job.images[w.index].bands, w.row0 - rect.row0, w.col0 - rect.col0, w.values, w.weight)
+            if quality is not None and w.confidence is not None:
+                quality.add((0, 1), w.row0 - rect.row0, w.col0 - rect.col0,
+                            np.stack([w.confidence, w.occluded], axis=-1).astype(np.float32), w.weight)
             steps.append(w.step)
             errors.append(w.max_error_px)
         out = acc.result()
+        if quality is not None:
+            stats_q = quality.result()
+            stats_q[..., 1] = (stats_q[..., 1] > 0.5).astype(np.float32)
+            stats_quality = stats_q
     holes = int((~np.isfinite(out)).any(axis=-1).sum())
     stats = {"n_sources": len(steps), "holes": holes, "map_step_min": min(steps, default=0),
              "map_error_px": max(errors, default=0.0)}
+    if job.has_quality and job.blend != "multiband":
+        stats["quality"] = stats_quality
     return out, stats
 
 
@@ -229,6 +308,10 @@ def tile_task(job: MosaicJob, ty: int, tx: int) -> dict:
     store = PanoramaStore.open(job.store_path)
     r0, r1, c0, c1 = store.chunk_rect(0, ty, tx)
     data, stats = render_tile(job, Rect(r0, r1, c0, c1))
+    quality = stats.pop("quality", None)
+    if quality is not None:
+        store.write_quality(ty, tx, quality)
+        stats["occluded_px"] = int(np.nansum(quality[..., 1]))
     stats["seconds"] = round(time.perf_counter() - t0, 4)
     stats["pixels"] = int(data.shape[0] * data.shape[1])
     stats["run"] = job.run_id
@@ -353,7 +436,8 @@ def mosaic(source: str | Path | MergedDirections, output: str | Path, *, width: 
     job = build_job(merged, Path(output), width, tile, interp, blend, multiband_levels, gains)
     attrs = panorama_attributes(merged, job, gain_compensation)
     store = PanoramaStore.create(output, width // 2, width, N_BANDS, tile, attrs, fingerprint(merged, job),
-                                 overwrite=overwrite, compression=compression)
+                                 overwrite=overwrite, compression=compression,
+                                 quality_bands=N_QUALITY if job.has_quality and blend != "multiband" else 0)
     t_tiles = time.perf_counter()
     tiles = _tiles_in(store, region)
     computed = _run_level0(job, store, tiles, scheduler, workers, progress)
@@ -474,8 +558,12 @@ def fingerprint(merged: MergedDirections, job: MosaicJob) -> dict:
     h = hashlib.sha256()
     for img, geo in zip(job.images, job.geometry, strict=True):
         st = img.path.stat()
+        par = None
+        if img.parallax is not None:
+            ps = img.parallax.stat()
+            par = [str(img.parallax.resolve()), ps.st_size, ps.st_mtime_ns]
         h.update(json.dumps([str(img.path.resolve()), st.st_size, st.st_mtime_ns, img.pan_deg, img.tilt_deg,
-                             img.scale, list(img.offset_px), geo.model.to_dict()], sort_keys=True).encode())
+                             img.scale, list(img.offset_px), geo.model.to_dict(), par], sort_keys=True).encode())
     h.update(job.gains.tobytes())
     return {"inputs_sha256": h.hexdigest(), "width": job.canvas.width, "tile": job.tile, "interp": job.interp,
             "blend": job.blend, "multiband_levels": job.multiband_levels}

@@ -126,6 +126,9 @@ class SourceImage:
     path: Path
     scale: float = 1.0
     offset_px: tuple[float, float] = (0.0, 0.0)
+    #: camera B only: per-pixel parallax on camera A's grid of the same direction, ``(H_A, W_A, 3)``
+    #: float16 (inverse depth 1/m, registration confidence 0..1, occluded 0/1); see ``product.align``
+    parallax: Path | None = None
 
     @property
     def bands(self) -> tuple[int, ...]:
@@ -189,9 +192,11 @@ class MergedDirections:
                 img = d["images"].get(cam)
                 if img is None:
                     continue
+                par = img.get("parallax")
                 out.append(SourceImage(int(d["index"]), cam, float(d["pan_deg"]), float(d["tilt_deg"]),
                                        self.path / img["file"], float(img.get("scale", 1.0)),
-                                       tuple(float(x) for x in img.get("offset_px", (0.0, 0.0)))))
+                                       tuple(float(x) for x in img.get("offset_px", (0.0, 0.0))),
+                                       self.path / par["file"] if par else None))
         return out
 
     def check_files(self) -> None:
@@ -267,6 +272,25 @@ class MergedDirectionsWriter:
         self.meta["complete"] = len(self.meta["directions"]) == self.meta["n_planned"]
         self._flush()
         return entry
+
+    def save_parallax(self, index: int, data: np.ndarray, info: dict,
+                      offset_px: tuple[float, float] = (0.0, 0.0)) -> None:
+        """Camera B's per-pixel parallax of direction ``index`` (``(H_A, W_A, 3)``: inverse depth 1/m,
+        confidence, occluded), stored float16 as ``dNNNN_P.npy`` and recorded with ``info``; B's offset at
+        infinity becomes ``offset_px``."""
+        name = f"d{int(index):04d}_P.npy"
+        with atomic_path(self.path / name) as tmp, open(tmp, "wb") as fh:
+            np.save(fh, np.asarray(data, np.float16))
+        for d in self.meta["directions"]:
+            if int(d["index"]) == int(index):
+                d["images"]["B"]["parallax"] = {"file": name, **info}
+                d["images"]["B"]["offset_px"] = [float(offset_px[0]), float(offset_px[1])]
+        self._flush()
+
+    def set_meta(self, **values) -> None:
+        """Update top-level entries of ``merged.json`` (e.g. camera B's calibrated model)."""
+        self.meta.update(values)
+        self._flush()
 
     def _flush(self) -> None:
         atomic_write_json(self.path / "merged.json", self.meta)

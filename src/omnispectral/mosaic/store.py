@@ -71,6 +71,10 @@ def _compressors(name: str):
     raise ValueError(f"unknown compression {name!r}")
 
 
+#: Name of the registration-quality array (level 0 only).
+QUALITY = "quality"
+
+
 @dataclass
 class PanoramaStore:
     """An open panorama store (:meth:`create` or :meth:`open`)."""
@@ -83,8 +87,13 @@ class PanoramaStore:
     # ------------------------------------------------------------------ create / open
     @classmethod
     def create(cls, path: str | Path, height: int, width: int, n_bands: int, tile: int, attrs: dict,
-               fingerprint: dict, overwrite: bool = False, compression: str = "blosc-zstd") -> PanoramaStore:
-        """Create the store, or reopen it for resuming if it was made with the same ``fingerprint``."""
+               fingerprint: dict, overwrite: bool = False, compression: str = "blosc-zstd",
+               quality_bands: int = 0) -> PanoramaStore:
+        """Create the store, or reopen it for resuming if it was made with the same ``fingerprint``.
+
+        ``quality_bands > 0`` adds the array ``quality`` (level 0 only, ``(y, x, quality_bands)``
+        float32): the registration-quality layer (see ``mosaic.engine.N_QUALITY``).
+        """
         import zarr
 
         path = Path(path)
@@ -108,6 +117,14 @@ class PanoramaStore:
             group.create_array(str(k), shape=(h, w, n_bands), chunks=(tile, tile, n_bands), dtype="float32",
                                fill_value=np.nan, compressors=_compressors(compression),
                                dimension_names=("y", "x", "band"), config={"write_empty_chunks": True})
+        if quality_bands:
+            group.create_array(QUALITY, shape=(*shapes[0], quality_bands), chunks=(tile, tile, quality_bands),
+                               dtype="float32", fill_value=np.nan, compressors=_compressors(compression),
+                               dimension_names=("y", "x", "quality"), config={"write_empty_chunks": True})
+            attrs = {**attrs, "quality": {"array": QUALITY, "layers": ["registration_confidence", "occluded"],
+                                          "description": "camera B's registration confidence (0..1, feather-"
+                                          "weighted over directions) and 1 where B's view of the pixel is "
+                                          "hidden by a nearer surface in every direction that sees it"}}
         meta = {"omnispectral": {**attrs, "format": FORMAT, "format_version": FORMAT_VERSION, "tile": tile,
                                  "levels": [list(s) for s in shapes], "compression": compression},
                 "multiscales": multiscales_attr(shapes, path.name), "fingerprint": fingerprint}
@@ -197,6 +214,23 @@ class PanoramaStore:
             finally:
                 os.close(fd)
         atomic_write_json(self._marker(level, ty, tx), {"level": level, "ty": ty, "tx": tx, **(stats or {})})
+
+    def write_quality(self, ty: int, tx: int, data: np.ndarray) -> None:
+        """Write one chunk of the quality layer (before the chunk of bands and its marker)."""
+        import zarr
+
+        r0, r1, c0, c1 = self.chunk_rect(0, ty, tx)
+        arr = zarr.open_array(str(self.path / QUALITY), mode="r+", zarr_format=3)
+        arr[r0:r1, c0:c1, :] = np.ascontiguousarray(data, dtype=np.float32)
+
+    def has_quality(self) -> bool:
+        return (self.path / QUALITY / "zarr.json").is_file()
+
+    def read_quality(self, rows: slice = slice(None), cols: slice = slice(None)) -> np.ndarray:
+        """The quality layer ``(h, w, 2)`` (registration confidence, occluded); NaN where not computed."""
+        import zarr
+
+        return np.asarray(zarr.open_array(str(self.path / QUALITY), mode="r", zarr_format=3)[rows, cols, :])
 
     def read(self, level: int = 0, rows: slice = slice(None), cols: slice = slice(None)) -> np.ndarray:
         return np.asarray(self.array(level)[rows, cols, :])

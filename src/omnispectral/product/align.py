@@ -141,3 +141,111 @@ def align_direction(direction: int, image_a: np.ndarray, image_b: np.ndarray, mo
     if np.hypot(off[0] - calibrated_offset_px[0], off[1] - calibrated_offset_px[1]) > max_offset_px:
         return DirectionAlignment(direction, calibrated_offset_px, measured, float(reg.confidence), True)
     return DirectionAlignment(direction, (float(off[0]), float(off[1])), measured, float(reg.confidence), False)
+
+
+# ------------------------------------------------------------------------------------------ per-pixel parallax
+_FIELD_CACHE: dict = {}
+
+
+def cached_epipolar_field(model_a: CameraModel, model_b: CameraModel) -> np.ndarray:
+    """:func:`~omnispectral.imaging.disparity.epipolar_field` of A's every pixel, once per pair of models."""
+    import json
+
+    from omnispectral.imaging.disparity import epipolar_field
+    from omnispectral.product.rigcal import baseline_m
+
+    key = json.dumps([model_a.to_dict(), model_b.to_dict()], sort_keys=True)
+    if key not in _FIELD_CACHE:
+        _FIELD_CACHE.clear()
+        _FIELD_CACHE[key] = epipolar_field(model_a, baseline_m(model_b)).astype(np.float32)
+    return _FIELD_CACHE[key]
+
+
+def ground_inverse_depth(model_a: CameraModel, pan_deg: float, tilt_deg: float, height_m: float | None):
+    """``f(pixels) → 1/m`` of a level ground ``height_m`` below the head (0 above the horizon), or None."""
+    if not height_m:
+        return None
+
+    def inv_depth(pixels):
+        rays, _ = model_a.pixel_to_world(pixels, pan_deg, tilt_deg)
+        return np.nan_to_num(np.maximum(-rays[..., 1], 0.0) / height_m).astype(np.float32)
+
+    return inv_depth
+
+
+#: Pixels whose parallax is below this (px) take part in the per-direction offset at infinity.
+FAR_PARALLAX_PX = 0.25
+#: Largest per-direction offset at infinity (px) accepted on top of the rig calibration.
+MAX_FAR_OFFSET_PX = 1.0
+
+
+@dataclass(frozen=True)
+class DirectionParallax:
+    """One direction's registration of B: offset at infinity (B's sensor px) on top of the rig model, and
+    the per-pixel parallax on A's grid."""
+
+    offset_px: tuple[float, float]
+    far_offset_a_px: tuple[float, float]
+    far_confidence: float
+    parallax: object
+
+    def stats(self) -> dict:
+        return {**self.parallax.stats(), "far_offset_px": list(self.offset_px),
+                "far_confidence": self.far_confidence}
+
+
+def far_offset(image_a: np.ndarray, warped_b: np.ndarray, far: np.ndarray,
+               min_confidence: float = DEFAULT_MIN_CONFIDENCE) -> tuple[tuple[float, float], float]:
+    """POC shift (A's pixels) of B against A on the direction's far content only (sky, distant land, the
+    sun): what the rig model still misses at infinity in this direction; (0, 0) when not measurable."""
+    from omnispectral.imaging.registration import phase_correlate
+
+    rows, cols = common_crop(far | ~far)  # the whole image: the mask does the selecting
+    if far[rows, cols].mean() < 0.05:
+        return (0.0, 0.0), 0.0
+    reg = phase_correlate(np.asarray(image_a, np.float32)[rows, cols], warped_b[rows, cols],
+                          reference_valid=far[rows, cols], moving_valid=far[rows, cols])
+    d = (float(reg.dx), float(reg.dy))
+    if reg.confidence < min_confidence or np.hypot(*d) > MAX_FAR_OFFSET_PX or not np.isfinite(d).all():
+        return (0.0, 0.0), float(reg.confidence)
+    return d, float(reg.confidence)
+
+
+def parallax_direction(image_a: np.ndarray, image_b: np.ndarray, model_a: CameraModel, model_b: CameraModel,
+                       pan_deg: float = 0.0, tilt_deg: float = 0.0,
+                       ground_height_m: float | None = None) -> DirectionParallax:
+    """Camera B against A for one direction, B's model being the calibrated one (``product.rigcal``):
+
+    1. per-pixel parallax (:func:`omnispectral.imaging.disparity.parallax_map`) against the rig model;
+    2. on the pixels it finds at infinity, the direction's residual offset (:func:`far_offset`): the rig
+       model is fitted on all directions and leaves a few hundredths of a degree, which matter next to the
+       HDR sun; an offset measured on far content only cannot absorb near parallax (the paper's one
+       offset per direction does);
+    3. with that offset, the per-pixel parallax again.
+    """
+    from omnispectral.imaging.disparity import parallax_map
+    from omnispectral.product.rigcal import baseline_m
+
+    maps = cached_maps(model_a, model_b)
+    field = cached_epipolar_field(model_a, model_b)
+    c = baseline_m(model_b)
+    ground = ground_inverse_depth(model_a, pan_deg, tilt_deg, ground_height_m)
+    warped, seen = warp_b_onto_a(image_b, maps)
+    first = parallax_map(image_a, warped, seen, model_a, c, field, ground_inv_depth=ground)
+    far = seen & (np.abs(first.inv_depth_per_m) * np.linalg.norm(field, axis=-1) < FAR_PARALLAX_PX)
+    d, conf = far_offset(image_a, warped, far)
+    if d == (0.0, 0.0):
+        return DirectionParallax((0.0, 0.0), d, conf, first)
+    # content at p in A is at p + d in the warped B: resample the warped image there and measure again
+    mx, my = maps
+    h, w = mx.shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    import cv2
+
+    shifted = (cv2.remap(mx, xx + np.float32(d[0]), yy + np.float32(d[1]), cv2.INTER_LINEAR),
+               cv2.remap(my, xx + np.float32(d[0]), yy + np.float32(d[1]), cv2.INTER_LINEAR))
+    warped2, seen2 = warp_b_onto_a(image_b, shifted)
+    second = parallax_map(image_a, warped2, seen2, model_a, c, field, ground_inv_depth=ground)
+    jac = offset_jacobian(model_a, model_b, 0.0, 0.0)
+    off = jac @ np.array(d)
+    return DirectionParallax((float(off[0]), float(off[1])), d, conf, second)

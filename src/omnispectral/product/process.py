@@ -33,12 +33,14 @@ from omnispectral.io import atomic_write_json
 PRODUCT_FORMAT = "omnispectral-product"
 PANORAMA = "panorama.zarr"
 MERGED = "merged"
+#: The rig calibration a product was made with (reusable: ``process --rig-calibration``).
+RIG_CALIBRATION = "rig-calibration.json"
 
 
 def product_paths(product: str | Path) -> dict[str, Path]:
     root = Path(product)
     return {"root": root, "index": root / "product.json", "panorama": root / PANORAMA, "merged": root / MERGED,
-            "report": root / "report"}
+            "report": root / "report", "rig_calibration": root / RIG_CALIBRATION}
 
 
 def bad_directions(report: dict) -> dict[int, list[str]]:
@@ -97,10 +99,87 @@ def merge_and_register(session_path: Path, out: Path, skip: set[int], min_confid
     return merged, [d["alignment"] for d in merged.directions if "alignment" in d]
 
 
+#: Registration methods: ``parallax`` (default: rig calibration of camera B + per-pixel parallax) and
+#: ``paper`` (one POC offset per direction, Sec. 4.3 of the paper).
+REGISTRATIONS = ("parallax", "paper")
+
+
+def merge_only(session_path: Path, out: Path, skip: set[int], progress=None, timings: dict | None = None,
+               hdr_weight: str = "noise"):
+    """Stage 2 without registration: the HDR merge of every direction (camera B at the rig file's mounting)."""
+    from omnispectral.mosaic.sources import merge_session
+
+    t0 = time.perf_counter()
+    merged = merge_session(session_path, out, skip=skip, progress=progress, weight=hdr_weight)
+    if timings is not None:
+        timings["hdr_merge"] = timings.get("hdr_merge", 0.0) + time.perf_counter() - t0
+    return merged
+
+
+def register_parallax(merged, calibration=None, progress=None, timings: dict | None = None):
+    """Stage 2b: camera B's mounting (``calibration``, or fitted now from every direction,
+    :mod:`omnispectral.product.rigcal`), then every direction's per-pixel parallax
+    (:func:`~omnispectral.product.align.parallax_direction`) saved beside the merged images.
+
+    Resumes: directions whose parallax was computed with the same calibration are kept.  Returns the
+    calibration and the per-direction parallax statistics.
+    """
+    import numpy as np
+
+    from omnispectral.mosaic.sources import MergedDirections, MergedDirectionsWriter
+    from omnispectral.product.align import parallax_direction
+    from omnispectral.product.rigcal import RigCalibration, calibrate_from_merged
+
+    t0 = time.perf_counter()
+    nominal = merged.meta.get("rig_file_camera_b") or merged.meta["cameras"]["B"]
+    from omnispectral.imaging.geometry import CameraModel
+
+    model_b_nominal = CameraModel.from_dict(nominal)
+    if calibration is None:
+        recorded = merged.meta.get("rig_calibration")
+        if recorded and merged.meta.get("rig_file_camera_b"):
+            calibration = RigCalibration.from_dict(recorded)
+        else:
+            calibration = calibrate_from_merged(merged)
+    model_a = merged.cameras["A"]
+    model_b = calibration.apply(model_b_nominal)
+    writer = MergedDirectionsWriter(merged.path, merged.meta)
+    cal_dict = calibration.to_dict()
+    if merged.meta.get("rig_calibration", {}).get("camera_b_mounting") != cal_dict["camera_b_mounting"]:
+        for d in writer.meta["directions"]:  # another calibration: every parallax map is stale
+            d["images"]["B"].pop("parallax", None)
+    calibration.save(merged.path.parent / RIG_CALIBRATION)
+    writer.set_meta(rig_file_camera_b=nominal, rig_calibration=cal_dict,
+                    cameras={**writer.meta["cameras"], "B": model_b.to_dict()}, registration="parallax")
+    if timings is not None:
+        timings["rig_calibration"] = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    stats = []
+    dirs = writer.meta["directions"]
+    for k, d in enumerate(dirs):
+        b = d["images"]["B"]
+        if "parallax" not in b or not (merged.path / b["parallax"]["file"]).is_file():
+            src = {s.camera: s for s in MergedDirections(merged.path, writer.meta).sources()
+                   if s.direction == int(d["index"])}
+            reg = parallax_direction(src["A"].read(), src["B"].read(), model_a, model_b, float(d["pan_deg"]),
+                                     float(d["tilt_deg"]))
+            par = reg.parallax
+            data = np.stack([par.inv_depth_per_m, par.confidence, par.occluded.astype(np.float32)], axis=-1)
+            writer.save_parallax(int(d["index"]), data, reg.stats(), offset_px=reg.offset_px)
+        stats.append({"direction": int(d["index"]), **{k2: v for k2, v in d["images"]["B"]["parallax"].items()
+                                                          if k2 != "file"}})
+        if progress is not None:
+            progress(k + 1, len(dirs))
+    if timings is not None:
+        timings["registration"] = timings.get("registration", 0.0) + time.perf_counter() - t1
+    return MergedDirections.open(merged.path), calibration, stats
+
+
 def process(session: str | Path, output: str | Path, *, width: int | None = None, tile: int | None = None,
             interp: str | None = None, scheduler=None, workers: int | None = None, skip_bad: bool = False,
             min_confidence: float | None = None, hdr_weight: str = "noise", report: bool = True,
-            progress: bool = True, verify_checksums: bool = False) -> dict:
+            progress: bool = True, verify_checksums: bool = False, registration: str = "parallax",
+            rig_calibration: str | Path | None = None) -> dict:
     """Run stages 1-4 (module docstring) and write ``product.json`` and, by default, the report.
 
     ``hdr_weight`` defaults to the inverse-variance weight: the paper's triangle weight lets 1-DN
@@ -108,11 +187,16 @@ def process(session: str | Path, output: str | Path, *, width: int | None = None
     exposure on the simulated rig; docs/benchmarks.md), which would show in the spectra.
     """
     from omnispectral.capture.session import Session
+    from omnispectral.errors import ConfigurationError
     from omnispectral.imaging.registration import DEFAULT_MIN_CONFIDENCE
     from omnispectral.mosaic import engine
     from omnispectral.mosaic.store import PanoramaStore
     from omnispectral.product.estimator import rig_estimator
+    from omnispectral.product.rigcal import RigCalibration
 
+    if registration not in REGISTRATIONS:
+        raise ConfigurationError(f"registration must be one of {', '.join(REGISTRATIONS)}, got {registration!r}")
+    calibration = RigCalibration.load(rig_calibration) if rig_calibration is not None else None
     session_path = Path(session)
     paths = product_paths(output)
     paths["root"].mkdir(parents=True, exist_ok=True)
@@ -123,10 +207,18 @@ def process(session: str | Path, output: str | Path, *, width: int | None = None
     s = Session.open(session_path)
     rig = s.rig()
     bar = _Progress(progress)
+    parallax_stats = None
     try:
-        merged, alignments = merge_and_register(session_path, paths["merged"], set(bad),
-                                                DEFAULT_MIN_CONFIDENCE if min_confidence is None else min_confidence,
-                                                bar.callback("merge + register"), timings, hdr_weight)
+        if registration == "paper":
+            merged, alignments = merge_and_register(session_path, paths["merged"], set(bad),
+                                                    DEFAULT_MIN_CONFIDENCE if min_confidence is None
+                                                    else min_confidence,
+                                                    bar.callback("merge + register"), timings, hdr_weight)
+        else:
+            merged = merge_only(session_path, paths["merged"], set(bad), bar.callback("merge"), timings, hdr_weight)
+            merged, calibration, parallax_stats = register_parallax(merged, calibration, bar.callback("parallax"),
+                                                                    timings)
+            alignments = []
         t1 = time.perf_counter()
         kwargs = {k: v for k, v in (("width", width), ("tile", tile)) if v is not None}
         kwargs["interp"] = interp or "linear"
@@ -148,8 +240,11 @@ def process(session: str | Path, output: str | Path, *, width: int | None = None
              "width": summary["width"], "height": summary["height"], "bands": list(merged.meta["band_names"]),
              "units": merged.meta["units"], "hdr_weight": hdr_weight,
              "estimator": {k: estimator[k] for k in ("params", "sigma2", "prior")},
-             "registration": {"min_confidence": DEFAULT_MIN_CONFIDENCE if min_confidence is None else min_confidence,
-                              "directions": alignments},
+             "registration": ({"method": "paper",
+                               "min_confidence": DEFAULT_MIN_CONFIDENCE if min_confidence is None else min_confidence,
+                               "directions": alignments} if registration == "paper" else
+                              {"method": "parallax", "rig_calibration": calibration.to_dict(),
+                               "warnings": calibration.warnings(), "directions": parallax_stats}),
              "skipped_directions": [{"direction": d, "problems": p} for d, p in sorted(bad.items())],
              "session_check": {k: check[k] for k in ("n_planned", "n_ok", "n_missing", "n_damaged")},
              "mosaic": {k: v for k, v in summary.items() if k not in ("output",)},

@@ -146,6 +146,30 @@ def _plot_registration(alignments: list[dict], path: Path) -> None:
     plt.close(fig)
 
 
+def _plot_rig_residuals(directions: list[dict], path: Path) -> None:
+    """Per direction: camera B's median residual across the epipolar lines after the rig calibration."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from omnispectral.product.rigcal import DIRECTION_WARNING_PX
+
+    d = [x["direction"] for x in directions]
+    r = [x["median_perpendicular_px"] if x["median_perpendicular_px"] is not None else np.nan for x in directions]
+    fig, ax = plt.subplots(2, 1, figsize=(9, 5), sharex=True)
+    ax[0].bar(d, r, color=["tab:red" if v > DIRECTION_WARNING_PX else "tab:blue" for v in np.nan_to_num(r)])
+    ax[0].axhline(DIRECTION_WARNING_PX, color="k", ls="--", lw=0.8)
+    ax[0].set_ylabel("median |residual| (px)")
+    ax[0].set_title("Camera B against the fitted rig model (across epipolar lines)")
+    ax[1].bar(d, [x["n_blocks"] for x in directions], color="tab:gray")
+    ax[1].set_ylabel("blocks measured")
+    ax[1].set_xlabel("direction")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def _plot_chart(chart: dict, path: Path) -> None:
     import matplotlib
 
@@ -187,13 +211,19 @@ def write_report(product: str | Path, preview_width: int = 2048) -> dict:
     estimator, _ = estimator_from_params(index["estimator"]["params"])
     preview = store.read(level)
     files = {"preview": str(write_preview(out_dir / "preview.png", bands_to_linear_srgb(preview, estimator)))}
-    alignments = index["registration"]["directions"]
-    if alignments:
+    reg = index["registration"]
+    alignments = reg["directions"]
+    if alignments and reg.get("method", "paper") == "paper":
         _plot_registration(alignments, out_dir / "registration.png")
+        files["registration_plot"] = str(out_dir / "registration.png")
+    elif reg.get("method") == "parallax" and reg.get("rig_calibration", {}).get("directions"):
+        _plot_rig_residuals(reg["rig_calibration"]["directions"], out_dir / "registration.png")
         files["registration_plot"] = str(out_dir / "registration.png")
     report = {"product": str(paths["root"]), "rig": index["rig"], "session": index["session"],
               "size": [index["height"], index["width"]], "timings_s": index["timings_s"],
-              "registration": alignments, "skipped_directions": index["skipped_directions"], "accuracy": None}
+              "registration_method": reg.get("method", "paper"), "registration": alignments,
+              "rig_calibration": reg.get("rig_calibration"), "registration_warnings": reg.get("warnings", []),
+              "skipped_directions": index["skipped_directions"], "accuracy": None}
     gt_dir = Path(index["session"]) / "ground_truth"
     if (gt_dir / "ground_truth.json").exists():
         s = Session.open(index["session"])
@@ -223,7 +253,21 @@ def _html(report: dict) -> str:
                        f"<tr><td>ColorChecker ΔE*ab (mean / max)</td><td>{cc['delta_e_ab']:.2f} / "
                        f"{cc['delta_e_ab_max']:.2f}</td></tr>" if cc else "") + "</table>"
                     + ('<img src="colorchecker.png" width="900">' if cc else ""))
-    n_fallback = sum(a["used_fallback"] for a in report["registration"])
+    if report.get("registration_method") == "parallax":
+        cal = report.get("rig_calibration") or {}
+        delta = cal.get("delta_from_rig_file_deg", {})
+        warn = "".join(f"<li>{w}</li>" for w in report.get("registration_warnings", []))
+        rms = cal.get("rms_perpendicular_px", float("nan"))
+        reg_html = (f"<p>Camera B's mounting fitted from {cal.get('n_inliers', 0)} of {cal.get('n_blocks', 0)} block "
+                    f"measurements (RMS residual across epipolar lines {rms:.3f} px); change from the rig file: "
+                    f"yaw {delta.get('yaw', 0):+.3f}°, pitch {delta.get('pitch', 0):+.3f}°"
+                    f", roll {delta.get('roll', 0):+.3f}°. Per-pixel parallax in {len(report['registration'])} "
+                    "directions.</p>" + (f"<ul>{warn}</ul>" if warn else "")
+                    + '<img src="registration.png" width="760">')
+    else:
+        n_fallback = sum(a["used_fallback"] for a in report["registration"])
+        reg_html = (f"<p>{len(report['registration'])} directions, {n_fallback} used the calibrated offset (low "
+                    'confidence).</p><img src="registration.png" width="760">')
     return f"""<!doctype html><html><head><meta charset="utf-8"><title>omnispectral report: {report['rig']}</title>
 <style>body{{font-family:sans-serif;max-width:1000px;margin:2em auto}}td{{padding:2px 12px}}</style></head><body>
 <h1>omnispectral report</h1><p>Product {report['product']} from session {report['session']} (rig {report['rig']}),
@@ -231,8 +275,7 @@ def _html(report: dict) -> str:
 <h2>Preview</h2><img src="preview.png" width="960">
 <p>sRGB rendering of the Wiener estimate, global Reinhard tone map.</p>
 <h2>Accuracy against ground truth</h2>{acc_html}
-<h2>Registration of camera B to A</h2><p>{len(report['registration'])} directions, {n_fallback} used the calibrated
-offset (low confidence).</p><img src="registration.png" width="760">
+<h2>Registration of camera B to A</h2>{reg_html}
 <h2>Timings</h2><table>{rows}</table>
 <p>Skipped directions: {len(report['skipped_directions'])}.</p></body></html>
 """

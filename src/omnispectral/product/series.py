@@ -51,7 +51,7 @@ def process_series(series: str | Path, output: str | Path, regions: dict | None 
     """Process every complete slot of a series, stack the panoramas and analyse region spectra over time."""
     import zarr
 
-    from omnispectral.product.process import process
+    from omnispectral.product.process import process, product_paths
     from omnispectral.product.spectra import open_product
 
     series, out = Path(series), Path(output)
@@ -65,12 +65,15 @@ def process_series(series: str | Path, output: str | Path, regions: dict | None 
     regions = regions or DEFAULT_REGIONS
     out.mkdir(parents=True, exist_ok=True)
     products, times = [], []
+    calibration = None  # camera B's mounting is fitted on the first slot and reused for the others
     for i, e in enumerate(slots):
         prod = out / e["session"]
         if not (prod / "product.json").exists():
             if progress:
                 print(f"[{i + 1}/{len(slots)}] processing {e['session']} ({e['time'][11:16]})", flush=True)
-            process(series / e["session"], prod, progress=False, report=True)
+            process(series / e["session"], prod, progress=False, report=True, rig_calibration=calibration)
+        if calibration is None and product_paths(prod)["rig_calibration"].is_file():
+            calibration = product_paths(prod)["rig_calibration"]
         products.append(prod)
         times.append(e["time"])
     # time stack of one pyramid level

@@ -55,6 +55,9 @@ DEFAULT_DAY_OF_YEAR = 80
 PAVEMENT_RADIUS_M = 8.0
 #: Ray offsets (m): hits closer than this are ignored (self-intersection of shadow rays).
 EPS_M = 1e-3
+#: Distance (m) of the wooded hills on the horizon: far enough that the cameras' 60 mm baseline moves
+#: them by 2·10⁻⁵ rad (0.004 px on the small rig, 0.04 px at full scale), i.e. they are "at infinity".
+SKYLINE_DISTANCE_M = 3000.0
 
 #: Object ids in the per-ray record.
 SKY_ID = -1
@@ -123,6 +126,36 @@ class ChartBoard:
         return np.where(on, r * self.cols + c, -1).astype(np.int32)
 
 
+#: Highest elevation (deg) of the distant hills' silhouette.
+SKYLINE_MAX_DEG = 3.5
+
+
+@dataclass(frozen=True)
+class SkylineProfile:
+    """Silhouette elevation of distant hills as a sum of sines of longitude (degrees)."""
+
+    base_deg: float
+    amplitudes_deg: np.ndarray
+    phases_rad: np.ndarray
+    frequencies: np.ndarray
+
+    def elevation_deg(self, lon_deg) -> np.ndarray:
+        lon = np.radians(np.asarray(lon_deg, dtype=np.float64))
+        e = self.base_deg + np.sin(np.multiply.outer(lon, self.frequencies) + self.phases_rad) @ self.amplitudes_deg
+        return np.clip(e, 0.3, SKYLINE_MAX_DEG)
+
+    def describe(self) -> dict:
+        return {"base_deg": self.base_deg, "amplitudes_deg": self.amplitudes_deg.tolist(),
+                "phases_rad": self.phases_rad.tolist(), "frequencies": self.frequencies.tolist()}
+
+
+def skyline_profile(rng: np.random.Generator) -> SkylineProfile:
+    """A random hill silhouette: ridges of 1/f amplitude at 3-40 cycles per turn, 0.3-3.5° high."""
+    freq = np.arange(3, 41, dtype=np.float64)
+    amp = rng.uniform(0.3, 1.0, freq.size) * 2.4 / freq ** 0.8
+    return SkylineProfile(1.5, amp, rng.uniform(0, 2 * np.pi, freq.size), freq)
+
+
 def facing_board(lon_deg: float, lat_deg: float, distance_m: float, patch_m: float, gap_m: float) -> ChartBoard:
     """A chart board centred ``distance_m`` from the origin at ``(lon_deg, lat_deg)``, facing the origin."""
     d = lonlat_to_direction(lon_deg, lat_deg)
@@ -185,6 +218,10 @@ class ProceduralOutdoorScene(Scene):
         Height of the ground (m, negative: below the head).
     chart_lon_deg, chart_lat_deg, chart_distance_m, chart_patch_m
         Where the ColorChecker is and how big its patches are.
+    skyline
+        Wooded hills on the horizon, ``SKYLINE_DISTANCE_M`` away, whose silhouette (0.3-3.5° high,
+        drawn with the seed) is the scene's texture at infinity, as distant terrain or buildings
+        are in most real outdoor captures.
     """
 
     kind = "procedural"
@@ -193,7 +230,8 @@ class ProceduralOutdoorScene(Scene):
                  longitude_deg: float = CHIBA_LONGITUDE_DEG, utc_offset_h: float = JST_UTC_OFFSET_H,
                  day_of_year: int = DEFAULT_DAY_OF_YEAR, north_lon_deg: float = 0.0, near_object: bool = True,
                  seed: int = 0, wavelength_nm=None, ground_y_m: float = -1.5, chart_lon_deg: float = 30.0,
-                 chart_lat_deg: float = -15.0, chart_distance_m: float = 2.5, chart_patch_m: float = 0.05):
+                 chart_lat_deg: float = -15.0, chart_distance_m: float = 2.5, chart_patch_m: float = 0.05,
+                 skyline: bool = True):
         super().__init__(DEFAULT_WAVELENGTH_NM if wavelength_nm is None else wavelength_nm)
         if ground_y_m >= 0:
             raise ConfigurationError(f"ground_y_m must be below the head (negative), got {ground_y_m}")
@@ -202,7 +240,8 @@ class ProceduralOutdoorScene(Scene):
                        "day_of_year": int(day_of_year), "north_lon_deg": float(north_lon_deg),
                        "near_object": bool(near_object), "seed": int(seed), "ground_y_m": float(ground_y_m),
                        "chart_lon_deg": float(chart_lon_deg), "chart_lat_deg": float(chart_lat_deg),
-                       "chart_distance_m": float(chart_distance_m), "chart_patch_m": float(chart_patch_m)}
+                       "chart_distance_m": float(chart_distance_m), "chart_patch_m": float(chart_patch_m),
+                       "skyline": bool(skyline)}
         self.ground_y_m = float(ground_y_m)
         self.daylight = ClearSkyDaylight(day_of_year, time_hhmm, latitude_deg, longitude_deg, utc_offset_h,
                                          north_lon_deg, self.wavelength_nm)
@@ -213,6 +252,7 @@ class ProceduralOutdoorScene(Scene):
         if chart_distance_m * math.sin(math.radians(-chart_lat_deg)) + self.chart.half_height_m >= -self.ground_y_m:
             raise ConfigurationError("the chart would reach below the ground; raise chart_lat_deg or move it closer")
         self.boxes = self._layout(rng, bool(near_object))
+        self.skyline = skyline_profile(np.random.default_rng([seed, 7])) if skyline else None
         self._build_tables()
         self._bands = BandProjectionCache()
 
@@ -256,10 +296,11 @@ class ProceduralOutdoorScene(Scene):
         p[0], q[0] = dl.sun_spectrum, dl.sky_spectrum
         self._table64 = np.hstack([p, q])
         self._table32 = self._table64.astype(np.float32)
-        # objects: 0 ground, 1..B boxes, B + 1 chart
+        # objects: 0 ground, 1..B boxes, B + 1 chart, B + 2 the distant hills
         self._chart_id = len(self.boxes) + 1
+        self._skyline_id = len(self.boxes) + 2
         self._obj_row = np.array([self._row["pavement"], *[self._row[b.material] for b in self.boxes],
-                                  self._row["chart frame"]], dtype=np.int32)
+                                  self._row["chart frame"], self._row["hedge"]], dtype=np.int32)
         normals = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1],
                             self.chart.normal, -self.chart.normal], dtype=np.float64)
         self.normals = normals
@@ -306,7 +347,22 @@ class ProceduralOutdoorScene(Scene):
         self._hit_ground(dy, o, t, obj, nid)
         self._hit_boxes(d, (dx, dy, dz), o, t, obj, nid)
         patch = self._hit_chart(d, o, t, obj, nid)
+        self._hit_skyline(d, t, obj, nid)
         return self._light(d, o, t, obj, nid, patch)
+
+    def _hit_skyline(self, d, t, obj, nid) -> None:
+        """Rays that reach the sky below the hills' silhouette end on the hills (lit like level ground)."""
+        if self.skyline is None:
+            return
+        up = np.flatnonzero((obj == SKY_ID) & (d[:, 1] < np.float32(math.sin(math.radians(SKYLINE_MAX_DEG)))))
+        if up.size == 0:
+            return
+        lon, lat = direction_to_lonlat(d[up].astype(np.float64))
+        below = lat < self.skyline.elevation_deg(lon)
+        sel = up[below]
+        t[sel] = np.float32(SKYLINE_DISTANCE_M)
+        obj[sel] = self._skyline_id
+        nid[sel] = N_PY
 
     def _hit_ground(self, dy, o, t, obj, nid) -> None:
         h = np.float32(self.ground_y_m - o[1])
@@ -503,4 +559,6 @@ class ProceduralOutdoorScene(Scene):
             "chart": {"reflectances": "ColorChecker N Ohta", "centre_m": self.chart.centre_m.tolist(),
                       "normal": self.chart.normal.tolist(), "patch_m": self.chart.patch_m,
                       "gap_m": self.chart.gap_m},
+            "skyline": None if self.skyline is None else {"distance_m": SKYLINE_DISTANCE_M, "material": "hedge",
+                                                          **self.skyline.describe()},
         }

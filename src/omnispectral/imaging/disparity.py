@@ -1,0 +1,442 @@
+"""Per-pixel parallax of camera B against camera A along the rig's epipolar lines (beyond the paper).
+
+Camera B sits ``c`` (the baseline, metres, head frame) from camera A, whose optical centre is the
+head's rotation centre.  Once B's image is resampled onto A's pixel grid for points at infinity
+(:func:`omnispectral.product.align.warp_b_onto_a` with B's calibrated mounting), a point of A's pixel
+``p`` at distance ``Z`` appears in the warped B image at ``π_A(r_A(p) − c/Z)``: it moves along the
+epipolar line through ``p`` by an amount set by one unknown per pixel, the **inverse depth**
+``w = 1/Z`` (1/m; 0 at infinity).  :func:`epipolar_field` gives that line's direction and its
+pixels per unit of ``w``; :func:`parallax_map` measures ``w`` at every pixel:
+
+1. block-wise POC (:func:`~omnispectral.imaging.registration.block_disparity`) between A and the
+   warped B; each reliable block's disparity is projected on the epipolar direction (the
+   perpendicular part, which no depth explains, must be small: otherwise the block is rejected);
+2. blocks without a reliable measurement take the inverse depth of reliable neighbours
+   (normalised convolution over 5 × 5 blocks), else of the ground plane when one is known
+   (rays below the horizon), else 0 (sky);
+3. every pixel sweeps the inverse depths spanned by its 3 × 3 neighbouring blocks (every 0.5 px of
+   parallax) and keeps the one whose warped-B neighbourhood matches A best (normalised
+   cross-correlation over 7 × 7 px of the square-rooted luminances, parabolic sub-step refinement;
+   edge-aware: a pixel takes the depth of its own surface, never a blend of two);
+4. pixels of A that B cannot see because a nearer surface hides them (z-buffer forward warp) are
+   flagged as occluded: the mosaic takes B's bands there from other directions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+from omnispectral.imaging.geometry import CameraModel
+from omnispectral.imaging.registration import (
+    DEFAULT_BAND_LIMIT,
+    DEFAULT_FIT_RADIUS,
+    DEFAULT_UPSAMPLE,
+    DEFAULT_WINDOW,
+    _apply_window,
+    _occlusion_zbuffer,
+    _poc_shift,
+    as_gray,
+    block_disparity,
+    preprocess_image,
+)
+
+#: Block size (px) of the POC measurement for a sensor of 256 px; scaled with the sensor (32..64 px):
+#: below 32 px the band-limited POC peak fit no longer resolves sub-pixel shifts (measured: 16 and 24 px
+#: blocks return 0 and 0.12 px for a 0.6 px shift; 32 px blocks 0.59 px).
+BLOCK_PX_PER_256 = 32
+#: A block measures parallax when its structure measures shifts along the epipolar line at least this
+#: well (``eᵀJe / |e|²`` with the normalised structure tensor J: 0 for an edge parallel to the line).
+MIN_ALONG_WEIGHT = 0.3
+#: Refinement passes of :func:`refine_block_shifts`.
+REFINE_PASSES = 3
+_REMAP_ROWS = 32000
+#: Largest last-pass correction (px) of a block that counts as converged.
+CONVERGED_PX = 0.05
+#: Largest part of a block's disparity perpendicular to its epipolar line (px) that is still accepted.
+MAX_PERPENDICULAR_PX = 0.75
+#: Window (px) of the per-pixel choice of depth.
+NCC_WINDOW_PX = 11
+#: Parallax step (px) between the levels of the per-pixel sweep, and the most levels per direction.
+SWEEP_STEP_PX = 0.5
+SWEEP_MAX_LEVELS = 48
+#: A pixel is occluded when a surface nearer by more than this parallax (px) lands on the same place in B.
+OCCLUSION_TOL_PX = 1.0
+#: Smallest normalised correlation that counts as a match in the sweep (noise alone reaches ~0.3 on 11 px windows).
+SWEEP_MIN_NCC = 0.5
+#: Correlation by which a finite depth must beat infinity in the sweep.
+SWEEP_ZERO_MARGIN = 0.03
+#: Steps searched beyond the range of a pixel's neighbouring blocks.
+SWEEP_MARGIN_STEPS = 4
+#: Minimum POC peak height of a block measurement.
+PARALLAX_MIN_CONFIDENCE = 0.3
+#: Inverse depth change (1/m) used for the finite difference of the epipolar field.
+_DW_PER_M = 0.01
+
+
+def block_size_for(width: int, height: int) -> int:
+    """POC block side for an image: 32 px per 256 px of the longer side, even, 32..64 px."""
+    side = BLOCK_PX_PER_256 * max(width, height) / 256.0
+    return int(np.clip(2 * round(side / 2), 32, 64))
+
+
+def refine_block_shifts(a: np.ndarray, b: np.ndarray, y_px: np.ndarray, x_px: np.ndarray, dx: np.ndarray,
+                        dy: np.ndarray, block: int, passes: int = REFINE_PASSES) -> tuple[np.ndarray, np.ndarray,
+                                                                                           np.ndarray]:
+    """Sub-pixel block shifts without the window's pull: each pass resamples the moving image's block at
+    the current estimate (bicubic) and adds the POC residual, which is then a small fraction of a pixel.
+
+    A fixed window on content that moves pulls a windowed POC estimate towards zero by ~15 % of the
+    shift (0.32 px measured for a 0.4 px shift on 32 px blocks); resampling at the estimate makes the
+    remaining shift, and so the pull, shrink geometrically (the same idea as
+    :func:`~omnispectral.imaging.registration.phase_correlate`'s refinement, batched over blocks).
+    ``a``, ``b``: preprocessed (H, W) float32; ``y_px, x_px``: block centres; ``dx, dy``: (ny, nx) start.
+    Returns refined ``dx, dy`` and the last pass's peak heights.
+    """
+    half = (block - 1) / 2.0
+    off = (np.arange(block) - half).astype(np.float32)
+    y0 = np.rint(y_px - half).astype(int)
+    x0 = np.rint(x_px - half).astype(int)
+    view_a = np.lib.stride_tricks.sliding_window_view(a, (block, block))
+    ref = _apply_window(view_a[np.repeat(y0, x0.size), np.tile(x0, y0.size)], DEFAULT_WINDOW)
+    cx = np.tile(x_px, y_px.size).astype(np.float32)
+    cy = np.repeat(y_px, x_px.size).astype(np.float32)
+    ddx, ddy = dx.ravel().astype(np.float64), dy.ravel().astype(np.float64)
+    conf = np.zeros(ddx.size)
+    last = np.zeros(ddx.size)
+    per = max(1, _REMAP_ROWS // block)
+    for _ in range(passes):
+        for s0 in range(0, ddx.size, per):
+            sl = slice(s0, s0 + per)
+            mx = (cx[sl] + ddx[sl].astype(np.float32))[:, None, None] + off[None, None, :]
+            my = (cy[sl] + ddy[sl].astype(np.float32))[:, None, None] + off[None, :, None]
+            mx, my = np.broadcast_arrays(mx, my)
+            n = mx.shape[0]
+            mov = cv2.remap(b, np.ascontiguousarray(mx.reshape(n * block, block)),
+                            np.ascontiguousarray(my.reshape(n * block, block)), cv2.INTER_CUBIC,
+                            borderMode=cv2.BORDER_REFLECT).reshape(n, block, block)
+            rx, ry, c = _poc_shift(ref[sl], _apply_window(mov, DEFAULT_WINDOW), DEFAULT_BAND_LIMIT,
+                                   DEFAULT_UPSAMPLE, DEFAULT_FIT_RADIUS)
+            ok = np.isfinite(rx) & np.isfinite(ry) & (np.abs(rx) < 1.0) & (np.abs(ry) < 1.0)
+            ddx[sl] += np.where(ok, rx, 0.0)
+            ddy[sl] += np.where(ok, ry, 0.0)
+            conf[sl] = np.where(ok, c, 0.0)
+            last[sl] = np.where(ok, np.hypot(rx, ry), np.inf)
+    # a block whose last correction is not small has not converged (flat or ambiguous content)
+    conf = np.where(last <= CONVERGED_PX, conf, 0.0)
+    return ddx.reshape(dx.shape), ddy.reshape(dy.shape), conf.reshape(dx.shape)
+
+
+@dataclass(frozen=True)
+class BlockShifts:
+    """Refined block shifts and what they can be trusted for.
+
+    ``textured``: the block has detail beyond a smooth gradient (a shifted ramp or a smooth sky
+    gradient is the same ramp plus a constant: POC then reports 0 with a high peak);
+    ``two_d``: the detail has two directions (corners, texture), so both components are measured;
+    otherwise only the component along ``normal`` (across the block's edge) is (the aperture problem).
+    ``tensor``: the block's structure tensor ``(jxx, jxy, jyy)`` divided by its trace, the relative
+    information of a shift in each direction (``dᵀ J d``), for weighting residuals.
+    """
+
+    y_px: np.ndarray
+    x_px: np.ndarray
+    dx: np.ndarray
+    dy: np.ndarray
+    confidence: np.ndarray
+    reliable: np.ndarray
+    two_d: np.ndarray
+    normal: np.ndarray
+    tensor: np.ndarray
+
+
+def block_structure(a: np.ndarray, y_px: np.ndarray, x_px: np.ndarray, block: int,
+                    min_snr: float = 9.0, min_ratio: float = 0.3) -> tuple[np.ndarray, ...]:
+    """Per block: textured, two-directional, the unit normal of its dominant edge and the normalised
+    structure tensor ``(jxx, jxy, jyy) / trace`` (structure tensor
+    of the high-passed image, image minus its Gaussian blur σ = 1.5 px; noise level from the median
+    high-pass energy of the whole image)."""
+    hp = a - cv2.GaussianBlur(a, (0, 0), 1.5)
+    gx = cv2.Sobel(hp, cv2.CV_32F, 1, 0, ksize=3) / 8
+    gy = cv2.Sobel(hp, cv2.CV_32F, 0, 1, ksize=3) / 8
+    half = (block - 1) / 2.0
+    y0 = np.rint(y_px - half).astype(int)
+    x0 = np.rint(x_px - half).astype(int)
+
+    def block_mean(x):
+        ii = cv2.integral(x.astype(np.float64))
+        a_, b_ = y0[:, None], x0[None, :]
+        return (ii[a_ + block, b_ + block] - ii[a_, b_ + block] - ii[a_ + block, b_] + ii[a_, b_]) / block**2
+
+    jxx, jyy, jxy = block_mean(gx * gx), block_mean(gy * gy), block_mean(gx * gy)
+    energy = block_mean(hp * hp)
+    noise = float(np.median(hp * hp))
+    floor = max(noise, 1e-8 * float(np.mean(a)) ** 2)
+    tr, det = jxx + jyy, jxx * jyy - jxy * jxy
+    disc = np.sqrt(np.maximum(tr * tr / 4 - det, 0))
+    lmax, lmin = tr / 2 + disc, tr / 2 - disc
+    textured = energy >= min_snr * floor
+    two_d = textured & (lmin >= min_ratio * np.maximum(lmax, 1e-30))
+    angle = 0.5 * np.arctan2(2 * jxy, jxx - jyy)
+    normal = np.stack([np.cos(angle), np.sin(angle)], axis=-1)
+    tensor = np.stack([jxx, jxy, jyy], axis=-1) / np.maximum(tr, 1e-30)[..., None]
+    # an edge's POC shift along the edge is not noisy but biased (the window pulls it to zero): keep only
+    # the component across the edge, n nᵀ, rather than a small weight on a wrong number
+    edge = np.stack([normal[..., 0] ** 2, normal[..., 0] * normal[..., 1], normal[..., 1] ** 2], axis=-1)
+    tensor = np.where(two_d[..., None], tensor, edge)
+    return textured, two_d, normal, tensor
+
+
+def measure_blocks(gray_a: np.ndarray, gray_b: np.ndarray, block: int, min_confidence: float) -> BlockShifts:
+    """Block grid, refined shifts (content at ``p`` in A is at ``p + d`` in B) and what they can be trusted for."""
+    dm = block_disparity(gray_a, gray_b, block=block, step=block // 2, min_confidence=min_confidence)
+    a = preprocess_image(gray_a, "sqrt")
+    b = preprocess_image(gray_b, "sqrt")
+    dx, dy, conf = refine_block_shifts(a, b, dm.y_px, dm.x_px, dm.dx, dm.dy, block)
+    textured, two_d, normal, tensor = block_structure(a, dm.y_px, dm.x_px, block)
+    moved = np.hypot(dx - dm.dx, dy - dm.dy) < 1.0
+    reliable = ~dm.low_confidence & ~dm.outlier & moved & (conf >= min_confidence) & textured
+    return BlockShifts(dm.y_px, dm.x_px, dx, dy, conf, reliable, two_d & reliable, normal, tensor)
+
+
+def epipolar_field(model_a: CameraModel, baseline_m: np.ndarray, pixels: np.ndarray | None = None) -> np.ndarray:
+    """A-pixel displacement per unit inverse depth (px · m), ``(..., 2)``, at ``pixels`` (default: every pixel).
+
+    ``baseline_m``: camera B's optical centre relative to A's in the world frame at pan = tilt = 0.
+    The content of A's pixel ``p`` at inverse depth ``w`` lies at ``p + w · e(p)`` (to first order) in
+    B's image resampled onto A's grid for points at infinity.
+    """
+    if pixels is None:
+        v, u = np.mgrid[0:model_a.height, 0:model_a.width]
+        pixels = np.stack([u, v], axis=-1).astype(np.float64)
+    rays, _ = model_a.pixel_to_world(pixels, 0.0, 0.0)
+    c = np.asarray(baseline_m, np.float64)
+    plus, _ = model_a.world_to_pixel(rays - _DW_PER_M * c, 0.0, 0.0, margin_px=None)
+    minus, _ = model_a.world_to_pixel(rays + _DW_PER_M * c, 0.0, 0.0, margin_px=None)
+    return (plus - minus) / (2 * _DW_PER_M)
+
+
+def shifted_positions(model_a: CameraModel, baseline_m: np.ndarray, pixels: np.ndarray,
+                      inv_depth_per_m: np.ndarray) -> np.ndarray:
+    """Exact position in the warped B image of A's ``pixels`` at inverse depth ``w``: ``π_A(r_A(p) − w c)``."""
+    rays, _ = model_a.pixel_to_world(pixels, 0.0, 0.0)
+    shifted = rays - np.asarray(inv_depth_per_m, np.float64)[..., None] * np.asarray(baseline_m, np.float64)
+    out, _ = model_a.world_to_pixel(shifted, 0.0, 0.0, margin_px=None)
+    return out
+
+
+@dataclass(frozen=True)
+class BlockParallax:
+    """Block-grid inverse depth: centres ``(y_px, x_px)``, ``inv_depth_per_m`` and what was measured."""
+
+    y_px: np.ndarray
+    x_px: np.ndarray
+    inv_depth_per_m: np.ndarray
+    measured: np.ndarray
+    confidence: np.ndarray
+    perpendicular_px: np.ndarray
+
+
+def block_parallax(gray_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, field: np.ndarray, *,
+                   block: int, min_confidence: float = PARALLAX_MIN_CONFIDENCE,
+                   max_perpendicular_px: float = MAX_PERPENDICULAR_PX) -> BlockParallax:
+    """Step 1 of the module docstring: reliable blocks' inverse depth along their epipolar lines."""
+    bs = measure_blocks(gray_a, warped_b, block, min_confidence)
+    y_px, x_px, dx, dy = bs.y_px, bs.x_px, bs.dx, bs.dy
+    iy = np.clip(np.rint(y_px).astype(int), 0, gray_a.shape[0] - 1)
+    ix = np.clip(np.rint(x_px).astype(int), 0, gray_a.shape[1] - 1)
+    e = field[iy[:, None], ix[None, :]]
+    e_len = np.linalg.norm(e, axis=-1)
+    # the structure tensor J says which components of the shift the block measures: the inverse depth is
+    # the J-weighted projection on the epipolar direction, the rest (which no depth explains) must be small
+    jxx, jxy, jyy = bs.tensor[..., 0], bs.tensor[..., 1], bs.tensor[..., 2]
+    ex, ey = e[..., 0], e[..., 1]
+    eje = ex * (jxx * ex + jxy * ey) + ey * (jxy * ex + jyy * ey)
+    ejd = ex * (jxx * dx + jxy * dy) + ey * (jxy * dx + jyy * dy)
+    w = ejd / np.maximum(eje, 1e-12)
+    rx, ry = dx - w * ex, dy - w * ey
+    perp = np.sqrt(np.maximum(rx * (jxx * rx + jxy * ry) + ry * (jxy * rx + jyy * ry), 0.0))
+    along_weight = eje / np.maximum(e_len**2, 1e-12)
+    inside = _blocks_seen(seen, y_px, x_px, block)
+    measured = (bs.reliable & inside & (along_weight >= MIN_ALONG_WEIGHT) & (perp <= max_perpendicular_px)
+                & (e_len > 1e-6))
+    w = np.where(measured, w, 0.0)
+    return BlockParallax(y_px, x_px, w.astype(np.float32), measured, bs.confidence.astype(np.float32),
+                         perp.astype(np.float32))
+
+
+def _blocks_seen(seen: np.ndarray, y_px: np.ndarray, x_px: np.ndarray, block: int) -> np.ndarray:
+    """Blocks lying wholly where the warped B image has data."""
+    integral = cv2.integral(seen.astype(np.uint8))
+    y0 = np.clip(np.rint(y_px - (block - 1) / 2).astype(int), 0, seen.shape[0] - block)
+    x0 = np.clip(np.rint(x_px - (block - 1) / 2).astype(int), 0, seen.shape[1] - block)
+    a, b = y0[:, None], x0[None, :]
+    total = integral[a + block, b + block] - integral[a, b + block] - integral[a + block, b] + integral[a, b]
+    return total == block * block
+
+
+def fill_blocks(bp: BlockParallax, ground_inv_depth: np.ndarray | None = None, radius: int = 2) -> np.ndarray:
+    """Step 2: inverse depth for every block (measured, else neighbours, else the ground plane, else 0)."""
+    w = np.where(bp.measured, bp.inv_depth_per_m, 0.0).astype(np.float64)
+    m = bp.measured.astype(np.float64)
+    k = np.ones((2 * radius + 1, 2 * radius + 1))
+    num = ndimage.convolve(w * m, k, mode="constant")
+    den = ndimage.convolve(m, k, mode="constant")
+    out = np.where(bp.measured, w, np.where(den > 0, num / np.maximum(den, 1e-12), np.nan))
+    if ground_inv_depth is not None:
+        out = np.where(np.isnan(out), ground_inv_depth, out)
+    # nothing is beyond infinity: a negative inverse depth is measurement noise (or the rig model's residual,
+    # which the per-direction offset at infinity takes up)
+    return np.maximum(np.nan_to_num(out, nan=0.0), 0.0).astype(np.float32)
+
+
+def matching_feature(gray: np.ndarray) -> np.ndarray:
+    """Gradient magnitude of the square-rooted luminance: the cameras see the scene through different
+    filters, so a patch can be brighter than its neighbour in A and darker in B, but its edges are
+    where they are in both; correlating edge strength is immune to such contrast reversals."""
+    s = np.sqrt(np.maximum(gray, 0)).astype(np.float32)
+    gx = cv2.Sobel(s, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(s, cv2.CV_32F, 0, 1, ksize=3)
+    return cv2.magnitude(gx, gy)
+
+
+def local_ncc(a: np.ndarray, b: np.ndarray, window: int = NCC_WINDOW_PX) -> np.ndarray:
+    """Normalised cross-correlation of ``a`` and ``b`` over a ``window`` box around each pixel (0 where flat)."""
+    k = (window, window)
+    ma, mb = cv2.blur(a, k), cv2.blur(b, k)
+    va = cv2.blur(a * a, k) - ma * ma
+    vb = cv2.blur(b * b, k) - mb * mb
+    cov = cv2.blur(a * b, k) - ma * mb
+    den = np.sqrt(np.maximum(va, 0) * np.maximum(vb, 0))
+    floor = np.float32(1e-6) * max(float(np.mean(np.maximum(va, 0))), 1e-12)
+    return np.where(den > floor, cov / np.maximum(den, 1e-30), 0.0).astype(np.float32)
+
+
+def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blocks: np.ndarray,
+                        measured: np.ndarray, y_px: np.ndarray, x_px: np.ndarray, step_px: float = SWEEP_STEP_PX,
+                        max_levels: int = SWEEP_MAX_LEVELS,
+                        window: int = NCC_WINDOW_PX) -> tuple[np.ndarray, np.ndarray]:
+    """Step 3: per-pixel inverse depth by a sweep along the epipolar lines (plane sweep, Collins 1996).
+
+    Inverse depths ``w_k`` every ``step_px`` of parallax span the range of the block estimates; at each
+    level B's resampled image is moved by ``w_k · e(p)`` and compared with A by normalised
+    cross-correlation over a ``window``; each pixel keeps the best level within the range of its 3 × 3
+    neighbouring blocks (± 4 steps: a block larger than an object mixes it with its background), refined
+    by a parabola through the
+    neighbouring levels.  Where nothing correlates (best correlation below :data:`SWEEP_MIN_NCC`: flat
+    areas, noise) or no neighbouring block was measured, the pixel keeps its own block's value.
+    Returns the inverse depth and the correlation reached (0 where flat), both ``(H, W)`` float32.
+    """
+    h, w = ga.shape
+    by = np.clip(np.rint(np.interp(np.arange(h), y_px, np.arange(y_px.size))).astype(int), 0, y_px.size - 1)
+    bx = np.clip(np.rint(np.interp(np.arange(w), x_px, np.arange(x_px.size))).astype(int), 0, x_px.size - 1)
+    e_len = np.linalg.norm(field, axis=-1)
+    dw = step_px / max(float(np.median(e_len)), 1e-9)
+    # blocks larger than an object measure a mixture of its depth and its background's: search beyond
+    lo_b = ndimage.minimum_filter(w_blocks, size=3, mode="nearest") - SWEEP_MARGIN_STEPS * dw
+    hi_b = ndimage.maximum_filter(w_blocks, size=3, mode="nearest") + SWEEP_MARGIN_STEPS * dw
+    lo, hi = lo_b[by[:, None], bx[None, :]], hi_b[by[:, None], bx[None, :]]
+    own = w_blocks[by[:, None], bx[None, :]]
+    w_lo, w_hi = float(lo_b.min()), float(hi_b.max())
+    n = int(np.ceil((w_hi - w_lo) / dw)) + 1
+    if n > max_levels:
+        dw = (w_hi - w_lo) / (max_levels - 1)
+        n = max_levels
+    levels = w_lo + dw * np.arange(n)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    fx, fy = field[..., 0].astype(np.float32), field[..., 1].astype(np.float32)
+    # shiftable windows (Bobick & Intille 1999): a pixel takes the best of all windows that contain it,
+    # so near a depth edge it can use a window lying wholly on its own surface
+    shift_kernel = np.ones((window, window), np.uint8)
+    best = np.full((h, w), -np.inf, np.float32)
+    best_raw = np.full((h, w), np.nan, np.float32)
+    best_k = np.zeros((h, w), np.int32)
+    left = np.full((h, w), np.nan, np.float32)
+    right = np.full((h, w), np.nan, np.float32)
+    prev = np.full((h, w), np.nan, np.float32)
+    k_zero = int(np.argmin(np.abs(levels)))
+    score_zero = np.full((h, w), -np.inf, np.float32)
+    for k, wk in enumerate(levels):
+        moved = cv2.remap(gb, xx + np.float32(wk) * fx, yy + np.float32(wk) * fy, cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_REPLICATE)
+        raw = local_ncc(ga, moved, window)
+        score = cv2.dilate(raw, shift_kernel)
+        # the sub-step parabola uses the centred window's scores (the same window at every level)
+        right = np.where(best_k == k - 1, raw, right)
+        if k == k_zero:
+            score_zero = score
+        score_sel = np.where((wk >= lo) & (wk <= hi), score + np.where(np.abs(wk - own) <= dw / 2, 0.01, 0.0),
+                             -np.inf).astype(np.float32)
+        better = score_sel > best
+        left = np.where(better, prev, left)
+        right = np.where(better, np.nan, right)
+        best = np.where(better, score_sel, best)
+        best_raw = np.where(better, raw, best_raw)
+        best_k = np.where(better, k, best_k)
+        prev = raw
+    # keep the block's value where nothing nearby was measured or the best match is not a real match
+    near = ndimage.maximum_filter(measured.astype(np.uint8), size=3, mode="nearest")
+    measured_near = near[by[:, None], bx[None, :]]
+    flat = ~np.isfinite(best) | (best - 0.01 < SWEEP_MIN_NCC) | (measured_near == 0)
+    centre = best - np.where(np.abs(levels[best_k] - own) <= dw / 2, 0.01, 0.0)
+    den = left - 2 * best_raw + right
+    peak = (best_raw >= left) & (best_raw >= right)
+    curved = np.isfinite(den) & (den < -1e-6) & peak
+    frac = np.where(curved, 0.5 * (left - right) / np.where(curved, den, -1.0), 0.0)
+    out = levels[best_k] + np.clip(np.nan_to_num(frac), -0.5, 0.5) * dw
+    out = np.where(flat, own, out)
+    # infinity is the default: a depth must beat it by a margin (smooth content, e.g. the sun's halo,
+    # correlates almost as well at neighbouring levels and would otherwise wander by a fraction of a pixel)
+    zero_ok = (np.abs(levels[k_zero]) <= dw) & (lo <= 0) & (hi >= 0)
+    out = np.where(zero_ok & (centre - score_zero < SWEEP_ZERO_MARGIN), 0.0, out).astype(np.float32)
+    return cv2.medianBlur(out, 3), np.clip(np.where(flat, 0.0, centre), 0.0, 1.0).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class Parallax:
+    """Per-pixel result on A's grid: inverse depth (1/m), confidence (the correlation of A with B moved by
+    that parallax, 0..1; 0 where flat) and occlusion."""
+
+    inv_depth_per_m: np.ndarray
+    confidence: np.ndarray
+    occluded: np.ndarray
+    blocks: BlockParallax
+
+    def stats(self) -> dict:
+        w = self.blocks.inv_depth_per_m[self.blocks.measured]
+        return {"n_blocks": int(self.blocks.measured.size), "n_measured": int(self.blocks.measured.sum()),
+                "occluded_fraction": float(self.occluded.mean()),
+                "nearest_m": float(1.0 / w.max()) if w.size and w.max() > 0 else None,
+                "median_perpendicular_px": float(np.median(np.abs(self.blocks.perpendicular_px[self.blocks.measured])))
+                if w.size else None}
+
+
+def parallax_map(image_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, model_a: CameraModel,
+                 baseline_m: np.ndarray, field: np.ndarray, *, block: int | None = None,
+                 ground_inv_depth=None, min_confidence: float = PARALLAX_MIN_CONFIDENCE) -> Parallax:
+    """Steps 1-4 of the module docstring for one direction.
+
+    ``image_a`` and ``warped_b`` are A's image and B's resampled onto A's grid (both (H, W, C) radiance);
+    ``field`` is :func:`epipolar_field` at every pixel; ``ground_inv_depth(pixels)`` optionally gives
+    the ground plane's inverse depth at A's pixels (0 above the horizon).
+    """
+    h, w = image_a.shape[:2]
+    block = block or block_size_for(w, h)
+    gray_a, gray_b = as_gray(image_a), as_gray(warped_b)
+    bp = block_parallax(gray_a, gray_b, seen, field, block=block, min_confidence=min_confidence)
+    ga, gb = matching_feature(gray_a), matching_feature(gray_b)
+    ground = None
+    if ground_inv_depth is not None:
+        gy, gx = np.meshgrid(bp.y_px, bp.x_px, indexing="ij")
+        ground = ground_inv_depth(np.stack([gx, gy], axis=-1))
+    wb = fill_blocks(bp, ground)
+    inv_depth, confidence = sweep_inverse_depth(ga, gb, field, wb, bp.measured, bp.y_px, bp.x_px)
+    inv_depth = np.maximum(inv_depth, 0.0)
+    # step 4: occlusion by a nearer surface (z-buffer of the forward warp, nearness in px along the line)
+    e_len = np.linalg.norm(field, axis=-1).astype(np.float32)
+    occluded = _occlusion_zbuffer(inv_depth * field[..., 0], inv_depth * field[..., 1], inv_depth * e_len,
+                                  OCCLUSION_TOL_PX)
+    return Parallax(inv_depth.astype(np.float32), confidence.astype(np.float32), occluded, bp)

@@ -1,0 +1,206 @@
+"""Camera B's rig calibration and per-pixel parallax (issue 10), against the simulator's hidden truth."""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+
+import numpy as np
+import pytest
+
+from omnispectral.capture.plan import make_plan
+from omnispectral.capture.rig import load_preset
+from omnispectral.capture.scenes import PanoramaScene, ProceduralOutdoorScene
+from omnispectral.capture.simulate import RigRenderer, camera_model, true_mounting_error_deg
+from omnispectral.imaging.disparity import epipolar_field, refine_block_shifts, shifted_positions
+from omnispectral.product.align import parallax_direction
+from omnispectral.product.rigcal import (
+    RigCalibration,
+    RigMeasurements,
+    adjusted_model,
+    baseline_m,
+    fit_b_mounting,
+    measure_direction,
+    predict_b_px,
+)
+
+RIG = load_preset("small")
+
+
+def infinity_error_px(model_a, model_b, true_b) -> float:
+    """Largest distance over A's sensor between B's predicted and true positions of points at infinity."""
+    v, u = np.mgrid[0:model_a.height:2, 0:model_a.width:2]
+    px = np.stack([u.ravel(), v.ravel()], axis=-1).astype(np.float64)
+    return float(np.nanmax(np.linalg.norm(predict_b_px(model_a, model_b, px, 0.0)
+                                          - predict_b_px(model_a, true_b, px, 0.0), axis=1)))
+
+
+def test_mounting_error_is_per_seed_bounded_and_hidden_from_the_session(tmp_path):
+    from omnispectral.capture.simulate import simulate_session
+
+    errors = [true_mounting_error_deg(s) for s in range(20)]
+    assert all(abs(x) <= 0.5 for e in errors for x in e)
+    assert len({e for e in errors}) == 20 and true_mounting_error_deg(3) == errors[3]
+    assert max(abs(x) for e in errors for x in e) > 0.3  # the bound is used, not a token error
+    from tests.test_product import tiny_rig
+
+    simulate_session(tmp_path / "s", tiny_rig(), ProceduralOutdoorScene("12:00"), seed=7, progress=False,
+                     start=dt.datetime(2026, 3, 21, 12, 0, tzinfo=dt.UTC), ground_truth_width=64)
+    truth = json.loads((tmp_path / "s" / "ground_truth" / "ground_truth.json").read_text())
+    assert truth["camera_b_true"]["mounting_error_deg"] == pytest.approx(list(true_mounting_error_deg(7)))
+    needle = f"{true_mounting_error_deg(7)[0]:.6f}"[:8]
+    for name in ("session.json", "rig.toml", "plan.json", "journal.jsonl"):
+        assert needle not in (tmp_path / "s" / name).read_text(), name
+
+
+def test_epipolar_field_is_the_derivative_of_the_exact_shift():
+    ma = camera_model(RIG, "A")
+    c = baseline_m(camera_model(RIG, "B"))
+    px = np.array([[10.0, 12.0], [128.0, 68.0], [250.0, 130.0]])
+    e = epipolar_field(ma, c, px)
+    for w in (0.01, 0.05):
+        exact = shifted_positions(ma, c, px, np.full(3, w)) - shifted_positions(ma, c, px, np.zeros(3))
+        assert np.abs(exact - w * e).max() < 2e-3 * max(1.0, w / 0.01)
+    # 60 mm at 1 m on a ~117 px focal length: about 7 px per unit of inverse depth on the axis
+    assert 5.0 < np.linalg.norm(e[1]) < 9.0
+
+
+def test_block_refinement_removes_the_window_pull():
+    rng = np.random.default_rng(0)
+    import cv2
+
+    a = cv2.GaussianBlur(rng.random((128, 128)).astype(np.float32), (0, 0), 1.2)
+    shift = (0.37, -0.21)
+    m = np.float32([[1, 0, shift[0]], [0, 1, shift[1]]])
+    b = cv2.warpAffine(a, m, (128, 128), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    y = x = np.array([47.5, 63.5, 79.5])
+    zeros = np.zeros((3, 3))
+    dx, dy, _ = refine_block_shifts(a, b, y, x, zeros, zeros, 32, passes=1)
+    dx3, dy3, conf3 = refine_block_shifts(a, b, y, x, zeros, zeros, 32, passes=3)
+    err1 = np.hypot(dx - shift[0], dy - shift[1]).max()
+    err3 = np.hypot(dx3 - shift[0], dy3 - shift[1]).max()
+    assert err3 < 0.02 and err3 < err1
+    assert conf3.min() > 0.5
+
+
+def _noise_free_measurements(scene, error_deg):
+    renderer = RigRenderer(RIG, scene, noise=False, b_mounting_error_deg=error_deg)
+    ma, mb = camera_model(RIG, "A"), camera_model(RIG, "B")
+    meas = RigMeasurements.empty()
+    for d in make_plan(RIG).directions:
+        meas.extend(measure_direction(d.index, renderer.electrons_per_second("A", d.pan_deg, d.tilt_deg).copy(),
+                                      renderer.electrons_per_second("B", d.pan_deg, d.tilt_deg).copy(), ma, mb))
+    return meas, ma, mb, renderer.models["B"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("time_hhmm", "seed", "error_deg"), [("09:30", 5, (0.2166, 0.0562, 0.0865)),
+                                                              ("15:30", 1, (-0.31, 0.22, -0.18))])
+def test_rig_calibration_finds_b_at_infinity_within_a_tenth_of_a_pixel(time_hhmm, seed, error_deg):
+    """Noise-free captures of the procedural scene (near chart, post, ground, buildings, distant hills)."""
+    meas, ma, mb, true_b = _noise_free_measurements(ProceduralOutdoorScene(time_hhmm, seed=seed), error_deg)
+    before = infinity_error_px(ma, mb, true_b)
+    cal = fit_b_mounting(meas, ma, mb)
+    after = infinity_error_px(ma, cal.apply(mb), true_b)
+    assert before > 0.5
+    assert after < 0.1, (cal.delta_deg, error_deg)
+    # the fitted model reproduces itself through JSON
+    again = RigCalibration.from_dict(json.loads(json.dumps(cal.to_dict())))
+    assert infinity_error_px(ma, again.apply(mb), cal.apply(mb)) < 1e-9
+
+
+@pytest.mark.slow
+def test_rig_calibration_on_a_real_hdr_panorama_with_noise(shared_data, tmp_path):
+    """Everything at infinity (a real HDR panorama), sensor noise, the whole merge path."""
+    from omnispectral.capture.simulate import simulate_session
+    from omnispectral.mosaic.sources import merge_session
+    from omnispectral.product.rigcal import calibrate_from_merged
+
+    scene = PanoramaScene(shared_data / "hdr_envmaps" / "polyhaven_1k_hdr" / "venice_sunset_1k.hdr")
+    simulate_session(tmp_path / "s", RIG, scene, start=dt.datetime(2026, 3, 21, 12, 0, tzinfo=dt.UTC), seed=1,
+                     progress=False, ground_truth_width=128)
+    merged = merge_session(tmp_path / "s", tmp_path / "m")
+    cal = calibrate_from_merged(merged)
+    truth = json.loads((tmp_path / "s" / "ground_truth" / "ground_truth.json").read_text())
+    from omnispectral.imaging.geometry import CameraModel
+
+    true_b = CameraModel.from_dict(truth["camera_b_true"]["model"])
+    assert infinity_error_px(merged.cameras["A"], merged.cameras["B"], true_b) > 0.5
+    assert infinity_error_px(merged.cameras["A"], cal.apply(merged.cameras["B"]), true_b) < 0.1
+    assert not cal.warnings()
+
+
+def _direction_images(scene, pan, tilt, true_b=None, noise=False):
+    renderer = RigRenderer(RIG, scene, noise=noise)
+    if true_b is not None:
+        renderer.models["B"] = true_b
+    return (renderer.electrons_per_second("A", pan, tilt).copy(), renderer.electrons_per_second("B", pan, tilt).copy(),
+            renderer)
+
+
+def _true_inverse_depth(scene, model_a, pan, tilt):
+    v, u = np.mgrid[0:model_a.height, 0:model_a.width]
+    rays, _ = model_a.pixel_to_world(np.stack([u, v], axis=-1).astype(np.float64), pan, tilt)
+    rec = scene.shade(np.nan_to_num(rays).reshape(-1, 3).astype(np.float32), np.zeros(3))
+    shape = (model_a.height, model_a.width)
+    return 1.0 / rec.t_m.reshape(shape), rec.obj.reshape(shape)
+
+
+@pytest.mark.slow
+def test_parallax_of_a_chart_at_one_metre():
+    """Strong parallax (≈7 px): the chart's per-pixel parallax within 0.3 px, no chart pixel occluded, the
+    background just beside the chart (hidden from B by it) flagged."""
+    scene = ProceduralOutdoorScene("12:00", chart_distance_m=1.0, chart_patch_m=0.02, chart_lat_deg=-15.0)
+    pan, tilt = 15.0, 0.0
+    img_a, img_b, r = _direction_images(scene, pan, tilt)
+    ma, mb = r.models["A"], r.models["B"]
+    par = parallax_direction(img_a, img_b, ma, mb, pan, tilt)
+    w_true, obj = _true_inverse_depth(scene, ma, pan, tilt)
+    chart = obj == scene._chart_id
+    assert chart.sum() > 200
+    e = np.linalg.norm(epipolar_field(ma, baseline_m(mb)), axis=-1)
+    err_px = np.abs(par.inv_depth_per_m - w_true)[chart] * e[chart]
+    assert np.median(err_px) < 0.3, np.percentile(err_px, [50, 90])
+    assert par.occluded[chart].mean() < 0.02
+    assert par.occluded.any()
+
+
+@pytest.mark.slow
+def test_texture_less_sky_gets_no_parallax():
+    """Looking up at a clear sky (no texture, nothing near) with sensor noise: inverse depth ~0, nothing occluded."""
+    scene = ProceduralOutdoorScene("12:00")
+    pan, tilt = 105.0, 60.0
+    img_a, img_b, r = _direction_images(scene, pan, tilt, noise=False)
+    rng = np.random.default_rng(1)
+    noisy_a = img_a * (1 + 0.01 * rng.standard_normal(img_a.shape)).astype(np.float32)
+    noisy_b = img_b * (1 + 0.01 * rng.standard_normal(img_b.shape)).astype(np.float32)
+    ma, mb = r.models["A"], r.models["B"]
+    par = parallax_direction(noisy_a, noisy_b, ma, mb, pan, tilt)
+    _, obj = _true_inverse_depth(scene, ma, pan, tilt)
+    sky = obj == -1
+    assert sky.mean() > 0.8
+    e = np.linalg.norm(epipolar_field(ma, baseline_m(mb)), axis=-1)
+    assert np.percentile(np.abs(par.inv_depth_per_m[sky]) * e[sky], 95) < 0.3
+    assert par.occluded[sky].mean() < 0.01
+
+
+def test_calibration_file_round_trip_and_bad_files(tmp_path):
+    from omnispectral.errors import InputFileError
+
+    ma, mb = camera_model(RIG, "A"), camera_model(RIG, "B")
+    true_b = adjusted_model(mb, (0.1, -0.2, 0.05))
+    rng = np.random.default_rng(3)
+    a_px = rng.uniform([10, 10], [246, 126], (200, 2))
+    w = np.where(rng.random(200) < 0.4, 0.0, rng.uniform(0.05, 0.6, 200))
+    b_px = predict_b_px(ma, true_b, a_px, w) + rng.normal(0, 0.03, (200, 2))
+    meas = RigMeasurements(a_px, b_px, np.ones(200), rng.integers(0, 36, 200), np.tile([0.5, 0.0, 0.5], (200, 1)))
+    cal = fit_b_mounting(meas, ma, mb, rig_name="small")
+    assert infinity_error_px(ma, cal.apply(mb), true_b) < 0.05
+    path = cal.save(tmp_path / "cal.json")
+    again = RigCalibration.load(path)
+    assert again.delta_deg == pytest.approx(cal.delta_deg)
+    (tmp_path / "bad.json").write_text('{"format": "something else"}')
+    with pytest.raises(InputFileError, match=r"bad\.json.*not a rig calibration"):
+        RigCalibration.load(tmp_path / "bad.json")
+    with pytest.raises(InputFileError, match="not found"):
+        RigCalibration.load(tmp_path / "missing.json")

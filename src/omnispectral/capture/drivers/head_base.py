@@ -153,6 +153,8 @@ class SerialHead:
 
     def close(self) -> None:
         """Stop the motors (best effort: the line may already be gone) and release the port."""
+        if not self.link.ser.is_open:
+            return
         try:
             self.stop()
         except DeviceError as exc:

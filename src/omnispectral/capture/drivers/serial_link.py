@@ -38,7 +38,7 @@ class ErrorReply(BadReply):
 def show_bytes(data: bytes, limit: int = 40) -> str:
     """Printable form of raw bytes for an error line (non-ASCII as ``\\xNN``, CR as ``\\r``)."""
     text = data[:limit].decode("latin-1").encode("unicode_escape").decode("ascii")
-    return repr(text)[1:-1] + ("…" if len(data) > limit else "")
+    return "'" + text + ("…" if len(data) > limit else "") + "'"
 
 
 class SerialLink:
@@ -92,6 +92,8 @@ class SerialLink:
         """Send ``request`` and return ``parse(reply)``; re-send on silence or garbage (bounded)."""
         doing = f"sending {show_bytes(request)}" + (f" ({what})" if what else "")
         problem, kind = "", DeviceTimeout
+        if not self.ser.is_open:
+            raise DeviceDisconnected(f"{self.name}: the port is closed (while {doing})")
         for attempt in range(self.retries + 1):
             try:
                 if self.ser.in_waiting:

@@ -273,7 +273,8 @@ class GenICamCamera:
             node.value = float(min(max(exposure_s * 1e6, node.min), node.max))
             self.exposure_s = float(node.value) * 1e-6
         except _GENTL_ERRORS as exc:
-            raise DeviceError(f"{self.label}: setting the exposure to {exposure_s} s failed ({_one_line(exc)})") from None
+            raise DeviceError(f"{self.label}: setting the exposure to {exposure_s} s failed "
+                              f"({_one_line(exc)})") from None
         return self.exposure_s
 
     def trigger(self) -> None:
@@ -312,14 +313,19 @@ class GenICamCamera:
                 pass  # the producer keeps no timestamps
         finally:
             buf.queue()
-        temp = self._node("DeviceTemperature")
+        temp = self.temperature_c()
         if temp is not None:
-            meta["device_temperature_c"] = float(temp.value)
+            meta["device_temperature_c"] = temp
         gain = self._node("Gain")
         if gain is not None:
             meta["gain_db"] = float(gain.value)
         self._trigger_time = None
         return frame, meta
+
+    def temperature_c(self) -> float | None:
+        """The device's temperature (``DeviceTemperature``, °C), or None when it has no such feature."""
+        node = self._node("DeviceTemperature")
+        return None if node is None else float(node.value)
 
     def close(self) -> None:
         if self._closed:

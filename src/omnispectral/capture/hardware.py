@@ -18,7 +18,7 @@ from omnispectral.capture.plan import format_duration, make_plan
 from omnispectral.capture.rig import Rig
 from omnispectral.capture.run import RetryPolicy, run_capture
 from omnispectral.capture.session import CAMERAS, Session
-from omnispectral.errors import ConfigurationError
+from omnispectral.errors import ConfigurationError, OmnispectralError
 
 log = logging.getLogger(__name__)
 
@@ -99,13 +99,13 @@ def probe_rig(rig: Rig) -> list[dict]:
                              pan_deg=pan, tilt_deg=tilt)
             finally:
                 head.close()
-        except DeviceError as exc:
+        except OmnispectralError as exc:
             entry.update(ok=False, error=str(exc))
         report.append(entry)
     if any(c.device.get("driver") == "genicam" for c in rig.cameras.values()):
         try:
             cams, system = drivers.open_cameras(rig)
-        except DeviceError as exc:
+        except OmnispectralError as exc:
             report.append({"device": "cameras (genicam)", "ok": False, "error": str(exc)})
         else:
             try:

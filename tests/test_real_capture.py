@@ -124,3 +124,8 @@ def test_capture_with_emulated_rodeon_and_gentl_cameras_resumes_after_a_pulled_c
     assert np.all(frame[..., 1] == 255)  # camera B is the producer's "green" device
     stops = [e for e in s.events() if e["event"] == "stop"]
     assert len(stops) == 1 and "cable pulled" in stops[0]["reason"]
+    # and the product pipeline takes the session as it is (the test pattern: the check is the path)
+    assert main(["process", str(session), "-o", str(tmp_path / "product"), "--width", "128", "--json"]) == 0
+    product = _json_of(capsys)
+    assert product["session_kind"] == "capture" and product["rig"] == "emulated-rodeon"
+    assert (product["width"], product["height"]) == (128, 64) and len(product["bands"]) == 6

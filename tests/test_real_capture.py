@@ -129,3 +129,39 @@ def test_capture_with_emulated_rodeon_and_gentl_cameras_resumes_after_a_pulled_c
     product = _json_of(capsys)
     assert product["session_kind"] == "capture" and product["rig"] == "emulated-rodeon"
     assert (product["width"], product["height"]) == (128, 64) and len(product["bands"]) == 6
+
+
+def test_merlin_rig_probes_through_the_rig_file(tmp_path, capsys):
+    from omnispectral.capture.drivers.emulators import MerlinEmulator
+
+    with MerlinEmulator(time_scale=SCALE) as emu:
+        text = open(_rig(tmp_path / "rig.toml", emu.port)).read().replace('driver = "rodeon"', 'driver = "merlin"')
+        (tmp_path / "merlin.toml").write_text(text)
+        assert main(["devices", "probe", "--rig", str(tmp_path / "merlin.toml"), "--json"]) == 0
+        head = _json_of(capsys)[0]
+    assert head["device"] == "head (merlin)" and head["steps_per_turn"] == {"pan": 9024000, "tilt": 9024000}
+    assert head["info"]["pan_firmware"] == "020C01" and abs(head["resolution_deg"]["pan"] - 360 / 9024000) < 1e-15
+
+
+def test_devices_list_finds_the_simulated_producer_cameras(capsys):
+    assert main(["devices", "list", "--cti", "simulator", "--json"]) == 0
+    out = _json_of(capsys)
+    assert [c["serial"] for c in out["cameras"]] == ["0", "1", "2"]
+    assert out["gentl_producers"][0].endswith("genicam/viky.cti")
+    assert all("device" in p for p in out["serial_ports"])
+
+
+def test_rig_device_errors_name_the_rig(tmp_path, capsys):
+    with RodeonEmulator(time_scale=SCALE) as emu:
+        text = open(_rig(tmp_path / "rig.toml", emu.port)).read()
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text.replace("fixed_exposure = true", "exposure_mode = 1", 1))
+    assert main(["capture", "--rig", str(bad), "-o", str(tmp_path / "s"), "--dry-run"]) == 0  # dry run: no device
+    capsys.readouterr()
+    assert main(["devices", "probe", "--rig", str(bad)]) == 1
+    out = capsys.readouterr().out
+    assert f"cameras (genicam): {bad}: [cameras.A] device: unknown keys ['exposure_mode']" in out
+    mixed = tmp_path / "mixed.toml"
+    mixed.write_text(text.replace('driver = "genicam"', 'driver = "simulated"'))
+    assert main(["capture", "--rig", str(mixed), "-o", str(tmp_path / "m")]) == 2
+    assert "simulated cameras render what the simulated head points at" in capsys.readouterr().err

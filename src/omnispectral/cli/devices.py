@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from rich.markup import escape
 from rich.table import Table
 
 from omnispectral.cli._common import console, print_json
@@ -55,10 +56,10 @@ def cmd_devices_probe(args) -> int:
         console.print(f"{rig.name}: every device is simulated; nothing to probe")
     for entry in report if not args.json else ():
         if not entry["ok"]:
-            console.print(f"[red]{entry['device']}: {entry['error']}[/red]")
+            console.print(f"[red]{escape(entry['device'])}: {escape(entry['error'])}[/red]", soft_wrap=True)
             continue
         details = ", ".join(f"{k} {v}" for k, v in entry.items() if k not in ("device", "ok") and v not in (None, ""))
-        console.print(f"[green]{entry['device']}[/green]: {details}")
+        console.print(f"[green]{escape(entry['device'])}[/green]: {escape(details)}", soft_wrap=True)
     return 0 if all(e["ok"] for e in report) else 1
 
 

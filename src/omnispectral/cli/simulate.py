@@ -5,6 +5,8 @@ from __future__ import annotations
 import datetime as _dt
 from pathlib import Path
 
+from rich.markup import escape
+
 from omnispectral.cli._common import console, print_json
 from omnispectral.cli.capture import add_rig_args, rig_from_args
 from omnispectral.errors import ConfigurationError
@@ -71,7 +73,7 @@ def cmd_capture(args) -> int:
         port = f" on {h['port']} ({'present' if h['port_exists'] else 'NOT FOUND'})" if h["port"] else ""
         console.print(f"head: {h['driver']}{port}")
         for name, dev in out["cameras"].items():
-            console.print(f"camera {name}: " + ", ".join(f"{k} {v}" for k, v in dev.items()))
+            console.print(f"camera {name}: " + escape(", ".join(f"{k} {v}" for k, v in dev.items())))
         for m in out["moves"][:8]:
             console.print(f"  direction {m['direction']}: pan {m['pan_deg']:.3f} deg, tilt {m['tilt_deg']:.3f} deg")
         if len(out["moves"]) > 8:
@@ -85,7 +87,7 @@ def cmd_capture(args) -> int:
     else:
         console.print(f"Captured {out['n_written']} frames ({out['n_already_done']} already there) of "
                       f"{out['n_planned']} into {out['session']}"
-                      + ("" if out["complete"] else f"; stopped: {out['stopped_reason']} "
+                      + ("" if out["complete"] else f"; stopped: {escape(str(out['stopped_reason']))} "
                                                     "(run the same command again to resume)"))
     return 0 if out["complete"] else 1
 

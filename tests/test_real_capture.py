@@ -1,4 +1,4 @@
-"""A whole ``capture`` with real protocols: an emulated RODEON head on a pseudo-terminal + the GenTL simulated cameras."""
+"""A whole ``capture`` with real protocols: emulated RODEON head on a pseudo-terminal + GenTL simulated cameras."""
 
 from __future__ import annotations
 

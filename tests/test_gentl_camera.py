@@ -35,6 +35,8 @@ def test_enumerate(system):
     assert [d["serial"] for d in devs] == ["0", "1", "2"]
     assert {d["model"] for d in devs} == {"Viky"}
     assert system.find(serial="2") == 2
+    with pytest.raises(DeviceError, match=r"GenICam camera with user id 'left': not found \(cameras found: Viky"):
+        system.find(user_id="left")  # the simulator's devices have no user-defined name
 
 
 @pytest.mark.parametrize("serial,channel", [("0", 0), ("1", 1)])

@@ -42,7 +42,7 @@ class SerialHead:
     wrap_pan = False
 
     def __init__(self, link: SerialLink, *, tolerance_deg: float = 0.05, settle_s: float = 0.0,
-                 speed_fraction: float = 1.0, poll_s: float = 0.05, stall_s: float = 1.0):
+                 speed_fraction: float = 1.0, poll_s: float = 0.05, stall_s: float = 2.0):
         if not 0 < speed_fraction <= 1:
             raise DeviceError(f"{link.name}: speed fraction {speed_fraction} must be in (0, 1]")
         self.link = link

@@ -19,7 +19,7 @@ from typing import TypeVar
 
 import serial
 
-from omnispectral.capture.devices import DeviceDisconnected, DeviceError, DeviceProtocolError, DeviceTimeout
+from omnispectral.capture.devices import DeviceDisconnected, DeviceProtocolError, DeviceTimeout
 
 log = logging.getLogger(__name__)
 
@@ -129,8 +129,3 @@ class SerialLink:
 def _reason(exc: Exception) -> str:
     return " ".join(str(exc).split()) or type(exc).__name__
 
-
-def check_open(link: SerialLink | None, device: str) -> SerialLink:
-    if link is None:
-        raise DeviceError(f"{device}: not connected")
-    return link

@@ -11,6 +11,7 @@ from omnispectral.capture.devices import Camera, DeviceError, DeviceTimeout
 from omnispectral.capture.drivers.gentl import (
     GenTLSystem,
     bits_of_pixel_format,
+    cfa_pattern_of,
     frame_to_uint16,
     producer_paths,
     simulated_producer_path,
@@ -114,5 +115,7 @@ def test_pixel_format_helpers():
     bgr = np.arange(2 * 3 * 3, dtype=np.uint8)
     out = frame_to_uint16(bgr, 3, 2, "BGR8")
     assert out.shape == (2, 3, 3) and out[0, 0].tolist() == [2, 1, 0]
+    assert [cfa_pattern_of(f) for f in ("BayerRG12", "BayerGR8", "BayerGB16", "BayerBG10p", "Mono8")] == \
+        ["RGGB", "GRBG", "GBRG", "BGGR", None]
     bayer = np.arange(12, dtype=np.uint16) * 300
     assert frame_to_uint16(bayer, 4, 3, "BayerRG12")[2, 3] == 3300

@@ -67,6 +67,12 @@ def bits_of_pixel_format(pixel_format: str) -> int:
     return int(m.group(1))
 
 
+def cfa_pattern_of(pixel_format: str) -> str | None:
+    """The 2 x 2 colour filter layout of an SFNC Bayer format, first row first (``BayerRG12`` → ``RGGB``)."""
+    m = re.match(r"Bayer(RG|GR|GB|BG)", pixel_format)
+    return None if m is None else {"RG": "RGGB", "GR": "GRBG", "GB": "GBRG", "BG": "BGGR"}[m.group(1)]
+
+
 def frame_to_uint16(data: np.ndarray, width: int, height: int, pixel_format: str) -> np.ndarray:
     """A GenTL image component as the session's uint16 frame: (H, W) for Mono/Bayer, (H, W, 3) RGB for colour.
 
@@ -307,6 +313,12 @@ class GenICamCamera:
                     "host_trigger_time_unix": round(self._trigger_time, 6)}
             if self.exposure_s is not None:
                 meta["exposure_s"] = self.exposure_s
+            cfa = cfa_pattern_of(meta["pixel_format"])
+            if cfa is not None:  # a raw mosaic: kept as the camera gave it, with its layout and black level
+                meta["cfa_pattern"] = cfa
+                black = self._node("BlackLevel")
+                if black is not None:
+                    meta["black_level"] = float(black.value)
             try:
                 meta["camera_timestamp_ns"] = int(buf.timestamp_ns)
             except _GENTL_ERRORS:

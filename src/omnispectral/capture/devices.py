@@ -29,6 +29,14 @@ class DeviceTimeout(DeviceError):
     """A device did not answer within its timeout."""
 
 
+class DeviceDisconnected(DeviceError):
+    """The connection to a device is gone (serial cable pulled, adapter unplugged, port closed)."""
+
+
+class DeviceProtocolError(DeviceError):
+    """A device answered, but with something the protocol does not allow (garbage, an error reply)."""
+
+
 @runtime_checkable
 class Clock(Protocol):
     def now(self) -> _dt.datetime: ...  # timezone-aware wall time

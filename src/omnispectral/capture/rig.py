@@ -137,6 +137,10 @@ class HeadSpec:
     position_tolerance_deg: float = 0.05
     timeout_s: float = 30.0
     retries: int = 3
+    baud: int = 9600  # serial heads (rodeon, merlin)
+    speed_fraction: float = 1.0  # fraction of the head's maximum motor speed the driver commands
+    command_timeout_s: float = 0.5  # longest wait for one serial reply
+    poll_s: float = 0.05  # position polling interval while a move settles
 
 
 @dataclass(frozen=True)
@@ -267,7 +271,11 @@ def rig_from_dict(data: dict, source: str = "<rig>", toml_text: str = "") -> Rig
                     h.get("tilt_speed_deg_s", float, 20.0, positive=True),
                     h.get("settle_s", float, 2.0, minimum=0.0),
                     h.get("position_tolerance_deg", float, 0.05, positive=True),
-                    h.get("timeout_s", float, 30.0, positive=True), h.get("retries", int, 3, minimum=0))
+                    h.get("timeout_s", float, 30.0, positive=True), h.get("retries", int, 3, minimum=0),
+                    h.get("baud", int, 9600, positive=True), h.get("speed_fraction", float, 1.0, positive=True),
+                    h.get("command_timeout_s", float, 0.5, positive=True), h.get("poll_s", float, 0.05, positive=True))
+    if head.speed_fraction > 1:
+        h.fail("speed_fraction", f"must be in (0, 1], got {head.speed_fraction}")
     if driver != "simulated" and not head.port:
         h.fail("port", f"the {driver} driver needs a serial port")
     g = top.table("grid", {})

@@ -5,6 +5,8 @@ from __future__ import annotations
 import datetime as _dt
 from pathlib import Path
 
+from rich.markup import escape
+
 from omnispectral.cli._common import console, print_json
 from omnispectral.cli.capture import add_rig_args, rig_from_args
 from omnispectral.errors import ConfigurationError
@@ -59,13 +61,40 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_capture(args) -> int:
+    from omnispectral.capture.drivers import rig_device_kind
+    from omnispectral.capture.hardware import capture_with_devices, dry_run
+
     rig = rig_from_args(args)
-    if rig.head.driver != "simulated" or any(c.device.get("driver") != "simulated" for c in rig.cameras.values()):
-        raise ConfigurationError(f"{rig.source}: the rig names real devices (head {rig.head.driver!r}); real "
-                                 "drivers (GenICam cameras, RODEON and Merlin heads) are not available in this "
-                                 "version — use driver = \"simulated\" or 'omnispectral simulate'")
-    args.json = getattr(args, "json", False)
-    return cmd_simulate(args)
+    kind = rig_device_kind(rig)
+    if args.dry_run:
+        out = dry_run(rig, args.output)
+        if args.json:
+            print_json(out)
+            return 0
+        h = out["head"]
+        console.print(f"[bold]{rig.name}[/bold] (dry run, nothing moves): {out['n_directions']} directions x "
+                      f"{len(out['exposures_s'])} exposures x 2 cameras = {out['n_frames']} frames, "
+                      f"{out['n_already_done']} already in {args.output}; estimated {out['estimated']}")
+        port = f" on {h['port']} ({'present' if h['port_exists'] else 'NOT FOUND'})" if h["port"] else ""
+        console.print(f"head: {h['driver']}{port}")
+        for name, dev in out["cameras"].items():
+            console.print(f"camera {name}: " + escape(", ".join(f"{k} {v}" for k, v in dev.items())))
+        for m in out["moves"][:8]:
+            console.print(f"  direction {m['direction']}: pan {m['pan_deg']:.3f} deg, tilt {m['tilt_deg']:.3f} deg")
+        if len(out["moves"]) > 8:
+            console.print(f"  … {len(out['moves']) - 8} more directions")
+        return 0
+    if kind == "simulated":
+        return cmd_simulate(args)
+    out = capture_with_devices(args.output, rig, progress=not args.json)
+    if args.json:
+        print_json(out)
+    else:
+        console.print(f"Captured {out['n_written']} frames ({out['n_already_done']} already there) of "
+                      f"{out['n_planned']} into {out['session']}"
+                      + ("" if out["complete"] else f"; stopped: {escape(str(out['stopped_reason']))} "
+                                                    "(run the same command again to resume)"))
+    return 0 if out["complete"] else 1
 
 
 def cmd_timelapse(args) -> int:
@@ -142,9 +171,11 @@ def add_commands(sub) -> None:
     s.set_defaults(func=cmd_simulate)
 
     c = sub.add_parser("capture", help="capture a session with the devices a rig file names",
-                       description="Run the capture loop on the devices named in the rig file; resumes an "
+                       description="Run the capture loop on the devices named in the rig file (GenICam cameras, "
+                                   "RODEON or Merlin head; an all-simulated rig runs the simulator); resumes an "
                                    "incomplete session in the same directory.")
     _add_session_args(c)
+    c.add_argument("--dry-run", action="store_true", help="print the plan and the devices named; move nothing")
     c.set_defaults(func=cmd_capture)
 
     t = sub.add_parser("timelapse", help="one capture every N minutes into a series directory",

@@ -1,0 +1,120 @@
+"""Capture with the real devices a rig names: run (resumable), dry run (plan only) and probe (talk to each device).
+
+The capture loop is :func:`omnispectral.capture.run.run_capture`, the same one the simulator uses;
+this module only opens the devices the rig file names (:mod:`omnispectral.capture.drivers`), runs
+the loop on the computer's clock, and always closes the devices again (the head's motors are
+stopped).  A run stopped by a device (a pulled cable, a head that never arrives) leaves a valid
+session; running the same command again resumes it after its last complete frame.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+from omnispectral.capture import drivers
+from omnispectral.capture.devices import DeviceError, SimulatedHead, SystemClock
+from omnispectral.capture.plan import format_duration, make_plan
+from omnispectral.capture.rig import Rig
+from omnispectral.capture.run import RetryPolicy, run_capture
+from omnispectral.capture.session import CAMERAS, Session
+from omnispectral.errors import ConfigurationError, OmnispectralError
+
+log = logging.getLogger(__name__)
+
+
+def policy_of(rig: Rig) -> RetryPolicy:
+    return RetryPolicy(rig.head.retries, rig.head.timeout_s, rig.head.position_tolerance_deg)
+
+
+def _open_head(rig: Rig):
+    if rig.head.driver == "simulated":  # real cameras on a simulated head: a stand-in that only takes time
+        return SimulatedHead(SystemClock(), rig.head.pan_speed_deg_s, rig.head.tilt_speed_deg_s, rig.head.settle_s)
+    return drivers.open_head(rig)
+
+
+def capture_with_devices(output: str | Path, rig: Rig, *, progress: bool = True) -> dict:
+    """Capture (or resume) a session at ``output`` with the rig's real devices; returns the run summary."""
+    if drivers.rig_device_kind(rig) != "real":
+        raise ConfigurationError(f"{rig.source}: the rig's devices are all simulated; use 'omnispectral simulate'")
+    plan = make_plan(rig)
+    session = Session.create(output, rig, plan, kind="capture")
+    head = cams = system = None
+    try:
+        head = _open_head(rig)
+        cams, system = drivers.open_cameras(rig)
+        session.log_event("devices", head=_head_info(rig, head), cameras={n: getattr(c, "info", {})
+                                                                         for n, c in cams.items()})
+        result = run_capture(session, head, cams, SystemClock(), policy_of(rig), progress).to_dict()
+    except DeviceError as exc:  # opening failed: nothing captured this time, the session stays resumable
+        session.log_event("stop", reason=str(exc), frames_done=len(session.completed()))
+        n_done = len(session.completed())
+        result = {"session": str(session.path), "n_planned": Session.n_planned(plan), "n_written": 0,
+                  "n_already_done": n_done, "complete": n_done >= Session.n_planned(plan),
+                  "stopped_reason": str(exc)}
+    finally:
+        if system is not None:
+            system.close()
+        if head is not None:
+            head.close()
+    return result
+
+
+def _head_info(rig: Rig, head) -> dict:
+    return {"driver": rig.head.driver, "port": rig.head.port, **getattr(head, "info", {}),
+            "steps_per_turn": getattr(head, "steps_per_turn", {})}
+
+
+def dry_run(rig: Rig, output: str | Path | None = None) -> dict:
+    """What a capture would do, without talking to any device: plan, timing, devices named, frames already done."""
+    drivers.rig_device_kind(rig)
+    plan = make_plan(rig)
+    out = {"rig": rig.name, "n_directions": plan.n_directions, "exposures_s": list(plan.exposures_s),
+           "n_frames": Session.n_planned(plan), "estimated_s": plan.estimated_s,
+           "estimated": format_duration(plan.estimated_s),
+           "head": {"driver": rig.head.driver, "port": rig.head.port,
+                    "port_exists": bool(rig.head.port) and Path(rig.head.port).exists()},
+           "cameras": {n: dict(rig.cameras[n].device) for n in CAMERAS},
+           "moves": [{"direction": d.index, "pan_deg": d.pan_deg, "tilt_deg": d.tilt_deg} for d in plan.directions],
+           "n_already_done": 0, "session": str(output) if output else None}
+    if output and (Path(output) / "session.json").exists():
+        session = Session.open(output)
+        if session.plan().to_dict()["directions"] != plan.to_dict()["directions"]:
+            raise ConfigurationError(f"{output}: holds a session with a different plan")
+        out["n_already_done"] = len(session.completed())
+    return out
+
+
+def probe_rig(rig: Rig) -> list[dict]:
+    """Talk to each device the rig names and collect what it answered (one entry per device, errors included)."""
+    report = []
+    if rig.head.driver != "simulated":
+        entry = {"device": f"head ({rig.head.driver})", "port": rig.head.port}
+        try:
+            head = drivers.open_head(rig)
+            try:
+                pan, tilt = head.position()
+                entry.update(ok=True, info=dict(head.info), steps_per_turn=dict(head.steps_per_turn),
+                             resolution_deg={a: 360.0 / n for a, n in head.steps_per_turn.items()},
+                             pan_deg=pan, tilt_deg=tilt)
+            finally:
+                head.close()
+        except OmnispectralError as exc:
+            entry.update(ok=False, error=str(exc))
+        report.append(entry)
+    if any(c.device.get("driver") == "genicam" for c in rig.cameras.values()):
+        try:
+            cams, system = drivers.open_cameras(rig)
+        except OmnispectralError as exc:
+            report.append({"device": "cameras (genicam)", "ok": False, "error": str(exc)})
+        else:
+            try:
+                for name, cam in cams.items():
+                    entry = {"device": f"camera {name}", "ok": True, **cam.info, "pixel_format": cam.pixel_format,
+                             "bit_depth": cam.bit_depth, "software_trigger": cam.software_trigger,
+                             "exposure_feature": cam.has("ExposureTime") or cam.has("ExposureTimeAbs"),
+                             "temperature_c": cam.temperature_c()}
+                    report.append(entry)
+            finally:
+                system.close()
+    return report

@@ -54,7 +54,7 @@ def test_frame_values_match_the_analytic_integral(renderer):
     frame = renderer("A", -120.0, -30.0, t, np.random.default_rng(0))  # background only
     expected_dn = renderer.electrons_per_unit * (renderer.band_matrix("A") @ SpotScene().background) * t \
         / CMV2000.gain_e_per_dn
-    valid = renderer.camera_rays("A")[1].reshape(frame.shape[:2])
+    valid = renderer.pixel_valid("A")
     mean = frame[valid].reshape(-1, 3).mean(axis=0)
     n = valid.sum()
     sigma_of_mean = np.sqrt(CMV2000.variance_dn2(expected_dn) / n)

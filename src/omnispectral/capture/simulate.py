@@ -169,6 +169,12 @@ class RigRenderer:
             self._rays[camera] = (np.nan_to_num(rays).astype(np.float32), valid)
         return self._rays[camera]
 
+    def pixel_valid(self, camera: str) -> np.ndarray:
+        """``(H, W)``: pixels all of whose area has rays (inside the lens model's monotonic region)."""
+        m = self.models[camera]
+        s2 = max(1, int(self.supersample)) ** 2
+        return self.camera_rays(camera)[1].reshape(m.height, m.width, s2).all(axis=2)
+
     def electrons_per_second(self, camera: str, pan_deg: float, tilt_deg: float) -> np.ndarray:
         """Noise-free photo-electrons per second of each pixel, ``(H, W, 3)`` float32 (cached per direction)."""
         key = (pan_deg, tilt_deg)

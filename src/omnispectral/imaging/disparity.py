@@ -334,7 +334,10 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
     by = np.clip(np.rint(np.interp(np.arange(h), y_px, np.arange(y_px.size))).astype(int), 0, y_px.size - 1)
     bx = np.clip(np.rint(np.interp(np.arange(w), x_px, np.arange(x_px.size))).astype(int), 0, x_px.size - 1)
     e_len = np.linalg.norm(field, axis=-1)
-    dw = step_px / max(float(np.median(e_len)), 1e-9)
+    valid = e_len[np.isfinite(e_len) & (e_len > 0)]
+    if valid.size == 0:
+        return w_blocks[by[:, None], bx[None, :]].astype(np.float32), np.zeros((h, w), np.float32)
+    dw = step_px / float(np.median(valid))
     # blocks larger than an object measure a mixture of its depth and its background's: search beyond
     lo_b = ndimage.minimum_filter(w_blocks, size=3, mode="nearest") - SWEEP_MARGIN_STEPS * dw
     hi_b = ndimage.maximum_filter(w_blocks, size=3, mode="nearest") + SWEEP_MARGIN_STEPS * dw

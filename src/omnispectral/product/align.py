@@ -16,7 +16,7 @@ infinity; POC then measures what that prediction misses:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -157,7 +157,8 @@ def cached_epipolar_field(model_a: CameraModel, model_b: CameraModel) -> np.ndar
     key = json.dumps([model_a.to_dict(), model_b.to_dict()], sort_keys=True)
     if key not in _FIELD_CACHE:
         _FIELD_CACHE.clear()
-        _FIELD_CACHE[key] = epipolar_field(model_a, baseline_m(model_b)).astype(np.float32)
+        # pixels beyond the lens model have no ray: no parallax there
+        _FIELD_CACHE[key] = np.nan_to_num(epipolar_field(model_a, baseline_m(model_b))).astype(np.float32)
     return _FIELD_CACHE[key]
 
 
@@ -221,7 +222,9 @@ def parallax_direction(image_a: np.ndarray, image_b: np.ndarray, model_a: Camera
        model is fitted on all directions and leaves a few hundredths of a degree, which matter next to the
        HDR sun; an offset measured on far content only cannot absorb near parallax (the paper's one
        offset per direction does);
-    3. with that offset, the per-pixel parallax again.
+    3. the parallax relative to the shifted model: content at ``p`` was found at ``p + w e`` and B now
+       starts from ``p + d``, so ``w' = w − (d·e)/|e|²`` (clamped at 0; ``d`` is at most a pixel, its
+       part across the line is what the offset corrects).
     """
     from omnispectral.imaging.disparity import parallax_map
     from omnispectral.product.rigcal import baseline_m
@@ -236,16 +239,10 @@ def parallax_direction(image_a: np.ndarray, image_b: np.ndarray, model_a: Camera
     d, conf = far_offset(image_a, warped, far)
     if d == (0.0, 0.0):
         return DirectionParallax((0.0, 0.0), d, conf, first)
-    # content at p in A is at p + d in the warped B: resample the warped image there and measure again
-    mx, my = maps
-    h, w = mx.shape
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-    import cv2
-
-    shifted = (cv2.remap(mx, xx + np.float32(d[0]), yy + np.float32(d[1]), cv2.INTER_LINEAR),
-               cv2.remap(my, xx + np.float32(d[0]), yy + np.float32(d[1]), cv2.INTER_LINEAR))
-    warped2, seen2 = warp_b_onto_a(image_b, shifted)
-    second = parallax_map(image_a, warped2, seen2, model_a, c, field, ground_inv_depth=ground)
-    jac = offset_jacobian(model_a, model_b, 0.0, 0.0)
-    off = jac @ np.array(d)
+    e2 = np.maximum(np.sum(field * field, axis=-1), 1e-12)
+    near = first.inv_depth_per_m > 0
+    inv_depth = np.where(near, np.maximum(first.inv_depth_per_m - (d[0] * field[..., 0] + d[1] * field[..., 1]) / e2,
+                                          0.0), 0.0).astype(np.float32)
+    second = replace(first, inv_depth_per_m=inv_depth)
+    off = offset_jacobian(model_a, model_b, 0.0, 0.0) @ np.array(d)
     return DirectionParallax((float(off[0]), float(off[1])), d, conf, second)

@@ -43,7 +43,7 @@ from omnispectral.errors import InputFileError
 from omnispectral.imaging.disparity import PARALLAX_MIN_CONFIDENCE, block_size_for, measure_blocks
 from omnispectral.imaging.geometry import CameraModel
 from omnispectral.imaging.registration import as_gray
-from omnispectral.io import atomic_write_json
+from omnispectral.io import atomic_write_json, read_text_file
 
 CALIBRATION_FORMAT = "omnispectral-rig-calibration"
 #: A direction whose median perpendicular residual exceeds this (px) disagrees with the rig model.
@@ -51,13 +51,13 @@ DIRECTION_WARNING_PX = 0.5
 #: Soft-L1 scale of the perpendicular residuals (px).
 ROBUST_SCALE_PX = 0.15
 #: Half-width (px along the epipolar line) of the window that finds the far cluster.
-FAR_WINDOW_PX = 0.2
+FAR_WINDOW_PX = 0.25
 #: Nearest plausible content (1/m): nothing the cameras register is closer than 0.33 m.
 MAX_INV_DEPTH_PER_M = 3.0
 #: Blocks whose structure measures the along-line shift at least this well (``gᵀJg/|g|²``) anchor infinity.
 ALONG_MIN_WEIGHT = 0.3
 #: Smallest share of the usable blocks that makes a cluster.
-FAR_MIN_FRACTION = 0.05
+FAR_MIN_FRACTION = 0.15
 
 
 def baseline_m(model_b: CameraModel) -> np.ndarray:
@@ -185,11 +185,9 @@ class RigCalibration:
     def load(cls, path: str | Path) -> RigCalibration:
         p = Path(path)
         try:
-            data = json.loads(p.read_text(encoding="utf-8"))
-        except FileNotFoundError:
-            raise InputFileError(p, "not found") from None
-        except (OSError, ValueError) as exc:
-            raise InputFileError(p, f"unreadable rig calibration ({exc})") from None
+            data = json.loads(read_text_file(p, "rig calibration"))
+        except ValueError as exc:
+            raise InputFileError(p, f"not JSON ({exc})") from None
         if not isinstance(data, dict) or data.get("format") != CALIBRATION_FORMAT:
             found = data.get("format") if isinstance(data, dict) else None
             raise InputFileError(p, f"not a rig calibration (format {found!r})")

@@ -141,7 +141,9 @@ class SkylineProfile:
 
     def elevation_deg(self, lon_deg) -> np.ndarray:
         lon = np.radians(np.asarray(lon_deg, dtype=np.float64))
-        e = self.base_deg + np.sin(np.multiply.outer(lon, self.frequencies) + self.phases_rad) @ self.amplitudes_deg
+        # an element-wise sum, not a BLAS product: the result must not depend on how many rays are traced at once
+        waves = np.sin(np.multiply.outer(lon, self.frequencies) + self.phases_rad) * self.amplitudes_deg
+        e = self.base_deg + waves.sum(axis=-1)
         return np.clip(e, 0.3, SKYLINE_MAX_DEG)
 
     def describe(self) -> dict:

@@ -284,7 +284,9 @@ class ClearSkyDaylight:
         """``L / L_z`` of the type-12 sky for unit world directions ``(N, 3)`` (horizon value below it)."""
         d = np.asarray(directions)
         s = self.sun_direction.astype(d.dtype)
-        return cie_sky_relative_luminance(d[:, 1], d @ s, self.sun_zenith_rad)
+        # element-wise dot product: a BLAS product may round differently with the number of rays traced at once
+        cos_sun = d[:, 0] * s[0] + d[:, 1] * s[1] + d[:, 2] * s[2]
+        return cie_sky_relative_luminance(d[:, 1], cos_sun, self.sun_zenith_rad)
 
     def sky_luminance_cd_m2(self, directions) -> np.ndarray:
         """Sky luminance (cd/m², without the solar disk) for unit world directions ``(N, 3)``."""

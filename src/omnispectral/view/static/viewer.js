@@ -107,7 +107,7 @@ viewer.addEventListener('click', ({ data }) => {
 async function fetchProbe(point) {
   const r = await fetch(`api/spectrum?lon=${point.lon}&lat=${point.lat}&t=${state.t}`);
   const body = await r.json();
-  return r.ok ? body : { error: body.error, lon_deg: point.lon, lat_deg: point.lat };
+  return r.ok ? body : { error: body.error, lon_deg: point.lon, lat_deg: point.lat, slot: state.t };
 }
 
 async function refreshProbes() {

@@ -130,8 +130,8 @@ def bench(product: Path, run: int = 0, max_cold: int = 300) -> dict:
         cold = [srv.get(u) for u in urls]
         warm = [srv.get(u) for u in urls]
         top, last = len(levels) - 1, levels[-1]
-        burst_urls = [f"/api/tile/{top}/{i % last['cols']}/{(i // last['cols']) % last['rows']}.png?ev={3 + 0.25 * i + 0.1 * run}"
-                      for i in range(50)]
+        burst_urls = [f"/api/tile/{top}/{i % last['cols']}/{(i // last['cols']) % last['rows']}.png"
+                      f"?ev={3 + 0.25 * i + 0.1 * run}" for i in range(50)]
         t0 = time.perf_counter()
         with ThreadPoolExecutor(50) as pool:
             list(pool.map(srv.get, burst_urls))
@@ -165,8 +165,8 @@ def main() -> int:
               f"open {r['open_s']:.1f} s")
     for width in sorted({r["width"] for r in results}):
         runs = [r for r in results if r["width"] == width]
-        med = {k: float(np.median([r[part][q] for r in runs])) for part in ("cold", "warm") for q in ("p50_ms", "p95_ms")
-               for k in [f"{part}_{q}"]}
+        med = {f"{part}_{q}": float(np.median([r[part][q] for r in runs]))
+               for part in ("cold", "warm") for q in ("p50_ms", "p95_ms")}
         print(f"median of {len(runs)} runs, width {width}: " + ", ".join(f"{k} {v:.2f}" for k, v in med.items())
               + f", burst50 {np.median([r['burst50_s'] for r in runs]):.2f} s")
     if args.json_out:

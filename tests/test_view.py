@@ -4,9 +4,11 @@
 from __future__ import annotations
 
 import csv
+import hashlib
 import http.client
 import io
 import json
+import re
 import socket
 import threading
 import time
@@ -25,7 +27,7 @@ from omnispectral.mosaic.store import PanoramaStore
 from omnispectral.product.estimator import estimator_params
 from omnispectral.product.exports import reinhard_srgb8
 from omnispectral.product.spectra import spectrum_at
-from omnispectral.view.server import STATIC_DIR, create_app, probes_csv, view_slots
+from omnispectral.view.server import STATIC_DIR, create_app, load_static, probes_csv, view_slots
 from omnispectral.view.tiles import Display, SlotRenderer, TileCache, viewer_levels
 
 BANDS = ["A:R", "A:G", "A:B", "B:R", "B:G", "B:B"]
@@ -281,3 +283,16 @@ def test_probes_csv_of_nothing_is_refused(client):
     with pytest.raises(ConfigurationError):
         Display("relit")
     assert probes_csv([]).startswith("wavelength_nm")
+
+
+def test_every_file_the_page_loads_is_in_the_package_with_its_licence():
+    table = load_static()
+    html = table["index.html"][0].decode()
+    refs = re.findall(r'"\.?/?static/([^"]+)"', html)
+    assert len(refs) >= 6 and all(r in table for r in refs), [r for r in refs if r not in table]
+    versions = json.loads(table["vendor/VERSIONS.json"][0])
+    assert set(versions) == {"three", "@photo-sphere-viewer/core", "@photo-sphere-viewer/equirectangular-tiles-adapter"}
+    for entry in versions.values():
+        assert any(f.endswith("LICENSE") for f in entry["files"]) and entry["license"] == "MIT"
+        for name, digest in entry["files"].items():
+            assert hashlib.sha256(table[f"vendor/{name}"][0]).hexdigest() == digest

@@ -276,7 +276,11 @@ def test_view_slots_and_cli_errors(tiny_product, tmp_path, capsys):
         s.listen()
         port = s.getsockname()[1]
         assert main(["view", str(tiny_product), "--port", str(port)]) == 2
-    assert "cannot listen" in capsys.readouterr().err
+        assert "cannot listen" in capsys.readouterr().err
+        # another address than loopback: a warning first (here the port is taken on all addresses too)
+        assert main(["view", str(tiny_product), "--port", str(port), "--host", "0.0.0.0"]) == 2
+    err = capsys.readouterr().err
+    assert "warning" in err and "0.0.0.0" in err and "cannot listen" in err
 
 
 def test_probes_csv_of_nothing_is_refused(client):

@@ -18,7 +18,8 @@ Routes::
     GET /api/auto-exposure?lon=&lat=&fov=     exposure (EV) that fits the view
     GET /api/probes.csv?p=LON,LAT[&p=…]       the probed spectra as CSV
 
-Rendering runs in worker threads, at most ``max_parallel`` at once (an AnyIO capacity limiter), so a burst
+Rendering (and opening a slot's product the first time it is asked for) runs in worker threads, at most
+``max_parallel`` at once (an AnyIO capacity limiter), so a burst
 of requests queues instead of holding one window per request in memory; encoded tiles are kept in a
 :class:`~omnispectral.view.tiles.TileCache`.
 """
@@ -208,16 +209,15 @@ async def tile(request: Request) -> Response:
     col = _int_text(p["col"], "tile column", level["cols"] - 1)
     row = _int_text(p["row"], "tile row", level["rows"] - 1)
     t, display = _slot(request, state), _display(request, state)
-    renderer = state.renderer(t)
     return await _render(request, ("tile", t, display, level_i, col, row),
-                         lambda: renderer.render_tile(display, level, col, row))
+                         lambda: state.renderer(t).render_tile(display, level, col, row))
 
 
 async def base(request: Request) -> Response:
     state: ViewerState = request.app.state.viewer
     t, display = _slot(request, state), _display(request, state)
-    renderer = state.renderer(t)
-    return await _render(request, ("base", t, display), lambda: renderer.render(display, 0, 1, 0, 1, *BASE_SIZE))
+    return await _render(request, ("base", t, display),
+                         lambda: state.renderer(t).render(display, 0, 1, 0, 1, *BASE_SIZE))
 
 
 def _probe(state: ViewerState, t: int, lon: float, lat: float) -> dict:

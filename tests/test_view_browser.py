@@ -40,6 +40,7 @@ def driver():
     for arg in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", f"--window-size={VIEW_W},{VIEW_H}",
                 "--enable-unsafe-swiftshader", "--use-angle=swiftshader"):  # WebGL without a GPU
         opts.add_argument(arg)
+    opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})  # console messages for get_log
     d = webdriver.Chrome(service=Service(CHROMEDRIVER), options=opts)
     yield d
     d.quit()
@@ -159,6 +160,12 @@ def test_viewer_renders_and_a_click_gives_the_spectrum_of_that_direction(driver,
         assert len(np.unique(img.reshape(-1, 3) // 8, axis=0)) > 200
         click_viewer(driver)  # the centre of the view: lon 20°, lat -10°
         probe = driver.execute_script("return window.omni.probes[0]")
+        # its marker sits where the click was (the centre of the viewer element)
+        marker = driver.execute_script("const r = document.querySelector('.marker.p1').getBoundingClientRect();"
+                                       "const v = document.getElementById('viewer').getBoundingClientRect();"
+                                       "return [r.x + r.width / 2 - v.x - v.width / 2, r.y + r.height / 2 - v.y - "
+                                       "v.height / 2]")
+        assert np.hypot(*marker) < 3, marker
         assert "error" not in probe, probe
         # one pixel of the 1200-px-wide view at zoom 30 is well under 0.2°
         assert abs(probe["lon_deg"] - 20) < 0.2 and abs(probe["lat_deg"] + 10) < 0.2
@@ -195,6 +202,8 @@ def test_viewer_renders_and_a_click_gives_the_spectrum_of_that_direction(driver,
         csv_text = driver.execute_async_script(
             "const done = arguments[0]; fetch(document.getElementById('csv').href).then(r => r.text()).then(done);")
         assert "P2_estimate" in csv_text and f"lon_deg={probes[1]['lon_deg']:.6f}" in csv_text
+        severe = [e for e in driver.get_log("browser") if e["level"] == "SEVERE"]
+        assert not severe, severe
 
 
 def test_display_modes_change_the_tiles(driver, product):

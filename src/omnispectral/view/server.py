@@ -197,6 +197,10 @@ async def static_file(request: Request) -> Response:
     return Response(entry[0], media_type=entry[1], headers={"Cache-Control": "max-age=600"})
 
 
+async def no_icon(request: Request) -> Response:
+    return Response(status_code=204)
+
+
 async def info(request: Request) -> Response:
     return JSONResponse(request.app.state.viewer.info())
 
@@ -321,7 +325,8 @@ def create_app(path: str | Path, host: str = "127.0.0.1", cache_bytes: int = 64 
     Bound to a loopback address, it answers only requests whose ``Host`` is a loopback name (a web page
     elsewhere cannot reach it through DNS rebinding)."""
     state = ViewerState(path, cache_bytes=cache_bytes, max_parallel=max_parallel)
-    routes = [Route("/", index_page), Route("/static/{name:path}", static_file), Route("/api/info", info),
+    routes = [Route("/", index_page), Route("/favicon.ico", no_icon), Route("/static/{name:path}", static_file),
+              Route("/api/info", info),
               Route("/api/tile/{level}/{col}/{row}.png", tile), Route("/api/base.png", base),
               Route("/api/spectrum", spectrum), Route("/api/auto-exposure", auto_exposure),
               Route("/api/probes.csv", probes)]

@@ -101,8 +101,31 @@ viewer.addEventListener('click', ({ data }) => {
   $('second').checked = false;
   const point = { lon: wrapLon(data.yaw * DEG), lat: data.pitch * DEG };
   state.points[second ? 1 : 0] = point;
+  placeMarkers();
   refreshProbes();
 });
+
+// probe markers: plain elements over the canvas, placed at every rendered frame
+const markers = [0, 1].map((i) => {
+  const m = document.createElement('div');
+  m.className = `marker p${i + 1}`;
+  m.textContent = String(i + 1);
+  m.hidden = true;
+  $('viewer').appendChild(m);
+  return m;
+});
+function placeMarkers() {
+  state.points.forEach((p, i) => {
+    const pos = p && { yaw: p.lon / DEG, pitch: p.lat / DEG };
+    const visible = pos && viewer.dataHelper.isPointVisible(pos);
+    markers[i].hidden = !visible;
+    if (visible) {
+      const xy = viewer.dataHelper.sphericalCoordsToViewerCoords(pos);
+      markers[i].style.transform = `translate(${xy.x}px, ${xy.y}px)`;
+    }
+  });
+}
+viewer.addEventListener('render', placeMarkers);
 
 async function fetchProbe(point) {
   const r = await fetch(`api/spectrum?lon=${point.lon}&lat=${point.lat}&t=${state.t}`);

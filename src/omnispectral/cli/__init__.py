@@ -15,7 +15,8 @@ from omnispectral.cli._common import err_console
 from omnispectral.errors import OmnispectralError
 
 #: Modules of ``omnispectral.cli`` that register sub-commands, in the order ``--help`` lists them.
-COMMAND_MODULES = ("spectral", "hdr", "lens", "capture", "register", "simulate", "devices", "mosaic", "product")
+COMMAND_MODULES = ("spectral", "hdr", "lens", "capture", "register", "simulate", "devices", "mosaic", "product",
+                   "view")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -62,8 +62,14 @@ def tone_map_srgb(rgb_linear: np.ndarray, percentile: float = 99.0) -> np.ndarra
     rgb = np.nan_to_num(np.asarray(rgb_linear, np.float32), nan=0.0, posinf=0.0).clip(0)
     lum = rgb @ np.array([0.2126, 0.7152, 0.0722], np.float32)
     ref = float(np.percentile(lum[lum > 0], percentile)) if np.any(lum > 0) else 1.0
-    x = rgb / np.float32(ref)
-    lx = x @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    return reinhard_srgb8(rgb / np.float32(ref))
+
+
+def reinhard_srgb8(rgb_exposed: np.ndarray) -> np.ndarray:
+    """8-bit sRGB of exposure-scaled linear RGB (or one channel as grey): Reinhard 2002 global operator on
+    luminance, ``L → 1.8 L/(1+L)`` (1 maps to 0.9), clipped, sRGB transfer function (IEC 61966-2-1); NaN → 0."""
+    x = np.nan_to_num(np.asarray(rgb_exposed, np.float32), nan=0.0, posinf=0.0).clip(0)
+    lx = x @ np.array([0.2126, 0.7152, 0.0722], np.float32) if x.shape[-1] == 3 else x[..., 0]
     scale = np.where(lx > 0, (1.8 * lx / (1.0 + lx)) / np.maximum(lx, 1e-12), 0.0)[..., None]
     y = np.clip(x * scale, 0, 1)
     srgb = np.where(y <= 0.0031308, 12.92 * y, 1.055 * np.power(y, 1 / 2.4) - 0.055)

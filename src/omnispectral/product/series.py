@@ -112,6 +112,26 @@ def process_series(series: str | Path, output: str | Path, regions: dict | None 
     return summary
 
 
+def series_products(output: str | Path) -> list[tuple[str, Path]]:
+    """``(time ISO 8601, product directory)`` of every slot of a :func:`process_series` output, in time order."""
+    import zarr
+
+    out = Path(output)
+    stack = out / "timestack.zarr"
+    try:
+        attrs = zarr.open_group(str(stack), mode="r", zarr_format=3).attrs.asdict()
+        times, products = list(attrs["times"]), list(attrs["products"])
+    except Exception as exc:  # zarr raises several types for a missing or foreign store
+        raise InputFileError(stack, f"not the time stack of a processed series ({type(exc).__name__})") from None
+    slots = []
+    for time, product in zip(times, products, strict=True):
+        path = out / Path(product).name  # slot products are children of the output (paths recorded may be relative)
+        if not (path / "product.json").is_file():
+            raise InputFileError(path, f"the product of slot {time} is missing")
+        slots.append((time, path))
+    return slots
+
+
 def _plot_region_spectra(analysis: dict, path: Path) -> None:
     import matplotlib
 

@@ -31,13 +31,20 @@ def region_weights(bands: np.ndarray, estimator, n_sample: int = 20000, seed: in
 
 def bands_to_linear_srgb(bands: np.ndarray, estimator) -> np.ndarray:
     """Linear sRGB-primaries RGB of a six-band image through the region's linear spectral map (NaN kept)."""
+    mat, offset = linear_srgb_map(bands, estimator)
+    return np.asarray(bands, np.float32) @ mat + offset
+
+
+def linear_srgb_map(bands: np.ndarray, estimator) -> tuple[np.ndarray, np.ndarray]:
+    """``(6 × 3 matrix, offset (3,))`` taking six bands to linear sRGB-primaries RGB: the estimator's linear map
+    for the region weights of ``bands`` (:func:`region_weights`), folded with the CIE 1931 observer."""
     from omnispectral.product.exports import spectra_to_xyz, xyz_to_linear_srgb
 
     m, b = estimator.linear_map(region_weights(bands, estimator))
     wl = np.asarray(estimator.wavelength_nm)
     to_rgb = xyz_to_linear_srgb(spectra_to_xyz(np.eye(wl.size, dtype=np.float32), wl))  # (n, 3)
     mat = (np.asarray(m).T @ to_rgb).astype(np.float32)  # (6, 3)
-    return np.asarray(bands, np.float32) @ mat + (np.asarray(b, np.float32) @ to_rgb)
+    return mat, (np.asarray(b, np.float32) @ to_rgb).astype(np.float32)
 
 
 def estimate_image(bands: np.ndarray, estimator, with_std: bool = False):
@@ -75,12 +82,16 @@ def open_product(product: str | Path):
 
 def spectrum_at(product: str | Path, lon_deg: float, lat_deg: float, level: int = 0) -> dict:
     """The six bands, estimated spectrum, its posterior std and colour at a direction (bilinear in the bands)."""
+    return spectrum_in_store(*open_product(product), lon_deg, lat_deg, level=level)
+
+
+def spectrum_in_store(index: dict, store, estimator, lon_deg: float, lat_deg: float, level: int = 0) -> dict:
+    """:func:`spectrum_at` for a product already opened with :func:`open_product` (index, store, estimator)."""
     from omnispectral.imaging.geometry import lonlat_to_equirect_pixel
     from omnispectral.product.exports import spectra_to_linear_srgb, spectra_to_xyz
 
     if not (np.isfinite(lon_deg) and np.isfinite(lat_deg)) or abs(lat_deg) > 90:
         raise ConfigurationError(f"no direction at lon {lon_deg}, lat {lat_deg} (latitude must be in [-90, 90])")
-    index, store, estimator = open_product(product)
     if not 0 <= level < len(store.shapes):
         raise ConfigurationError(f"level {level} does not exist (0-{len(store.shapes) - 1})")
     h, w = store.shapes[level]

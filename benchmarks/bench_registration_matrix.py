@@ -68,7 +68,7 @@ def chart_parallax_error_px(product: Path, scene) -> float | None:
 
     merged = MergedDirections.open(product / "merged")
     ma, mb = merged.cameras["A"], merged.cameras["B"]
-    field = np.linalg.norm(cached_epipolar_field(ma, mb), axis=-1)
+    field = np.linalg.norm(cached_epipolar_field(ma, mb)[..., :2], axis=-1)
     v, u = np.mgrid[0:ma.height, 0:ma.width]
     px = np.stack([u, v], axis=-1).astype(np.float64)
     errs = []

@@ -165,6 +165,33 @@ def test_uncertainty_tiles_show_the_relative_posterior_std(tiny_product):
     assert abs(int(match) - idx) <= 8 and 0 < rel < 2
 
 
+def test_registration_tiles_show_confidence_and_occlusion(tiny_product, tmp_path):
+    import shutil
+
+    import zarr
+
+    from omnispectral.errors import ConfigurationError
+
+    with pytest.raises(ConfigurationError, match="no registration-quality layer"):
+        SlotRenderer(tiny_product).render_tile(Display("registration"), viewer_levels(W, 256)[0], 0, 0)
+    prod = tmp_path / "with_quality"
+    shutil.copytree(tiny_product, prod)
+    group = zarr.open_group(str(prod / "panorama.zarr"), mode="r+", zarr_format=3)
+    q = np.zeros((H, W, 2), np.float32)
+    q[..., 0] = np.linspace(0, 1, W)[None, :]  # confidence rising from left to right
+    q[40:60, 300:340, 1] = 1.0  # an occluded patch
+    group.create_array("quality", data=q, chunks=(128, 128, 2))
+    r = SlotRenderer(prod)
+    assert r.has_quality
+    tile = r.render(Display("registration"), 0.0, 1.0, 0.0, 1.0, W, H)
+    lut = r._lut
+    for col in (10, 500, 1000):
+        idx = int(np.clip(q[100, col, 0], 0, 1) * 255)
+        match = np.abs(lut.astype(int) - tile[100, col].astype(int)).sum(axis=1).argmin()
+        assert abs(int(match) - idx) <= 2
+    assert tuple(tile[50, 320]) == (230, 30, 30) and tuple(tile[100, 320]) != (230, 30, 30)
+
+
 def test_tile_cache_is_bounded_in_bytes():
     cache = TileCache(max_bytes=1000)
     for i in range(10):

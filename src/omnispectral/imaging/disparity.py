@@ -61,10 +61,14 @@ MAX_PERPENDICULAR_PX = 0.75
 #: Window (px) of the per-pixel choice of depth.
 NCC_WINDOW_PX = 11
 #: Parallax step (px) between the levels of the per-pixel sweep, and the most levels per direction.
-SWEEP_STEP_PX = 0.5
+SWEEP_STEP_PX = 0.25
 SWEEP_MAX_LEVELS = 48
 #: A pixel is occluded when a surface nearer by more than this parallax (px) lands on the same place in B.
 OCCLUSION_TOL_PX = 1.0
+#: Long side (px) at which the per-pixel parallax is analysed (larger images are binned), and the rig
+#: calibration's block measurements.
+PARALLAX_ANALYSIS_PX = 512
+CALIBRATION_ANALYSIS_PX = 1024
 #: Smallest normalised correlation that counts as a match in the sweep (noise alone reaches ~0.3 on 11 px windows).
 SWEEP_MIN_NCC = 0.5
 #: Correlation by which a finite depth must beat infinity in the sweep.
@@ -75,6 +79,24 @@ SWEEP_MARGIN_STEPS = 4
 PARALLAX_MIN_CONFIDENCE = 0.3
 #: Inverse depth change (1/m) used for the finite difference of the epipolar field.
 _DW_PER_M = 0.01
+
+
+def analysis_factor(width: int, height: int, target_px: int) -> int:
+    """Integer binning that brings an image's long side to about ``target_px`` (1 for small images)."""
+    return max(1, round(max(width, height) / target_px))
+
+
+def bin_image(image: np.ndarray, factor: int) -> np.ndarray:
+    """``factor × factor`` box average (area integration: a binned pixel is the mean of the pixels it covers)."""
+    if factor == 1:
+        return np.asarray(image, np.float32)
+    h, w = image.shape[:2]
+    return cv2.resize(np.asarray(image, np.float32), (w // factor, h // factor), interpolation=cv2.INTER_AREA)
+
+
+def binned_to_full_px(x, factor: int):
+    """Pixel coordinates of a binned image → full-resolution coordinates (pixel centres at integers)."""
+    return (np.asarray(x, np.float64) + 0.5) * factor - 0.5
 
 
 def block_size_for(width: int, height: int) -> int:
@@ -202,12 +224,15 @@ def measure_blocks(gray_a: np.ndarray, gray_b: np.ndarray, block: int, min_confi
     return BlockShifts(dm.y_px, dm.x_px, dx, dy, conf, reliable, two_d & reliable, normal, tensor)
 
 
-def epipolar_field(model_a: CameraModel, baseline_m: np.ndarray, pixels: np.ndarray | None = None) -> np.ndarray:
+def epipolar_field(model_a: CameraModel, baseline_m: np.ndarray, pixels: np.ndarray | None = None,
+                   second_order: bool = False) -> np.ndarray:
     """A-pixel displacement per unit inverse depth (px · m), ``(..., 2)``, at ``pixels`` (default: every pixel).
 
     ``baseline_m``: camera B's optical centre relative to A's in the world frame at pan = tilt = 0.
     The content of A's pixel ``p`` at inverse depth ``w`` lies at ``p + w · e(p)`` (to first order) in
-    B's image resampled onto A's grid for points at infinity.
+    B's image resampled onto A's grid for points at infinity.  With ``second_order`` the result is
+    ``(..., 4)``: ``e`` and the second derivative ``h`` (``p + w e + w² h / 2``; at 1 m on the small rig
+    the first-order position is 0.2 px off, the second-order one 0.002 px).
     """
     if pixels is None:
         v, u = np.mgrid[0:model_a.height, 0:model_a.width]
@@ -216,7 +241,14 @@ def epipolar_field(model_a: CameraModel, baseline_m: np.ndarray, pixels: np.ndar
     c = np.asarray(baseline_m, np.float64)
     plus, _ = model_a.world_to_pixel(rays - _DW_PER_M * c, 0.0, 0.0, margin_px=None)
     minus, _ = model_a.world_to_pixel(rays + _DW_PER_M * c, 0.0, 0.0, margin_px=None)
-    return (plus - minus) / (2 * _DW_PER_M)
+    e = (plus - minus) / (2 * _DW_PER_M)
+    if not second_order:
+        return e
+    h_step = 0.1  # 1/m: the second difference needs a larger step than the first to rise above rounding
+    p2, _ = model_a.world_to_pixel(rays - h_step * c, 0.0, 0.0, margin_px=None)
+    m2, _ = model_a.world_to_pixel(rays + h_step * c, 0.0, 0.0, margin_px=None)
+    centre, _ = model_a.world_to_pixel(rays, 0.0, 0.0, margin_px=None)
+    return np.concatenate([e, (p2 - 2 * centre + m2) / h_step**2], axis=-1)
 
 
 def shifted_positions(model_a: CameraModel, baseline_m: np.ndarray, pixels: np.ndarray,
@@ -248,7 +280,7 @@ def block_parallax(gray_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, f
     y_px, x_px, dx, dy = bs.y_px, bs.x_px, bs.dx, bs.dy
     iy = np.clip(np.rint(y_px).astype(int), 0, gray_a.shape[0] - 1)
     ix = np.clip(np.rint(x_px).astype(int), 0, gray_a.shape[1] - 1)
-    e = field[iy[:, None], ix[None, :]]
+    e = field[iy[:, None], ix[None, :], :2]
     e_len = np.linalg.norm(e, axis=-1)
     # the structure tensor J says which components of the shift the block measures: the inverse depth is
     # the J-weighted projection on the epipolar direction, the rest (which no depth explains) must be small
@@ -333,7 +365,7 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
     h, w = ga.shape
     by = np.clip(np.rint(np.interp(np.arange(h), y_px, np.arange(y_px.size))).astype(int), 0, y_px.size - 1)
     bx = np.clip(np.rint(np.interp(np.arange(w), x_px, np.arange(x_px.size))).astype(int), 0, x_px.size - 1)
-    e_len = np.linalg.norm(field, axis=-1)
+    e_len = np.linalg.norm(field[..., :2], axis=-1)
     valid = e_len[np.isfinite(e_len) & (e_len > 0)]
     if valid.size == 0:
         return w_blocks[by[:, None], bx[None, :]].astype(np.float32), np.zeros((h, w), np.float32)
@@ -351,6 +383,9 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
     levels = w_lo + dw * np.arange(n)
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
     fx, fy = field[..., 0].astype(np.float32), field[..., 1].astype(np.float32)
+    # second order along the line when the field carries it (a near object's line curves: 0.2 px at 1 m)
+    hx, hy = ((0.5 * field[..., 2]).astype(np.float32), (0.5 * field[..., 3]).astype(np.float32)) \
+        if field.shape[-1] == 4 else (np.float32(0), np.float32(0))
     # shiftable windows (Bobick & Intille 1999): a pixel takes the best of all windows that contain it,
     # so near a depth edge it can use a window lying wholly on its own surface
     shift_kernel = np.ones((window, window), np.uint8)
@@ -363,8 +398,9 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
     k_zero = int(np.argmin(np.abs(levels)))
     score_zero = np.full((h, w), -np.inf, np.float32)
     for k, wk in enumerate(levels):
-        moved = cv2.remap(gb, xx + np.float32(wk) * fx, yy + np.float32(wk) * fy, cv2.INTER_LINEAR,
-                          borderMode=cv2.BORDER_REPLICATE)
+        wk2 = np.float32(wk * wk)
+        moved = cv2.remap(gb, xx + np.float32(wk) * fx + wk2 * hx, yy + np.float32(wk) * fy + wk2 * hy,
+                          cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         raw = local_ncc(ga, moved, window)
         score = cv2.dilate(raw, shift_kernel)
         # the sub-step parabola uses the centred window's scores (the same window at every level)
@@ -419,13 +455,34 @@ class Parallax:
 
 def parallax_map(image_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, model_a: CameraModel,
                  baseline_m: np.ndarray, field: np.ndarray, *, block: int | None = None,
-                 ground_inv_depth=None, min_confidence: float = PARALLAX_MIN_CONFIDENCE) -> Parallax:
+                 ground_inv_depth=None, min_confidence: float = PARALLAX_MIN_CONFIDENCE,
+                 target_px: int = PARALLAX_ANALYSIS_PX) -> Parallax:
     """Steps 1-4 of the module docstring for one direction.
 
     ``image_a`` and ``warped_b`` are A's image and B's resampled onto A's grid (both (H, W, C) radiance);
     ``field`` is :func:`epipolar_field` at every pixel; ``ground_inv_depth(pixels)`` optionally gives
-    the ground plane's inverse depth at A's pixels (0 above the horizon).
+    the ground plane's inverse depth at A's pixels (0 above the horizon).  Images larger than about
+    ``target_px`` are analysed binned (inverse depth does not depend on the pixel size; the sweep costs
+    ~50 remaps per pixel), and the result is brought back to every pixel (nearest: never a blend of
+    two surfaces) where the occlusion is evaluated.
     """
+    f = analysis_factor(image_a.shape[1], image_a.shape[0], target_px)
+    if f > 1:
+        h, w = image_a.shape[:2]
+        small_field = bin_image(field, f) / f
+        small_seen = bin_image(seen.astype(np.float32), f) > 0.999
+        ground_small = None
+        if ground_inv_depth is not None:
+            def ground_small(pixels):
+                return ground_inv_depth(binned_to_full_px(pixels, f))
+        low = parallax_map(bin_image(image_a, f), bin_image(warped_b, f), small_seen, model_a, baseline_m,
+                           small_field, block=block, ground_inv_depth=ground_small,
+                           min_confidence=min_confidence, target_px=10**9)
+        rows = np.clip(np.arange(h) // f, 0, low.inv_depth_per_m.shape[0] - 1)
+        cols = np.clip(np.arange(w) // f, 0, low.inv_depth_per_m.shape[1] - 1)
+        inv_depth = low.inv_depth_per_m[rows[:, None], cols[None, :]]
+        confidence = low.confidence[rows[:, None], cols[None, :]]
+        return Parallax(inv_depth, confidence, _occluded(inv_depth, field), low.blocks)
     h, w = image_a.shape[:2]
     block = block or block_size_for(w, h)
     gray_a, gray_b = as_gray(image_a), as_gray(warped_b)
@@ -438,8 +495,12 @@ def parallax_map(image_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, mo
     wb = fill_blocks(bp, ground)
     inv_depth, confidence = sweep_inverse_depth(ga, gb, field, wb, bp.measured, bp.y_px, bp.x_px)
     inv_depth = np.maximum(inv_depth, 0.0)
-    # step 4: occlusion by a nearer surface (z-buffer of the forward warp, nearness in px along the line)
-    e_len = np.linalg.norm(field, axis=-1).astype(np.float32)
-    occluded = _occlusion_zbuffer(inv_depth * field[..., 0], inv_depth * field[..., 1], inv_depth * e_len,
-                                  OCCLUSION_TOL_PX)
-    return Parallax(inv_depth.astype(np.float32), confidence.astype(np.float32), occluded, bp)
+    return Parallax(inv_depth.astype(np.float32), confidence.astype(np.float32), _occluded(inv_depth, field), bp)
+
+
+def _occluded(inv_depth: np.ndarray, field: np.ndarray) -> np.ndarray:
+    """Step 4: pixels hidden from B by a nearer surface (z-buffer of the forward warp, nearness in px along
+    the epipolar line)."""
+    e_len = np.linalg.norm(field[..., :2], axis=-1).astype(np.float32)
+    return _occlusion_zbuffer(inv_depth * field[..., 0], inv_depth * field[..., 1], inv_depth * e_len,
+                              OCCLUSION_TOL_PX)

@@ -62,10 +62,12 @@ def cached_maps(model_a: CameraModel, model_b: CameraModel) -> tuple[np.ndarray,
     import json
 
     key = json.dumps([model_a.to_dict(), model_b.to_dict()], sort_keys=True)
-    if key not in _MAPS_CACHE:
+    value = _MAPS_CACHE.get(key)  # thread-safe without a lock: at worst two threads compute it
+    if value is None:
+        value = b_onto_a_maps(model_a, model_b)
         _MAPS_CACHE.clear()
-        _MAPS_CACHE[key] = b_onto_a_maps(model_a, model_b)
-    return _MAPS_CACHE[key]
+        _MAPS_CACHE[key] = value
+    return value
 
 
 def warp_b_onto_a(image_b: np.ndarray, maps: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -155,11 +157,13 @@ def cached_epipolar_field(model_a: CameraModel, model_b: CameraModel) -> np.ndar
     from omnispectral.product.rigcal import baseline_m
 
     key = json.dumps([model_a.to_dict(), model_b.to_dict()], sort_keys=True)
-    if key not in _FIELD_CACHE:
-        _FIELD_CACHE.clear()
+    value = _FIELD_CACHE.get(key)
+    if value is None:
         # pixels beyond the lens model have no ray: no parallax there
-        _FIELD_CACHE[key] = np.nan_to_num(epipolar_field(model_a, baseline_m(model_b))).astype(np.float32)
-    return _FIELD_CACHE[key]
+        value = np.nan_to_num(epipolar_field(model_a, baseline_m(model_b), second_order=True)).astype(np.float32)
+        _FIELD_CACHE.clear()
+        _FIELD_CACHE[key] = value
+    return value
 
 
 def ground_inverse_depth(model_a: CameraModel, pan_deg: float, tilt_deg: float, height_m: float | None):
@@ -198,15 +202,18 @@ class DirectionParallax:
 def far_offset(image_a: np.ndarray, warped_b: np.ndarray, far: np.ndarray,
                min_confidence: float = DEFAULT_MIN_CONFIDENCE) -> tuple[tuple[float, float], float]:
     """POC shift (A's pixels) of B against A on the direction's far content only (sky, distant land, the
-    sun): what the rig model still misses at infinity in this direction; (0, 0) when not measurable."""
+    sun): what the rig model still misses at infinity in this direction; (0, 0) when not measurable.
+    Large images are measured binned to about 1024 px (POC's sub-pixel precision, ~0.02 px, is then
+    ~0.04 full pixels)."""
+    from omnispectral.imaging.disparity import CALIBRATION_ANALYSIS_PX, analysis_factor, bin_image
     from omnispectral.imaging.registration import phase_correlate
 
-    rows, cols = common_crop(far | ~far)  # the whole image: the mask does the selecting
-    if far[rows, cols].mean() < 0.05:
+    if far.mean() < 0.05:
         return (0.0, 0.0), 0.0
-    reg = phase_correlate(np.asarray(image_a, np.float32)[rows, cols], warped_b[rows, cols],
-                          reference_valid=far[rows, cols], moving_valid=far[rows, cols])
-    d = (float(reg.dx), float(reg.dy))
+    f = analysis_factor(far.shape[1], far.shape[0], CALIBRATION_ANALYSIS_PX)
+    valid = bin_image(far.astype(np.float32), f) > 0.999
+    reg = phase_correlate(bin_image(image_a, f), bin_image(warped_b, f), reference_valid=valid, moving_valid=valid)
+    d = (float(reg.dx) * f, float(reg.dy) * f)
     if reg.confidence < min_confidence or np.hypot(*d) > MAX_FAR_OFFSET_PX or not np.isfinite(d).all():
         return (0.0, 0.0), float(reg.confidence)
     return d, float(reg.confidence)
@@ -235,11 +242,11 @@ def parallax_direction(image_a: np.ndarray, image_b: np.ndarray, model_a: Camera
     ground = ground_inverse_depth(model_a, pan_deg, tilt_deg, ground_height_m)
     warped, seen = warp_b_onto_a(image_b, maps)
     first = parallax_map(image_a, warped, seen, model_a, c, field, ground_inv_depth=ground)
-    far = seen & (np.abs(first.inv_depth_per_m) * np.linalg.norm(field, axis=-1) < FAR_PARALLAX_PX)
+    far = seen & (np.abs(first.inv_depth_per_m) * np.linalg.norm(field[..., :2], axis=-1) < FAR_PARALLAX_PX)
     d, conf = far_offset(image_a, warped, far)
     if d == (0.0, 0.0):
         return DirectionParallax((0.0, 0.0), d, conf, first)
-    e2 = np.maximum(np.sum(field * field, axis=-1), 1e-12)
+    e2 = np.maximum(np.sum(field[..., :2] ** 2, axis=-1), 1e-12)
     near = first.inv_depth_per_m > 0
     inv_depth = np.where(near, np.maximum(first.inv_depth_per_m - (d[0] * field[..., 0] + d[1] * field[..., 1]) / e2,
                                           0.0), 0.0).astype(np.float32)

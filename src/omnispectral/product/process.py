@@ -107,9 +107,17 @@ REGISTRATIONS = ("parallax", "paper")
 def merge_only(session_path: Path, out: Path, skip: set[int], progress=None, timings: dict | None = None,
                hdr_weight: str = "noise"):
     """Stage 2 without registration: the HDR merge of every direction (camera B at the rig file's mounting)."""
-    from omnispectral.mosaic.sources import merge_session
+    from omnispectral.mosaic.sources import MergedDirections, merge_session
 
     t0 = time.perf_counter()
+    if (out / "merged.json").is_file():  # a resumed run: nothing to merge when the directory is complete
+        try:
+            done = MergedDirections.open(out)
+            if timings is not None:
+                timings.setdefault("hdr_merge", 0.0)
+            return done
+        except InputFileError:
+            pass
     merged = merge_session(session_path, out, skip=skip, progress=progress, weight=hdr_weight)
     if timings is not None:
         timings["hdr_merge"] = timings.get("hdr_merge", 0.0) + time.perf_counter() - t0
@@ -154,22 +162,26 @@ def register_parallax(merged, calibration=None, progress=None, timings: dict | N
     if timings is not None:
         timings["rig_calibration"] = time.perf_counter() - t0
     t1 = time.perf_counter()
-    stats = []
-    dirs = writer.meta["directions"]
-    for k, d in enumerate(dirs):
-        b = d["images"]["B"]
-        if "parallax" not in b or not (merged.path / b["parallax"]["file"]).is_file():
-            src = {s.camera: s for s in MergedDirections(merged.path, writer.meta).sources()
-                   if s.direction == int(d["index"])}
-            reg = parallax_direction(src["A"].read(), src["B"].read(), model_a, model_b, float(d["pan_deg"]),
-                                     float(d["tilt_deg"]))
-            par = reg.parallax
-            data = np.stack([par.inv_depth_per_m, par.confidence, par.occluded.astype(np.float32)], axis=-1)
-            writer.save_parallax(int(d["index"]), data, reg.stats(), offset_px=reg.offset_px)
-        stats.append({"direction": int(d["index"]), **{k2: v for k2, v in d["images"]["B"]["parallax"].items()
-                                                          if k2 != "file"}})
+    from omnispectral.concurrency import ordered_thread_map
+
+    sources = {(s.direction, s.camera): s for s in MergedDirections(merged.path, writer.meta).sources()}
+    todo = [d for d in writer.meta["directions"] if "parallax" not in d["images"]["B"]
+            or not (merged.path / d["images"]["B"]["parallax"]["file"]).is_file()]
+
+    def measure(d: dict):
+        i = int(d["index"])
+        return i, parallax_direction(sources[(i, "A")].read(), sources[(i, "B")].read(), model_a, model_b,
+                                     float(d["pan_deg"]), float(d["tilt_deg"]))
+
+    n_total, n_done = len(writer.meta["directions"]), len(writer.meta["directions"]) - len(todo)
+    for k, (i, reg) in enumerate(ordered_thread_map(measure, todo)):  # written in order, as they come
+        par = reg.parallax
+        data = np.stack([par.inv_depth_per_m, par.confidence, par.occluded.astype(np.float32)], axis=-1)
+        writer.save_parallax(i, data, reg.stats(), offset_px=reg.offset_px)
         if progress is not None:
-            progress(k + 1, len(dirs))
+            progress(n_done + k + 1, n_total)
+    stats = [{"direction": int(d["index"]), **{k: v for k, v in d["images"]["B"]["parallax"].items() if k != "file"}}
+             for d in writer.meta["directions"]]
     if timings is not None:
         timings["registration"] = timings.get("registration", 0.0) + time.perf_counter() - t1
     return MergedDirections.open(merged.path), calibration, stats

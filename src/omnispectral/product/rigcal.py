@@ -32,15 +32,24 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
+from omnispectral.concurrency import ordered_thread_map
 from omnispectral.errors import InputFileError
-from omnispectral.imaging.disparity import PARALLAX_MIN_CONFIDENCE, block_size_for, measure_blocks
+from omnispectral.imaging.disparity import (
+    CALIBRATION_ANALYSIS_PX,
+    PARALLAX_MIN_CONFIDENCE,
+    analysis_factor,
+    bin_image,
+    binned_to_full_px,
+    block_size_for,
+    measure_blocks,
+)
 from omnispectral.imaging.geometry import CameraModel
 from omnispectral.imaging.registration import as_gray
 from omnispectral.io import atomic_write_json, read_text_file
@@ -111,12 +120,15 @@ def measure_direction(direction: int, image_a: np.ndarray, image_b: np.ndarray, 
 
     maps = cached_maps(model_a, model_b)
     warped, seen = warp_b_onto_a(image_b, maps)
-    block = block_size_for(model_a.width, model_a.height)
-    bs = measure_blocks(as_gray(image_a), as_gray(warped), block, min_confidence)
+    # large sensors are measured binned (a 2048-px image in 2 x 2 bins): the blocks then see as much of the
+    # scene as on a 1024-px sensor, at a quarter of the cost; positions are brought back to full pixels
+    f = analysis_factor(model_a.width, model_a.height, CALIBRATION_ANALYSIS_PX)
+    block = block_size_for(model_a.width // f, model_a.height // f)
+    bs = measure_blocks(as_gray(bin_image(image_a, f)), as_gray(bin_image(warped, f)), block, min_confidence)
     conf = bs.confidence
-    gy, gx = np.meshgrid(bs.y_px, bs.x_px, indexing="ij")
-    tx, ty = gx + bs.dx, gy + bs.dy
-    ok = bs.reliable & _inside(seen, gx, gy, block) & _inside(seen, tx, ty, block)
+    gy, gx = np.meshgrid(binned_to_full_px(bs.y_px, f), binned_to_full_px(bs.x_px, f), indexing="ij")
+    tx, ty = gx + bs.dx * f, gy + bs.dy * f
+    ok = bs.reliable & _inside(seen, gx, gy, block * f) & _inside(seen, tx, ty, block * f)
     if not ok.any():
         return RigMeasurements.empty()
     a_px = np.stack([gx[ok], gy[ok]], axis=-1)
@@ -152,6 +164,7 @@ class RigCalibration:
     far_anchor: dict
     directions: list[dict]
     source: str = ""
+    created_utc: str = field(default_factory=lambda: _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"))
 
     def apply(self, model_b: CameraModel) -> CameraModel:
         """Camera B's model with the calibrated mounting (lens unchanged)."""
@@ -170,7 +183,7 @@ class RigCalibration:
 
     def to_dict(self) -> dict:
         return {"format": CALIBRATION_FORMAT, "format_version": 1, "rig": self.rig_name,
-                "created_utc": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"), "source": self.source,
+                "created_utc": self.created_utc, "source": self.source,
                 "camera_b_mounting": self.mounting, "delta_from_rig_file_deg":
                     dict(zip(("yaw", "pitch", "roll"), self.delta_deg, strict=True)),
                 "n_blocks": self.n_blocks, "n_inliers": self.n_inliers,
@@ -202,7 +215,8 @@ class RigCalibration:
         delta = (float(d["yaw"]), float(d["pitch"]), float(d["roll"]))
         return cls(data.get("rig", ""), data["camera_b_mounting"], delta,
                    int(data["n_blocks"]), int(data["n_inliers"]), float(data["rms_perpendicular_px"]),
-                   data.get("far_anchor", {}), data.get("directions", []), source or data.get("source", ""))
+                   data.get("far_anchor", {}), data.get("directions", []), source or data.get("source", ""),
+                   data.get("created_utc", ""))
 
 
 def _epipolar(model_a, model_b, a_px, w) -> tuple[np.ndarray, np.ndarray]:
@@ -336,10 +350,13 @@ def calibrate_from_merged(merged, progress=None) -> RigCalibration:
     model_a, model_b = merged.cameras["A"], merged.cameras["B"]
     meas = RigMeasurements.empty()
     sources = {(s.direction, s.camera): s for s in merged.sources()}
-    dirs = sorted({d for d, _ in sources})
-    for i, d in enumerate(dirs):
-        if (d, "A") in sources and (d, "B") in sources:
-            meas.extend(measure_direction(d, sources[(d, "A")].read(), sources[(d, "B")].read(), model_a, model_b))
+    dirs = [d for d in sorted({d for d, _ in sources}) if (d, "A") in sources and (d, "B") in sources]
+
+    def measure(d: int) -> RigMeasurements:
+        return measure_direction(d, sources[(d, "A")].read(), sources[(d, "B")].read(), model_a, model_b)
+
+    for i, m in enumerate(ordered_thread_map(measure, dirs)):
+        meas.extend(m)
         if progress is not None:
             progress(i + 1, len(dirs))
     return fit_b_mounting(meas, model_a, model_b, rig_name=merged.meta.get("rig", {}).get("name", ""))

@@ -126,7 +126,7 @@ class ViewerState:
                 "resolution": max(64, self.levels[-1]["cols"]), "base": list(BASE_SIZE),
                 "bands": r.bands, "modes": list(MODES), "units": r.index["units"],
                 "wavelength_nm": [float(x) for x in r.estimator.wavelength_nm],
-                "uncertainty_max": r.uncertainty_max}
+                "uncertainty_max": r.uncertainty_max, "has_quality": r.has_quality}
 
 
 # ---------------------------------------------------------------------- parameter parsing
@@ -165,7 +165,7 @@ def _display(request: Request, state: ViewerState) -> Display:
         raise BadRequest(f"mode {mode[:40]!r} is not one of {', '.join(MODES)}")
     band = _int_text(request.query_params.get("band", "0"), "band", len(state.renderer(0).bands) - 1)
     ev = round(_float(request, "ev", 0.0, -40.0, 40.0), 2)
-    return Display(mode, band if mode == "band" else 0, ev if mode != "uncertainty" else 0.0)
+    return Display(mode, band if mode == "band" else 0, ev if mode in ("colour", "band") else 0.0)
 
 
 def _png(data: bytes) -> Response:

@@ -17,7 +17,11 @@ Display modes (:data:`MODES`):
 - ``uncertainty``: the relative posterior standard deviation of the spectrum (RMS of σ over RMS of the
   estimate, paper Eq. (7) posterior), shown with the viridis colour map from 0 to ``uncertainty_max``;
   it is computed on a grid 4 × coarser than the window and interpolated (the posterior solves 6 × 6
-  systems per pixel and per light-source component) and does not depend on the exposure.
+  systems per pixel and per light-source component) and does not depend on the exposure;
+- ``registration``: camera B's registration confidence (viridis, 0 to 1) from the panorama's quality
+  layer (``panorama.zarr/quality``, written when B was registered with per-pixel parallax), occluded
+  pixels in red (B's bands there come from a view hidden by a nearer surface); level 0 sampled at the
+  nearest pixel.
 """
 
 from __future__ import annotations
@@ -36,7 +40,9 @@ from omnispectral.imaging.geometry import lonlat_to_ray
 from omnispectral.product.exports import reinhard_srgb8
 from omnispectral.product.spectra import linear_srgb_map, open_product
 
-MODES = ("colour", "band", "uncertainty")
+MODES = ("colour", "band", "uncertainty", "registration")
+#: Colour of occluded pixels in the ``registration`` mode.
+OCCLUDED_RGB = (230, 30, 30)
 #: Automatic exposure puts this percentile of the luminance (or band value) at 1 before the tone curve.
 AUTO_PERCENTILE = 99.0
 #: Subsampling of the window on which the posterior uncertainty is computed.
@@ -112,6 +118,7 @@ class SlotRenderer:
         u = u[np.isfinite(u)]
         self.uncertainty_max = float(np.ceil(np.percentile(u, 99) * 20) / 20) if u.size else 1.0
         self._lut = viridis_lut()
+        self.has_quality = self.store.has_quality()
 
     # ------------------------------------------------------------------ reading
     def read(self, level: int, rows: slice = slice(None), cols: slice = slice(None)) -> np.ndarray:
@@ -143,7 +150,25 @@ class SlotRenderer:
             raise ConfigurationError(f"band {display.band} does not exist (0-{len(self.bands) - 1})")
         return bands[..., display.band:display.band + 1] * gain
 
+    def _quality_window(self, level: int, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
+        """The quality layer (confidence, occluded) under a window of ``level``, nearest level-0 pixel."""
+        if not self.has_quality:
+            raise ConfigurationError("this product has no registration-quality layer (camera B was registered "
+                                     "with one offset per direction: process --registration paper)")
+        f = 2**level
+        h0, w0 = self.shapes[0]
+        rows = np.clip((np.arange(r0, r1) + 0.5) * f, 0, h0 - 1).astype(int)
+        cols = np.clip((np.arange(c0, c1) + 0.5) * f, 0, w0 - 1).astype(int)
+        q = self.store.read_quality(slice(int(rows[0]), int(rows[-1]) + 1), slice(int(cols[0]), int(cols[-1]) + 1))
+        return q[(rows - rows[0])[:, None], (cols - cols[0])[None, :]]
+
     def _to_rgb8(self, quantity: np.ndarray, display: Display) -> np.ndarray:
+        if display.mode == "registration":
+            conf, occ = quantity[..., 0], quantity[..., 1]
+            rgb = self._lut[np.clip(np.nan_to_num(conf, nan=0.0) * 255, 0, 255).astype(np.uint8)]
+            rgb[np.nan_to_num(occ) > 0.5] = OCCLUDED_RGB
+            rgb[~np.isfinite(conf)] = 0
+            return rgb
         if display.mode == "uncertainty":
             q = quantity[..., 0]
             idx = np.clip(np.nan_to_num(q / self.uncertainty_max, nan=0.0) * 255, 0, 255).astype(np.uint8)
@@ -166,11 +191,15 @@ class SlotRenderer:
         ys = (v0 + (np.arange(out_h) + 0.5) / out_h * (v1 - v0)) * h - 0.5
         c0, c1 = max(0, int(np.floor(xs[0])) - 1), min(w, int(np.ceil(xs[-1])) + 2)
         r0, r1 = max(0, int(np.floor(ys[0])) - 1), min(h, int(np.ceil(ys[-1])) + 2)
-        quantity = np.ascontiguousarray(self._quantity(self.read(level, slice(r0, r1), slice(c0, c1)), display))
+        if display.mode == "registration":
+            quantity = np.ascontiguousarray(self._quality_window(level, r0, r1, c0, c1), np.float32)
+        else:
+            quantity = np.ascontiguousarray(self._quantity(self.read(level, slice(r0, r1), slice(c0, c1)), display))
         map_x = np.broadcast_to((xs - c0).astype(np.float32)[None, :], (out_h, out_w))
         map_y = np.broadcast_to((ys - r0).astype(np.float32)[:, None], (out_h, out_w))
+        interp = cv2.INTER_NEAREST if display.mode == "registration" else cv2.INTER_LINEAR
         planes = [cv2.remap(quantity[..., i], np.ascontiguousarray(map_x), np.ascontiguousarray(map_y),
-                            cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE) for i in range(quantity.shape[-1])]
+                            interp, borderMode=cv2.BORDER_REPLICATE) for i in range(quantity.shape[-1])]
         return self._to_rgb8(np.stack(planes, axis=-1), display)
 
     def render_tile(self, display: Display, level: dict, col: int, row: int) -> np.ndarray:
@@ -184,7 +213,7 @@ class SlotRenderer:
     def auto_ev(self, display: Display, lon_deg: float, lat_deg: float, fov_deg: float) -> float:
         """Exposure (stops, relative to the automatic one) that puts the 99th percentile of what is within
         ``fov_deg / 2`` of the direction ``(lon, lat)`` at 1, on the coarsest level."""
-        if display.mode == "uncertainty":
+        if display.mode in ("uncertainty", "registration"):
             return 0.0
         h, w = self._coarse.shape[:2]
         lon = (np.arange(w) + 0.5) / w * 360 - 180

@@ -52,11 +52,12 @@ function reload() {
 $('title').textContent = `${info.name}  (${info.width}×${info.height})`;
 info.bands.forEach((name, i) => { $('band').add(new Option(name, String(i))); });
 $('legend').innerHTML = `<span style="left:0">0</span><span style="right:0">${info.uncertainty_max}</span>`;
+if (!info.has_quality) $('mode-registration').remove();
 
 $('mode').addEventListener('change', () => {
   state.mode = $('mode').value;
   $('band-row').hidden = state.mode !== 'band';
-  $('ev-row').hidden = state.mode === 'uncertainty';
+  $('ev-row').hidden = state.mode === 'uncertainty' || state.mode === 'registration';
   $('legend').hidden = state.mode !== 'uncertainty';
   reload();
 });

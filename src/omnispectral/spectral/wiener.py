@@ -164,6 +164,17 @@ def _finish_std(variance: np.ndarray, g: np.ndarray, out: np.ndarray) -> None:
     out[...] = variance
 
 
+class _Workspace(dict):
+    """Per-thread scratch arrays reused from block to block (no allocation, no page faults per block)."""
+
+    def get(self, name: str, shape: tuple[int, ...], dtype=np.float64) -> np.ndarray:
+        key = (name, shape, np.dtype(dtype))
+        arr = dict.get(self, key)
+        if arr is None:
+            arr = self[key] = np.empty(shape, dtype)
+        return arr
+
+
 class _MixtureKernel:
     """Stacked per-component constants of a fitted estimator and the fused per-block evaluations.
 
@@ -243,60 +254,87 @@ class _MixtureKernel:
                               * np.where(iu[0] == iu[1], 1.0, 2.0)[:, None] for j in range(K)])  # (K, m(m+1)/2, n)
 
     # ------------------------------------------------------------------ constant noise (sigma2 I)
-    def normalized(self, r64: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Brightness ``g = a^t rho`` and ``rho / g`` (``g = 1`` for the absolute form), as the reference does."""
-        if self.a is None:
-            return np.ones(r64.shape[0]), r64
-        g = r64 @ self.a
-        g[np.abs(g) < 1e-30] = 1e-30
-        return g, r64 / g[:, None]
+    def normalized(self, r: np.ndarray, ws: _Workspace) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``rho`` (float64), brightness ``g = a^t rho`` and ``(rho / g)^t`` ``(m, N)``, as the reference does.
 
-    def posterior(self, rho_n: np.ndarray) -> np.ndarray:
-        """Component posterior ``p(j | rho)`` ``(N, K)`` under ``sigma2 I`` noise (float64).
+        ``g = 1`` for the absolute form.  Buffers come from the thread's workspace ``ws``.
+        """
+        N = r.shape[0]
+        r64 = ws.get("r64", (N, self.m))
+        np.copyto(r64, r)
+        g = ws.get("g", (N,))
+        rho_n_t = ws.get("rho_n_t", (self.m, N))
+        if self.a is None:
+            g[...] = 1.0
+            np.copyto(rho_n_t, r64.T)
+        else:
+            np.matmul(r64, self.a, out=g)
+            g[np.abs(g) < 1e-30] = 1e-30
+            np.divide(r64.T, g, out=rho_n_t)
+        return r64, g, rho_n_t
+
+    def posterior(self, rho_n_t: np.ndarray, ws: _Workspace) -> np.ndarray:
+        """Component posterior ``p(j | rho)`` ``(K, N)`` under ``sigma2 I`` noise (float64), in ``ws``.
 
         The K log-likelihoods are one product of the quadratic features of ``rho_n`` (products,
-        values, 1) with ``quad_form`` ``(K, F)``; the rest runs in ``(K, N)`` layout (reductions
+        values, 1) with ``quad_form`` ``(K, F)``; the softmax runs in ``(K, N)`` layout (reductions
         over K along contiguous rows), in place.  Posteriors below 1e-30 are set to zero: they
         are far below float32 resolution, and subnormal numbers would slow the products that
         follow tenfold.
         """
-        N = rho_n.shape[0]
+        N = rho_n_t.shape[1]
+        p = ws.get("posterior", (self.K, N))
         if self.K == 1:
-            return np.ones((N, 1))
-        x = rho_n.T
-        feats = np.empty((self.quad_form.shape[1], N))
-        np.multiply(x[self.triu[0]], x[self.triu[1]], out=feats[:len(self.triu[0])])
-        feats[len(self.triu[0]):-1] = x
+            p[...] = 1.0
+            return p
+        n_quad = len(self.triu[0])
+        feats = ws.get("features", (self.quad_form.shape[1], N))
+        for i, (a, b) in enumerate(zip(*self.triu, strict=True)):
+            np.multiply(rho_n_t[a], rho_n_t[b], out=feats[i])
+        feats[n_quad:-1] = rho_n_t
         feats[-1] = 1.0
-        logp = self.quad_form @ feats  # (K, N)
-        logp -= logp.max(axis=0)
-        np.maximum(logp, -100.0, out=logp)
-        np.exp(logp, out=logp)
-        logp[logp < 1e-30] = 0.0
-        logp /= logp.sum(axis=0)
-        return logp.T
+        np.matmul(self.quad_form, feats, out=p)
+        column = ws.get("column", (N,))
+        np.max(p, axis=0, out=column)
+        p -= column
+        np.maximum(p, -100.0, out=p)
+        np.exp(p, out=p)
+        p[p < 1e-30] = 0.0
+        np.sum(p, axis=0, out=column)
+        p /= column
+        return p
 
-    def estimate(self, r: np.ndarray, out: np.ndarray) -> None:
+    def posterior_into(self, r: np.ndarray, out: np.ndarray, ws: _Workspace) -> None:
+        """Component posterior of a block into ``out`` ``(N, K)``."""
+        out[...] = self.posterior(self.normalized(r, ws)[2], ws).T
+
+    def estimate(self, r: np.ndarray, out: np.ndarray, ws: _Workspace) -> None:
         """Mixture estimate of a block ``r`` ``(N, m)`` into ``out`` ``(N, n)`` (float32 or float64).
 
         ``out = rho @ T_mean (+ p @ b) + (p (x) rho) @ D``: the first part in float64, the
         ``(K m) x n`` product accumulated onto it by one BLAS ``gemm`` (beta = 1).  The product runs
         in float32 for float32 input and output in the normalized form (measured error <= 6e-7 of
         each spectrum's peak: its terms cancel ~10x); the absolute form's maps cancel ~25x, so it
-        and float64 data stay in float64.
+        and float64 data stay in float64.  All temporaries live in the thread's workspace ``ws``.
         """
-        r64 = r.astype(np.float64)
-        p = self.posterior(self.normalized(r64)[1])
+        N = r.shape[0]
+        r64, _, rho_n_t = self.normalized(r, ws)
+        p = self.posterior(rho_n_t, ws)
         single = out.dtype == np.float32 and r.dtype == np.float32 and self.a is not None
         work = np.float32 if single else np.float64
-        coef_t = np.empty((self.K, self.m, r.shape[0]), dtype=work)  # (p (x) rho)^t, pixels contiguous
-        np.multiply(p.T.astype(work)[:, None, :], r.T.astype(work, copy=False)[None, :, :], out=coef_t)
-        coef_t = coef_t.reshape(self.K * self.m, -1)
-        base = r64 @ self.T_mean
+        coef_t = ws.get("coef_t", (self.K, self.m, N), work)  # (p (x) rho)^t, pixels contiguous
+        p_w = ws.get("p_work", (self.K, N), work)
+        np.copyto(p_w, p)
+        r_w = ws.get("r_work_t", (self.m, N), work)
+        np.copyto(r_w, r.T)
+        np.multiply(p_w[:, None, :], r_w[None, :, :], out=coef_t)
+        coef_t = coef_t.reshape(self.K * self.m, N)
+        base = ws.get("base", (N, self.n))
+        np.matmul(r64, self.T_mean, out=base)
         if self.has_offset:
-            base += p @ self.b
+            base += p.T @ self.b
         if out.dtype == work and out.flags.c_contiguous:
-            out[...] = base
+            np.copyto(out, base)
             gemm = blas.sgemm if single else blas.dgemm
             # Fortran view: out^t (n, N) += D^t (n, K m) @ coef^t (K m, N), written in place
             res = gemm(1.0, self.D32.T if single else self.D64.T, coef_t.T, beta=1.0, c=out.T,
@@ -307,26 +345,50 @@ class _MixtureKernel:
             base += coef_t.T @ self.D64
             out[...] = base
 
-    def posterior_std(self, r: np.ndarray, out: np.ndarray) -> None:
+    def posterior_std(self, r: np.ndarray, out: np.ndarray, ws: _Workspace) -> None:
         """Posterior standard deviation (within-component variance plus spread of the component estimates).
 
-        The component estimates per unit brightness are ``E_j = x D_j (+ T_mean x)`` with
-        ``x = [rho_n, 1]`` (the 1 carries the absolute form's offsets); their spread is computed
-        without forming the ``(N, K, n)`` stack (see :func:`_weighted_spread`).
+        The component estimates per unit brightness are ``E_j = x B_j`` up to a common term, with
+        ``x = [rho_n, 1]`` (the 1 carries the absolute form's offsets) and ``B_j`` the centred maps
+        ``spread_basis``.  Normalized form: the spread ``sum_j p_j E_j^2 - (sum_j p_j E_j)^2`` from
+        two products of posterior-weighted (quadratic) features of ``x``, computed once for all
+        components; absolute form: the differences formed explicitly (:func:`_weighted_spread`).
         """
-        r64 = r.astype(np.float64)
-        g, rho_n = self.normalized(r64)
-        p = self.posterior(rho_n)
-        x = np.concatenate([rho_n, np.ones((rho_n.shape[0], 1))], axis=1) if self.has_offset else rho_n
-        within = p @ self.post_var
-        within += _weighted_spread(p, np.broadcast_to(x[:, None, :], (x.shape[0], self.K, x.shape[1])),
-                                   self.spread_basis, self.spread_quad if self.a is not None else None)
+        _, g, rho_n_t = self.normalized(r, ws)
+        N = r.shape[0]
+        p = self.posterior(rho_n_t, ws)  # (K, N)
+        within = ws.get("within", (N, self.n))
+        np.matmul(p.T, self.post_var, out=within)
+        if self.a is None:
+            x = rho_n_t.T
+            if self.has_offset:
+                x = np.concatenate([x, np.ones((N, 1))], axis=1)
+            within += _weighted_spread(p.T, np.broadcast_to(x[:, None, :], (N, self.K, x.shape[1])),
+                                       self.spread_basis, None)
+        else:
+            q = self.spread_basis.shape[1]  # = m (no offsets in the normalized form)
+            pairs = list(zip(*np.triu_indices(q), strict=True))
+            weighted = ws.get("p_x", (self.K, q, N))
+            np.multiply(p[:, None, :], rho_n_t[None, :, :], out=weighted)
+            mean = ws.get("spread_mean", (N, self.n))
+            np.matmul(weighted.reshape(-1, N).T, self.spread_basis.reshape(-1, self.n), out=mean)
+            quad = ws.get("quad", (len(pairs), N))
+            for i, (a, b) in enumerate(pairs):
+                np.multiply(rho_n_t[a], rho_n_t[b], out=quad[i])
+            weighted_quad = ws.get("p_quad", (self.K, len(pairs), N))
+            np.multiply(p[:, None, :], quad[None, :, :], out=weighted_quad)
+            second = ws.get("spread_second", (N, self.n))
+            np.matmul(weighted_quad.reshape(-1, N).T, self.spread_quad.reshape(-1, self.n), out=second)
+            mean *= mean
+            second -= mean
+            within += second
         _finish_std(within, g, out)
 
     # ------------------------------------------------------------------ per-pixel noise variance
-    def _noisy_components(self, r64, v):
+    def _noisy_components(self, r, v, ws):
         """Per component: ``x = A^-1 (rho_n - R mu)`` ``(N, K, m)``, posterior ``(N, K)`` and ``A^-1`` (upper)."""
-        g, rho_n = self.normalized(r64)
+        _, g, rho_n_t = self.normalized(r, ws)
+        rho_n = rho_n_t.T
         var_n = v / (g * g)[:, None] if self.a is not None else v
         N, m = rho_n.shape
         logp = np.empty((self.K, N))
@@ -348,24 +410,24 @@ class _MixtureKernel:
         p /= p.sum(axis=0, keepdims=True)
         return g, p.T, xs, a_upper
 
-    def estimate_noisy(self, r: np.ndarray, v: np.ndarray, out: np.ndarray) -> None:
+    def estimate_noisy(self, r: np.ndarray, v: np.ndarray, out: np.ndarray, ws: _Workspace) -> None:
         """Estimate with noise covariance ``sigma2 I + diag(v)`` per pixel: ``g (mu_bar + sum_j p_j [x_j, 1] B_j)``."""
-        g, p, xs, _ = self._noisy_components(r.astype(np.float64), v.astype(np.float64))
+        g, p, xs, _ = self._noisy_components(r, v.astype(np.float64), ws)
         est = (p[:, :, None] * xs).reshape(r.shape[0], -1) @ self.noisy_basis.reshape(-1, self.n)
         est += self.mean_of_means
         est *= g[:, None]
         out[...] = est
 
-    def posterior_std_noisy(self, r: np.ndarray, v: np.ndarray, out: np.ndarray) -> None:
+    def posterior_std_noisy(self, r: np.ndarray, v: np.ndarray, out: np.ndarray, ws: _Workspace) -> None:
         """Posterior std with per-pixel noise: ``diag(C_j) - diag(RC_j^t A^-1 RC_j)`` plus the spread."""
-        g, p, xs, a_upper = self._noisy_components(r.astype(np.float64), v.astype(np.float64))
+        g, p, xs, a_upper = self._noisy_components(r, v.astype(np.float64), ws)
         within = p @ self.diagC
         within -= (p[:, :, None] * a_upper).reshape(r.shape[0], -1) @ self.quad.reshape(-1, self.n)
         within += _weighted_spread(p, xs, self.noisy_basis, self.noisy_quad if self.a is not None else None)
         _finish_std(within, g, out)
 
-    def posterior_noisy(self, r: np.ndarray, v: np.ndarray, out: np.ndarray) -> None:
-        out[...] = self._noisy_components(r.astype(np.float64), v.astype(np.float64))[1]
+    def posterior_noisy(self, r: np.ndarray, v: np.ndarray, out: np.ndarray, ws: _Workspace) -> None:
+        out[...] = self._noisy_components(r, v.astype(np.float64), ws)[1]
 
 
 def apply_linear_map(rho: np.ndarray, matrix: np.ndarray, offset: np.ndarray | None = None, dtype=np.float32,
@@ -552,7 +614,7 @@ class WienerEstimator:
 
     def _run_fast(self, rho, noise_variance, chunk_pixels, kernel_fn, width, dtype,
                   block_pixels: int = BLOCK_PIXELS) -> np.ndarray:
-        """Apply ``kernel_fn(rho_block, var_block, out_block)`` over blocks of pixels on a few threads.
+        """Apply ``kernel_fn(rho_block, var_block, out_block, workspace)`` over blocks of pixels on a few threads.
 
         Blocks are at most ``min(chunk_pixels, block_pixels)`` pixels, so the temporaries stay bounded
         and cache-resident; the threads take contiguous runs of blocks (one thread inside another
@@ -569,8 +631,9 @@ class WienerEstimator:
         slices = blocks(flat.shape[0], block)
 
         def run(part: list[slice]) -> None:
+            ws = _Workspace()
             for s in part:
-                kernel_fn(flat[s], None if var is None else var[s], out[s])
+                kernel_fn(flat[s], None if var is None else var[s], out[s], ws)
 
         if len(slices) <= 1:
             run(slices)
@@ -608,7 +671,7 @@ class WienerEstimator:
         elif kernel is None:
             return self._estimate_reference(rho, noise_variance, nonnegative, chunk_pixels, dtype)
         elif noise_variance is None:
-            out = self._run_fast(rho, None, chunk_pixels, lambda r, v, o: kernel.estimate(r, o),
+            out = self._run_fast(rho, None, chunk_pixels, lambda r, v, o, ws: kernel.estimate(r, o, ws),
                                  self.means.shape[1], dtype)
         else:
             out = self._run_fast(rho, noise_variance, chunk_pixels, kernel.estimate_noisy, self.means.shape[1], dtype,
@@ -626,7 +689,7 @@ class WienerEstimator:
         if kernel is None or (self.n_components == 1 and noise_variance is None):
             return self._posterior_std_reference(rho, noise_variance, chunk_pixels, dtype)
         if noise_variance is None:
-            return self._run_fast(rho, None, chunk_pixels, lambda r, v, o: kernel.posterior_std(r, o),
+            return self._run_fast(rho, None, chunk_pixels, lambda r, v, o, ws: kernel.posterior_std(r, o, ws),
                                   self.means.shape[1], dtype, BLOCK_PIXELS // 2)
         return self._run_fast(rho, noise_variance, chunk_pixels, kernel.posterior_std_noisy,
                               self.means.shape[1], dtype, NOISY_BLOCK_PIXELS // 2)
@@ -638,8 +701,8 @@ class WienerEstimator:
         if kernel is None:
             return self._component_posterior_reference(rho, noise_variance, chunk_pixels, dtype)
         if noise_variance is None:
-            def fn(r, v, o):
-                o[...] = kernel.posterior(kernel.normalized(r.astype(np.float64))[1])
+            def fn(r, v, o, ws):
+                kernel.posterior_into(r, o, ws)
         else:
             fn = kernel.posterior_noisy
         return self._run_fast(rho, noise_variance, chunk_pixels, fn, self.n_components, dtype,

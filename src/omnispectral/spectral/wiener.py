@@ -68,6 +68,7 @@ from omnispectral.threads import blocks, kernel_threads, single_threaded_blas
 
 DEFAULT_CHUNK_PIXELS = 1 << 15
 BLOCK_PIXELS = 4096  # pixels per block of the fast kernels: the block's temporaries stay in the L2 cache
+SMALL_CALL_PIXELS = 256  # below this no thread control: its overhead (~0.1 ms) would dominate
 NOISY_BLOCK_PIXELS = 16384  # per-pixel noise: ~100 vector operations per component, longer vectors amortise them
 
 
@@ -463,8 +464,11 @@ def apply_linear_map(rho: np.ndarray, matrix: np.ndarray, offset: np.ndarray | N
 
     slices = blocks(flat.shape[0], max(1, min(int(chunk_pixels), BLOCK_PIXELS)))
     threads = min(kernel_threads(), len(slices))
-    if threads <= 1:
+    if flat.shape[0] < SMALL_CALL_PIXELS:  # a few small products: BLAS starts no threads for them
         run(slices)
+    elif threads <= 1:
+        with single_threaded_blas():
+            run(slices)
     else:
         parts = [list(p) for p in np.array_split(np.array(slices, dtype=object), threads)]
         with single_threaded_blas(), ThreadPoolExecutor(threads) as pool:
@@ -635,7 +639,7 @@ class WienerEstimator:
             for s in part:
                 kernel_fn(flat[s], None if var is None else var[s], out[s], ws)
 
-        if len(slices) <= 1:
+        if flat.shape[0] < SMALL_CALL_PIXELS:  # a few small products: BLAS starts no threads for them
             run(slices)
             return out.reshape(*lead, width)
         threads = min(kernel_threads(), len(slices))

@@ -40,8 +40,9 @@ arrays of any leading shape, in chunks of pixels.
 Speed
 -----
 The per-pixel work runs as a few stacked matrix products per block of pixels (:class:`_MixtureKernel`):
-the K Mahalanobis distances from one product with the stacked whitening matrices
-(:math:`L_jL_j^t = (RC_jR^t+\\sigma^2I)^{-1}`), and the estimate
+the K log-likelihoods from one product of the 28 quadratic features of the normalized bands
+(:math:`\\rho_a\\rho_b`, :math:`\\rho_a`, 1) with the coefficients of
+:math:`-\\tfrac12(\\rho-R\\bar e_j)^t(RC_jR^t+\\sigma^2I)^{-1}(\\rho-R\\bar e_j)`, and the estimate
 :math:`\\sum_j p_j M_j\\rho = \\bar M\\rho + \\sum_j p_j (M_j-\\bar M)\\rho` from one product of the
 ``(K m)`` coefficients :math:`p\\otimes\\rho` with the stacked map differences (float32 for float32
 output; the prior-weighted mean map :math:`\\bar M` in float64, which keeps the float32 rounding of
@@ -114,12 +115,6 @@ def _spd_inverse_logdet(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return Ainv, logdet
 
 
-def _quadratic_features(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Products ``x_a x_b`` (``a <= b``) of the last axis of ``x`` and the ``(a, b)`` index pairs."""
-    ia, ib = np.triu_indices(x.shape[-1])
-    return x[..., ia] * x[..., ib], ia, ib
-
-
 def _spread_quadratic(basis: np.ndarray) -> np.ndarray:
     """``(K, q(q+1)/2, n)`` coefficients with ``(x B_j)^2 = quad(x) @ Q_j`` for bases ``B_j`` ``(q, n)``."""
     ia, ib = np.triu_indices(basis.shape[1])
@@ -181,9 +176,9 @@ class _MixtureKernel:
 
     Shapes: ``m`` bands, ``n`` wavelengths, ``K`` components.  ``T[j] = M_j^t`` ``(m, n)`` maps bands
     to spectra (``b[j]`` the offset of the absolute form), ``T_mean`` the prior-weighted mean map,
-    ``D`` ``(K m, n)`` the stacked differences ``T[j] - T_mean``; ``whiten`` ``(m, K m)`` the stacked
-    Cholesky factors of the inverse innovation covariances, ``whiten_offset`` the whitened
-    component means; ``log_norm`` ``log pi_j - log det(A_j) / 2``.
+    ``D`` ``(K m, n)`` the stacked differences ``T[j] - T_mean``; ``quad_form`` ``(K, 28)`` the
+    log-likelihoods as coefficients of the quadratic features; ``log_norm``
+    ``log pi_j - log det(A_j) / 2``; ``spread_*`` / ``noisy_*`` the bases of the posterior std.
     """
 
     def __init__(self, est: WienerEstimator):
@@ -194,15 +189,13 @@ class _MixtureKernel:
         self.a = est.normalization
         self.sigma2 = est.sigma2
         eye = np.eye(m)
-        whiten, offset, log_norm, maps, offsets, post_var, rc, rmu = [], [], [], [], [], [], [], []
+        log_norm, maps, offsets, post_var, rc, rmu = [], [], [], [], [], []
         for j in range(K):
             C, mu = est.covariances[j], est.means[j]
             RC = R @ C
             A = RC @ R.T + est.sigma2 * eye
+            np.linalg.cholesky(A)  # raises LinAlgError unless A is positive definite: the caller falls back
             A_inv = np.linalg.inv(A)
-            Lw = np.linalg.cholesky(A_inv)  # raises LinAlgError when A is singular: the caller falls back
-            whiten.append(Lw)
-            offset.append((R @ mu) @ Lw)
             log_norm.append(np.log(est.weights[j]) - 0.5 * np.linalg.slogdet(A)[1])
             M, b = est._component_map(j)
             maps.append(M.T)
@@ -210,14 +203,10 @@ class _MixtureKernel:
             post_var.append(np.diag(C) - np.einsum("mn,mk,kn->n", RC, A_inv, RC))
             rc.append(RC)
             rmu.append(R @ mu)
-        self.whiten = np.concatenate(whiten, axis=1)  # (m, K m)
-        self.whiten_offset = np.concatenate(offset)  # (K m,)
-        self.block_sum_scaled = -0.5 * np.kron(np.eye(K), np.ones((1, m)))  # (K, K m): -1/2 x sum of m squares
         self.log_norm = np.array(log_norm)
         with np.errstate(divide="ignore"):
             self.log_prior = np.log(est.weights)
         self.T = np.array(maps)  # (K, m, n)
-        self.T_all = np.concatenate(maps, axis=1)  # (m, K n)
         self.b = np.array(offsets)  # (K, n)
         self.has_offset = bool(np.any(self.b))
         self.T_mean = np.einsum("k,kmn->mn", est.weights, self.T)
@@ -227,7 +216,6 @@ class _MixtureKernel:
         self.means = est.means
         self.prior_A = np.array([rc[j] @ R.T + est.sigma2 * eye for j in range(K)])  # (K, m, m)
         self.RC = np.array(rc)  # (K, m, n)
-        self.RC_stack = self.RC.reshape(K * m, n)
         self.Rmu = np.array(rmu)  # (K, m)
         self.diagC = np.array([np.diag(c) for c in est.covariances])  # (K, n)
         iu = np.triu_indices(m)
@@ -613,7 +601,7 @@ class WienerEstimator:
             kernel = _MixtureKernel(self)
         except np.linalg.LinAlgError:
             return None
-        finite = all(np.all(np.isfinite(x)) for x in (kernel.whiten, kernel.T_mean, kernel.D64, kernel.log_norm))
+        finite = all(np.all(np.isfinite(x)) for x in (kernel.quad_form, kernel.T_mean, kernel.D64, kernel.post_var))
         return kernel if finite else None
 
     def _run_fast(self, rho, noise_variance, chunk_pixels, kernel_fn, width, dtype,

@@ -24,9 +24,13 @@ Ghosts (the paper's future work): with ``deghost=True`` a pixel whose usable exp
 with the merged value beyond their noise (``|I_k/t_k - I| > z sigma``, with a relative tolerance for
 model error) is re-merged from one reference exposure and the exposures consistent with it.
 
-Speed: the work is fused per row chunk in float32 (weights computed arithmetically for linear
-sensors, by table lookup for recovered responses), chunks run on a thread pool; no per-exposure
-float64 image is ever formed.
+Speed: the work is fused per row chunk in float32.  For linear sensors (raw frames) a compiled
+kernel (Numba, :func:`_fused_kernel`) walks each block of 2048 values through all exposures with
+the four sums of Eq. (1) held in cache: one read of the inputs and one write of the outputs, the
+same float32 operations in the same order as the NumPy evaluation (:func:`_merge_rows`, kept for
+recovered responses, for mixed frame dtypes and when Numba is missing; the tests hold the two
+bit-identical).  Row chunks run on :func:`omnispectral.threads.kernel_threads` threads; no
+per-exposure float64 image is ever formed.
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ from scipy import ndimage
 from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.response import CameraResponse
 from omnispectral.spectral.noise import CMV2000, SensorNoiseModel
+from omnispectral.threads import kernel_threads
 
 WEIGHTS = ("triangle", "noise")
 
@@ -172,6 +177,130 @@ def _merge_rows(model: _Model, frames: list[np.ndarray], rows: slice):
     return rad, var, den
 
 
+_FUSED: dict = {}
+
+
+def _fused_kernel():
+    """The compiled Eq. (1) kernel for linear sensors, or ``None`` without Numba.
+
+    Numba is imported here, not at module top: compiling costs ~1-2 s once per environment (the
+    result is cached on disk), which modules that import ``hdr`` without merging should not pay.
+    """
+    if "kernel" in _FUSED:
+        return _FUSED["kernel"]
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - numba is a dependency; the NumPy path stays correct without it
+        _FUSED["kernel"] = None
+        return None
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
+    def merge_linear(frames, start, stop, inv_t, t_squared, top, sat, var_a, var_b, triangle,
+                     sat64, shortest, longest, rad, var, den_out, saturated, dark):
+        """Eq. (1) over flat values ``start:stop`` of all frames into ``rad[0:stop-start]`` etc.
+
+        float32, the operations of :func:`_merge_rows` (and, when ``saturated`` is not empty, of
+        :func:`_fallbacks`) in the same order; blocks of 2048 values keep the sums in cache while
+        all exposures pass.
+        """
+        block = 2048
+        num_b = np.empty(block, np.float32)
+        den_b = np.empty(block, np.float32)
+        vnum_b = np.empty(block, np.float32)
+        zero = np.float32(0.0)
+        fallbacks = saturated.size > 0
+        # every loop runs over slices indexed from 0: index arithmetic like f[s0 + i] may wrap
+        # around (negative indices), which stops LLVM from vectorising (3-4x slower)
+        for s0 in range(start, stop, block):
+            n = min(s0 + block, stop) - s0
+            num, den, vnum = num_b[:n], den_b[:n], vnum_b[:n]
+            num[:] = zero
+            den[:] = zero
+            vnum[:] = zero
+            for k in range(len(frames)):
+                f = frames[k][s0:s0 + n]
+                it = inv_t[k]
+                it2 = it * it
+                if triangle:
+                    for i in range(n):
+                        x = np.float32(f[i])
+                        v = x * var_a + var_b
+                        w = min(x, top - x) if (x < sat) & (x > zero) else zero
+                        den[i] += w
+                        num[i] += w * (x * it)
+                        vnum[i] += w * w * v * it2
+                else:
+                    ts = t_squared[k]
+                    for i in range(n):
+                        x = np.float32(f[i])
+                        w = ts / (x * var_a + var_b) if (x < sat) & (x > zero) else zero
+                        den[i] += w
+                        num[i] += w * (x * it)
+            o = s0 - start
+            rad_o, var_o, den_o = rad[o:o + n], var[o:o + n], den_out[o:o + n]
+            for i in range(n):
+                d = den[i]
+                rad_o[i] = num[i] / d
+                var_o[i] = vnum[i] / (d * d) if triangle else np.float32(1.0) / d
+                den_o[i] = d
+            if fallbacks:  # saturated everywhere: the shortest exposure; dark: the longest
+                fs, fl = frames[shortest][s0:s0 + n], frames[longest][s0:s0 + n]
+                sat_o, dark_o = saturated[o:o + n], dark[o:o + n]
+                its, itl = inv_t[shortest], inv_t[longest]
+                for i in range(n):
+                    z_short = np.float32(fs[i])
+                    z_long = np.float32(fl[i])
+                    is_sat = np.float64(z_short) >= sat64  # _fallbacks compares the codes in float64
+                    is_dark = ((z_long <= zero) | ~(den[i] > zero)) & ~is_sat
+                    if is_sat:
+                        rad_o[i] = z_short * its
+                        var_o[i] = (z_short * var_a + var_b) * its * its
+                    elif is_dark:
+                        rad_o[i] = z_long * itl
+                        var_o[i] = (z_long * var_a + var_b) * itl * itl
+                    sat_o[i] = is_sat
+                    dark_o[i] = is_dark
+
+    _FUSED["kernel"] = merge_linear
+    return merge_linear
+
+
+def _fused_frames(model: _Model, frames: list[np.ndarray]):
+    """The frames as a tuple of flat arrays when the compiled kernel applies, else ``None``.
+
+    It applies to linear sensors (no response table) whose frames share one dtype.  (A tuple, not
+    a Numba typed list: the kernel is compiled once per bracket length and cached on disk, whereas
+    a typed list costs ~1.4 s of compilation in every new process.)
+    """
+    if model.lin_table is not None or len({f.dtype for f in frames}) != 1 or _fused_kernel() is None:
+        return None
+    return tuple(f.reshape(-1) for f in frames)
+
+
+def _merge_rows_fused(model: _Model, flat_frames, shape: tuple[int, int, int], rows: slice,
+                      out: HDRResult | None = None, extremes: tuple[int, int] = (0, 0)):
+    """:func:`_merge_rows` by the compiled kernel on the values of ``rows`` (same results, bit for bit).
+
+    With ``out`` the kernel also applies :func:`_fallbacks` (``extremes`` = shortest and longest
+    exposure) and writes straight into ``out``; it then returns only the sum of weights.
+    """
+    h, w, c = shape
+    r0, r1 = rows.indices(h)[:2]
+    lo, hi = r0 * w * c, r1 * w * c
+    den = np.empty(hi - lo, np.float32)
+    if out is not None:
+        rad, var = out.radiance.reshape(-1)[lo:hi], out.variance.reshape(-1)[lo:hi]
+        saturated, dark = out.saturated.reshape(-1)[lo:hi], out.dark.reshape(-1)[lo:hi]
+    else:
+        rad, var = np.empty(hi - lo, np.float32), np.empty(hi - lo, np.float32)
+        saturated = dark = np.empty(0, bool)
+    _FUSED["kernel"](flat_frames, lo, hi, (1.0 / model.times).astype(np.float32),
+                     (model.times**2).astype(np.float32), np.float32(model.top), np.float32(model.saturation_dn),
+                     np.float32(model.var_a), np.float32(model.var_b), model.weight == "triangle",
+                     float(model.saturation_dn), extremes[0], extremes[1], rad, var, den, saturated, dark)
+    shape = (r1 - r0, w, c)
+    return rad.reshape(shape), var.reshape(shape), den.reshape(shape)
+
 def _disagreement(model: _Model, frames, rows, rad, var, rel_tol):
     """Largest |I_k/t_k - I| / sigma over the usable exposures of each pixel (ghost statistic)."""
     zmax = np.zeros_like(rad)
@@ -255,7 +384,7 @@ def merge_exposures(frames: Sequence[np.ndarray], exposure_s: Sequence[float], b
                     weight: str = "triangle", noise: SensorNoiseModel | None = None,
                     saturation_dn: float | None = None, response: CameraResponse | None = None,
                     deghost: bool = False, reference: int | None = None, ghost_z: float = 5.0,
-                    ghost_rel_tol: float = 0.05, chunk_rows: int = 32, workers: int = 1) -> HDRResult:
+                    ghost_rel_tol: float = 0.05, chunk_rows: int = 32, workers: int | None = None) -> HDRResult:
     """Merge an exposure bracket into linear radiance per second (Eqs. (1)-(2)).
 
     Parameters
@@ -279,7 +408,8 @@ def merge_exposures(frames: Sequence[np.ndarray], exposure_s: Sequence[float], b
         one by exposure time) and the exposures consistent with it; such pixels are flagged in
         ``ghost`` (dilated by one pixel).
     chunk_rows, workers
-        Rows per work unit and threads (one thread is fastest on 2 cores: the merge is memory-bound).
+        Rows per work unit and threads (default :func:`omnispectral.threads.kernel_threads`: the
+        usable cores, one inside another thread pool such as a Dask worker).
 
     Returns
     -------
@@ -290,7 +420,7 @@ def merge_exposures(frames: Sequence[np.ndarray], exposure_s: Sequence[float], b
     if weight not in WEIGHTS:
         raise ConfigurationError(f"unknown weight {weight!r}; expected one of {WEIGHTS}")
     times = _check_inputs(frames, exposure_s, bit_depth)
-    frames = [np.asarray(f) if np.ndim(f) == 3 else np.asarray(f)[..., None] for f in frames]
+    frames = [np.ascontiguousarray(f if np.ndim(f) == 3 else np.asarray(f)[..., None]) for f in frames]
     h, w, c = frames[0].shape
     model = _build_model(times, bit_depth, weight, noise, saturation_dn, response, c)
     order = np.argsort(times)
@@ -300,16 +430,24 @@ def merge_exposures(frames: Sequence[np.ndarray], exposure_s: Sequence[float], b
                     np.zeros((h, w), bool) if deghost else None)
     zmax = np.zeros((h, w), np.float32) if deghost else None
 
+    flat_frames = _fused_frames(model, frames)
+
     def work(r0: int) -> None:
         rows = slice(r0, min(r0 + chunk_rows, h))
-        rad, var, den = _merge_rows(model, frames, rows)
+        if flat_frames is not None and zmax is None:  # merge and fallbacks in one pass, straight into out
+            _merge_rows_fused(model, flat_frames, (h, w, c), rows, out, (shortest, longest))
+            return
+        if flat_frames is not None:
+            rad, var, den = _merge_rows_fused(model, flat_frames, (h, w, c), rows)
+        else:
+            rad, var, den = _merge_rows(model, frames, rows)
         if zmax is not None:
             ok = den > 0
             z = _disagreement(model, frames, rows, np.where(ok, rad, 0), np.where(ok, var, 0), ghost_rel_tol)
             zmax[rows] = z.max(axis=-1)
         _fallbacks(model, frames, rows, rad, var, den, out, shortest, longest)
 
-    n_workers = max(1, int(workers))
+    n_workers = kernel_threads() if workers is None else max(1, int(workers))
     starts = range(0, h, chunk_rows)
     if n_workers > 1 and h > chunk_rows:
         with ThreadPoolExecutor(n_workers) as pool:

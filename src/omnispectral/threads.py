@@ -1,0 +1,63 @@
+"""Thread control for the per-pixel kernels (Wiener estimator, HDR merge).
+
+The kernels split an image into blocks of pixels and run them on a few Python threads (NumPy
+releases the GIL in ufuncs and matrix products); BLAS itself is held to one thread meanwhile, so
+two levels of parallelism never multiply (OpenBLAS threads spin while waiting: oversubscribed,
+they cost 5-8x on a loaded 2-core machine).  Inside somebody else's pool (a Dask worker thread,
+a ``ThreadPoolExecutor``) the kernels use one thread: the pool is already the parallelism.
+
+``OMNISPECTRAL_THREADS`` overrides the thread count.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+from threadpoolctl import ThreadpoolController
+
+_LOCK = threading.Lock()
+_DEPTH = 0
+_LIMITER = None
+_CONTROLLER: ThreadpoolController | None = None
+
+
+def kernel_threads() -> int:
+    """Threads for a per-pixel kernel: ``OMNISPECTRAL_THREADS``, else all usable cores on the main thread, else 1."""
+    env = os.environ.get("OMNISPECTRAL_THREADS", "").strip()
+    if env.isdigit() and int(env) > 0:
+        return int(env)
+    if threading.current_thread() is not threading.main_thread():
+        return 1
+    return max(1, len(os.sched_getaffinity(0)))
+
+
+@contextmanager
+def single_threaded_blas() -> Iterator[None]:
+    """Hold BLAS to one thread while the block is running (re-entrant and safe across threads).
+
+    threadpoolctl limits are process-wide, so nested or concurrent users share one limit: the
+    first to enter sets it, the last to leave restores the original.
+    """
+    global _DEPTH, _LIMITER, _CONTROLLER
+    with _LOCK:
+        if _DEPTH == 0:
+            if _CONTROLLER is None:
+                _CONTROLLER = ThreadpoolController()
+            _LIMITER = _CONTROLLER.limit(limits=1, user_api="blas")
+        _DEPTH += 1
+    try:
+        yield
+    finally:
+        with _LOCK:
+            _DEPTH -= 1
+            if _DEPTH == 0 and _LIMITER is not None:
+                _LIMITER.restore_original_limits()
+                _LIMITER = None
+
+
+def blocks(n_items: int, block: int) -> list[slice]:
+    """Consecutive slices of at most ``block`` items covering ``range(n_items)``."""
+    return [slice(s, min(s + block, n_items)) for s in range(0, n_items, max(1, int(block)))]

@@ -13,7 +13,8 @@ from __future__ import annotations
 
 import os
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 
 from threadpoolctl import ThreadpoolController
@@ -61,3 +62,39 @@ def single_threaded_blas() -> Iterator[None]:
 def blocks(n_items: int, block: int) -> list[slice]:
     """Consecutive slices of at most ``block`` items covering ``range(n_items)``."""
     return [slice(s, min(s + block, n_items)) for s in range(0, n_items, max(1, int(block)))]
+
+
+@contextmanager
+def single_threaded_libraries() -> Iterator[None]:
+    """BLAS and OpenCV's own thread pool held to one thread (for work that is parallel across items)."""
+    import cv2
+
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        with single_threaded_blas():
+            yield
+    finally:
+        cv2.setNumThreads(before)
+
+
+def ordered_thread_map(fn: Callable, items: Iterable, workers: int | None = None) -> Iterator:
+    """``fn(item)`` for every item on ``workers`` threads (default :func:`kernel_threads`, at most 4), at most
+    two items ahead per thread, yielded in order (results can be written as they come; memory bounded).
+
+    Used for per-direction work (camera B's block measurements and parallax): NumPy, SciPy's FFT and
+    OpenCV release the GIL, and the libraries' own pools are held to one thread meanwhile.
+    """
+    items = list(items)
+    workers = max(1, min(workers or kernel_threads(), 4))
+    if workers == 1 or len(items) < 2:
+        yield from (fn(x) for x in items)
+        return
+    with single_threaded_libraries(), ThreadPoolExecutor(workers) as pool:
+        pending = []
+        for x in items:
+            pending.append(pool.submit(fn, x))
+            if len(pending) >= 2 * workers:
+                yield pending.pop(0).result()
+        for f in pending:
+            yield f.result()

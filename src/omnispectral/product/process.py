@@ -162,7 +162,7 @@ def register_parallax(merged, calibration=None, progress=None, timings: dict | N
     if timings is not None:
         timings["rig_calibration"] = time.perf_counter() - t0
     t1 = time.perf_counter()
-    from omnispectral.concurrency import ordered_thread_map
+    from omnispectral.threads import ordered_thread_map
 
     sources = {(s.direction, s.camera): s for s in MergedDirections(merged.path, writer.meta).sources()}
     todo = [d for d in writer.meta["directions"] if "parallax" not in d["images"]["B"]

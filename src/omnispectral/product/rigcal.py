@@ -39,7 +39,6 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from omnispectral.concurrency import ordered_thread_map
 from omnispectral.errors import InputFileError
 from omnispectral.imaging.disparity import (
     CALIBRATION_ANALYSIS_PX,
@@ -53,6 +52,7 @@ from omnispectral.imaging.disparity import (
 from omnispectral.imaging.geometry import CameraModel
 from omnispectral.imaging.registration import as_gray
 from omnispectral.io import atomic_write_json, read_text_file
+from omnispectral.threads import ordered_thread_map
 
 CALIBRATION_FORMAT = "omnispectral-rig-calibration"
 #: A direction whose median perpendicular residual exceeds this (px) disagrees with the rig model.

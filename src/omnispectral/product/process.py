@@ -134,14 +134,14 @@ def register_parallax(merged, calibration=None, progress=None, timings: dict | N
     """
     import numpy as np
 
+    from omnispectral.imaging.geometry import CameraModel
     from omnispectral.mosaic.sources import MergedDirections, MergedDirectionsWriter
     from omnispectral.product.align import parallax_direction
     from omnispectral.product.rigcal import RigCalibration, calibrate_from_merged
+    from omnispectral.threads import ordered_thread_map
 
     t0 = time.perf_counter()
-    nominal = merged.meta.get("rig_file_camera_b") or merged.meta["cameras"]["B"]
-    from omnispectral.imaging.geometry import CameraModel
-
+    nominal = merged.meta.get("rig_file_camera_b") or merged.meta["cameras"]["B"]  # the rig file's camera B
     model_b_nominal = CameraModel.from_dict(nominal)
     if calibration is None:
         recorded = merged.meta.get("rig_calibration")
@@ -162,8 +162,6 @@ def register_parallax(merged, calibration=None, progress=None, timings: dict | N
     if timings is not None:
         timings["rig_calibration"] = time.perf_counter() - t0
     t1 = time.perf_counter()
-    from omnispectral.threads import ordered_thread_map
-
     sources = {(s.direction, s.camera): s for s in MergedDirections(merged.path, writer.meta).sources()}
     todo = [d for d in writer.meta["directions"] if "parallax" not in d["images"]["B"]
             or not (merged.path / d["images"]["B"]["parallax"]["file"]).is_file()]

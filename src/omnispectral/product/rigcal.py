@@ -261,7 +261,7 @@ def _split(meas: RigMeasurements, model_a, model_b) -> tuple[np.ndarray, np.ndar
     return w + w2, (w + w2) * np.sqrt(glen2), perp, gjg / glen2
 
 
-def _far_cluster(along_px: np.ndarray, weight: np.ndarray, half_px: float, min_count: int) -> tuple[float, np.ndarray]:
+def _far_cluster(along_px: np.ndarray, half_px: float, min_count: int) -> tuple[float, np.ndarray]:
     """Median of the lowest dense cluster of along-line residuals (the scene's farthest content)."""
     order = np.argsort(along_px)
     s = along_px[order]
@@ -305,7 +305,7 @@ def fit_b_mounting(meas: RigMeasurements, model_a: CameraModel, model_b: CameraM
         sigma = _robust_sigma(perp)
         usable = (along_weight >= ALONG_MIN_WEIGHT) & (np.abs(perp) <= max(3 * sigma, 0.2))
         # the window follows the measurement noise (estimated across the lines, where depth plays no part)
-        far, members = _far_cluster(along[usable], meas.confidence[usable], max(FAR_WINDOW_PX, sigma),
+        far, members = _far_cluster(along[usable], max(FAR_WINDOW_PX, sigma),
                                     max(5, int(FAR_MIN_FRACTION * usable.sum())))
         if np.isfinite(far):
             idx = np.flatnonzero(usable)[members]

@@ -705,19 +705,7 @@ class WienerEstimator:
     def _estimate_reference(self, rho: np.ndarray, noise_variance: np.ndarray | float | None = None,
                  nonnegative: bool = False, chunk_pixels: int = DEFAULT_CHUNK_PIXELS,
                  dtype=np.float32) -> np.ndarray:
-        """Estimate spectra for band values ``rho`` ``(..., m)``; returns ``(..., n)``.
-
-        Parameters
-        ----------
-        noise_variance
-            Optional per-pixel (and per-band) noise variance of ``rho`` in the same units squared,
-            broadcastable to ``rho``; added to :math:`\\sigma^2` (signal-dependent noise, e.g. from
-            the HDR merge).  Without it a single-component estimator is one matrix product.
-        nonnegative
-            Clip negative spectral values to zero (light is non-negative).
-        chunk_pixels
-            Pixels per chunk; bounds the temporary memory.
-        """
+        """The pre-fast-path :meth:`estimate` (same parameters), kept to check the fast path against."""
         if self.n_components == 1 and noise_variance is None:
             M, b = self.linear_map()
             # the fast path: one matrix product, in single precision for float32 output

@@ -71,7 +71,7 @@ PARALLAX_ANALYSIS_PX = 512
 CALIBRATION_ANALYSIS_PX = 1024
 #: Smallest normalised correlation that counts as a match in the sweep (noise alone reaches ~0.3 on 11 px windows).
 SWEEP_MIN_NCC = 0.5
-#: Correlation by which a finite depth must beat infinity in the sweep.
+#: Correlation by which a finite depth must beat infinity (and any other level far from it) in the sweep.
 SWEEP_ZERO_MARGIN = 0.03
 #: Steps searched beyond the range of a pixel's neighbouring blocks.
 SWEEP_MARGIN_STEPS = 4
@@ -397,6 +397,8 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
     prev = np.full((h, w), np.nan, np.float32)
     k_zero = int(np.argmin(np.abs(levels)))
     score_zero = np.full((h, w), -np.inf, np.float32)
+    score_own = np.full((h, w), -np.inf, np.float32)
+    rival = np.full((h, w), -np.inf, np.float32)
     for k, wk in enumerate(levels):
         wk2 = np.float32(wk * wk)
         moved = cv2.remap(gb, xx + np.float32(wk) * fx + wk2 * hx, yy + np.float32(wk) * fy + wk2 * hy,
@@ -407,9 +409,14 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
         right = np.where(best_k == k - 1, raw, right)
         if k == k_zero:
             score_zero = score
-        score_sel = np.where((wk >= lo) & (wk <= hi), score + np.where(np.abs(wk - own) <= dw / 2, 0.01, 0.0),
-                             -np.inf).astype(np.float32)
+        at_own = np.abs(wk - own) <= dw / 2
+        score_own = np.where(at_own, np.maximum(score_own, score), score_own)
+        score_sel = np.where((wk >= lo) & (wk <= hi), score + np.where(at_own, 0.01, 0.0), -np.inf).astype(np.float32)
         better = score_sel > best
+        # the best score of the levels at least two steps from the best: a match is distinctive when it
+        # beats them by a margin (the levels are visited in order, so this streaming update is exact)
+        rival = np.where(better, np.where(k - best_k >= 2, np.maximum(rival, best), rival),
+                         np.where(k - best_k >= 2, np.maximum(rival, score_sel), rival))
         left = np.where(better, prev, left)
         right = np.where(better, np.nan, right)
         best = np.where(better, score_sel, best)
@@ -427,11 +434,46 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
     frac = np.where(curved, 0.5 * (left - right) / np.where(curved, den, -1.0), 0.0)
     out = levels[best_k] + np.clip(np.nan_to_num(frac), -0.5, 0.5) * dw
     out = np.where(flat, own, out)
-    # infinity is the default: a depth must beat it by a margin (smooth content, e.g. the sun's halo,
-    # correlates almost as well at neighbouring levels and would otherwise wander by a fraction of a pixel)
-    zero_ok = (np.abs(levels[k_zero]) <= dw) & (lo <= 0) & (hi >= 0)
-    out = np.where(zero_ok & (centre - score_zero < SWEEP_ZERO_MARGIN), 0.0, out).astype(np.float32)
-    return cv2.medianBlur(out, 3), np.clip(np.where(flat, 0.0, centre), 0.0, 1.0).astype(np.float32)
+    # a prior the pixel's own match must beat by a margin: infinity where the blocks around see (nearly)
+    # infinity, else the block's value.  Smooth content (the sun's halo) correlates almost as well at
+    # neighbouring levels and would otherwise wander by a fraction of a pixel; the inside of a small
+    # uniform patch matches almost as well at several levels (a row of patches matches itself moved along
+    # the row) and would take any of them
+    zero_ok = (np.abs(levels[k_zero]) <= dw) & (lo <= 0) & (hi >= 0) & (np.abs(own) <= 2 * dw)
+    prior = np.where(zero_ok, 0.0, own)
+    score_prior = np.where(zero_ok, score_zero, score_own)
+    at_prior = centre - score_prior < SWEEP_ZERO_MARGIN
+    out = np.where(at_prior, prior, out).astype(np.float32)
+    # a pixel whose match other levels reach almost as well (or that matched nothing) takes the depth of
+    # its distinctive neighbours, unless it sits at infinity among blocks that see infinity
+    ambiguous = (flat | (best - rival < SWEEP_ZERO_MARGIN)) & ~(at_prior & zero_ok)
+    out = fill_from_neighbours(out, ambiguous, ~ambiguous)
+    return cv2.medianBlur(out, 3), np.clip(np.where(ambiguous, 0.0, centre), 0.0, 1.0).astype(np.float32)
+
+
+def fill_from_neighbours(values: np.ndarray, fill: np.ndarray, sources: np.ndarray, radius: int = 2,
+                         passes: int = 3) -> np.ndarray:
+    """Replace the ``fill`` pixels by the median of the ``sources`` pixels within ``radius`` (repeated
+    ``passes`` times, filled pixels serving as sources of the next pass, so that holes up to
+    ``2 · radius · passes`` pixels wide close from their rims); pixels with none in reach keep their value."""
+    out = values.astype(np.float32).copy()
+    known = sources & ~fill
+    todo = fill.copy()
+    h, w = out.shape
+    for _ in range(passes):
+        if not todo.any() or not known.any():
+            break
+        padded = np.pad(np.where(known, out, np.nan), radius, mode="constant", constant_values=np.nan)
+        stack = np.stack([padded[dy:dy + h, dx:dx + w] for dy in range(2 * radius + 1)
+                          for dx in range(2 * radius + 1)])[:, todo]
+        has = np.isfinite(stack).any(axis=0)
+        if not has.any():
+            break
+        idx = np.flatnonzero(todo.ravel())[has]
+        out.ravel()[idx] = np.nanmedian(stack[:, has], axis=0)
+        known.ravel()[idx] = True
+        todo.ravel()[idx] = False
+    return out
 
 
 @dataclass(frozen=True)

@@ -359,8 +359,13 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
     neighbouring blocks (± 4 steps: a block larger than an object mixes it with its background), refined
     by a parabola through the
     neighbouring levels.  Where nothing correlates (best correlation below :data:`SWEEP_MIN_NCC`: flat
-    areas, noise) or no neighbouring block was measured, the pixel keeps its own block's value.
-    Returns the inverse depth and the correlation reached (0 where flat), both ``(H, W)`` float32.
+    areas, noise) or no neighbouring block was measured, the pixel keeps its own block's value.  A prior
+    must be beaten by a margin (:data:`SWEEP_ZERO_MARGIN`): infinity where the blocks around see infinity,
+    else the block's value.  A pixel whose best match is not distinctive (a level two or more steps away
+    correlates almost as well: inside a uniform patch a few pixels wide, whose windows hold only edges
+    along the line), or that matched nothing, takes the median depth of its distinctive neighbours
+    (:func:`fill_from_neighbours`; choosing them by colour was tried and did not help at 3-px patches).
+    Returns the inverse depth and the correlation reached (0 where ambiguous), both ``(H, W)`` float32.
     """
     h, w = ga.shape
     by = np.clip(np.rint(np.interp(np.arange(h), y_px, np.arange(y_px.size))).astype(int), 0, y_px.size - 1)

@@ -7,8 +7,6 @@ import json
 import numpy as np
 import pytest
 
-from omnispectral.capture.rig import load_preset, rig_toml
-from omnispectral.capture.simulate import camera_model
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.imaging.geometry import (
     CameraModel,
@@ -38,6 +36,7 @@ from omnispectral.mosaic.maps import exact_map, tile_cone
 from omnispectral.mosaic.sources import MergedDirectionsWriter, encode_image, read_npy_rows
 from omnispectral.mosaic.store import box_average_2x2, pyramid_shapes
 from omnispectral.mosaic.synthetic import pad_over_poles, render_source, six_band_panorama, write_synthetic_merged
+from omnispectral.rig import camera_model, load_preset, rig_toml
 
 RIG = load_preset("small")  # the time-lapse geometry (95 x 61 deg, portrait, distortion) on a 256 x 136 sensor
 WIDTH = 256  # output panorama width in these tests

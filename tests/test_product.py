@@ -9,11 +9,11 @@ import shutil
 import numpy as np
 import pytest
 
-from omnispectral.capture.rig import load_preset, rig_from_dict
 from omnispectral.capture.simulate import simulate_session
 from omnispectral.cli import main
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.product.process import process
+from omnispectral.rig import load_preset, rig_from_dict
 
 NOON = dt.datetime(2017, 6, 21, 12, 0, tzinfo=dt.UTC)
 

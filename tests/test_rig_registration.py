@@ -9,9 +9,8 @@ import numpy as np
 import pytest
 
 from omnispectral.capture.plan import make_plan
-from omnispectral.capture.rig import load_preset
 from omnispectral.capture.scenes import PanoramaScene, ProceduralOutdoorScene
-from omnispectral.capture.simulate import RigRenderer, camera_model, true_mounting_error_deg
+from omnispectral.capture.simulate import RigRenderer, true_mounting_error_deg
 from omnispectral.imaging.disparity import epipolar_field, refine_block_shifts, shifted_positions
 from omnispectral.product.align import parallax_direction
 from omnispectral.product.rigcal import (
@@ -23,6 +22,7 @@ from omnispectral.product.rigcal import (
     measure_direction,
     predict_b_px,
 )
+from omnispectral.rig import camera_model, load_preset
 
 RIG = load_preset("small")
 

@@ -15,10 +15,10 @@ from pathlib import Path
 from omnispectral.capture import drivers
 from omnispectral.capture.devices import DeviceError, SimulatedHead, SystemClock
 from omnispectral.capture.plan import format_duration, make_plan
-from omnispectral.capture.rig import Rig
 from omnispectral.capture.run import RetryPolicy, run_capture
 from omnispectral.capture.session import CAMERAS, Session
 from omnispectral.errors import ConfigurationError, OmnispectralError
+from omnispectral.rig import Rig
 
 log = logging.getLogger(__name__)
 

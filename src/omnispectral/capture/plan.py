@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from omnispectral.capture.rig import Rig
 from omnispectral.errors import ConfigurationError
+from omnispectral.rig import Rig
 
 
 @dataclass(frozen=True)

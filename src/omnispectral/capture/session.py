@@ -29,9 +29,9 @@ from pathlib import Path
 import numpy as np
 
 from omnispectral.capture.plan import Plan
-from omnispectral.capture.rig import Rig, rig_from_dict, rig_toml
 from omnispectral.errors import InputFileError
 from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text
+from omnispectral.rig import Rig, rig_from_dict, rig_toml
 
 FORMAT_VERSION = 1
 CAMERAS = ("A", "B")

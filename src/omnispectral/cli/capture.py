@@ -8,7 +8,7 @@ from omnispectral.cli._common import console, print_json
 
 
 def add_rig_args(p) -> None:
-    from omnispectral.capture.rig import PRESETS
+    from omnispectral.rig import PRESETS
 
     g = p.add_mutually_exclusive_group()
     g.add_argument("--preset", choices=PRESETS, default=None, help="built-in rig of the paper (or 'small')")
@@ -16,7 +16,7 @@ def add_rig_args(p) -> None:
 
 
 def rig_from_args(args, default_preset: str | None = None):
-    from omnispectral.capture.rig import resolve_rig
+    from omnispectral.rig import resolve_rig
 
     preset = args.preset if args.preset or args.rig else default_preset
     return resolve_rig(preset, args.rig)

@@ -112,11 +112,11 @@ def _print_accuracy(acc: dict | None) -> None:
 
 
 def cmd_demo(args) -> int:
-    from omnispectral.capture.rig import load_preset
     from omnispectral.capture.simulate import simulate_session
     from omnispectral.cli.simulate import DEFAULT_DATE, build_scene
     from omnispectral.product.exports import export_product
     from omnispectral.product.process import process
+    from omnispectral.rig import load_preset
 
     out = Path(args.out)
     rig = load_preset("paper-timelapse" if args.full else "small")

@@ -540,9 +540,8 @@ def _rig_system(meta: dict) -> dict | None:
     """Sensitivities of the rig's six bands, if the rig snapshot can be read and its curves are known."""
     import tomllib
 
-    from omnispectral.capture.rig import rig_from_dict
-    from omnispectral.capture.simulate import rig_system
     from omnispectral.errors import OmnispectralError
+    from omnispectral.rig import rig_from_dict, rig_system
 
     text = (meta.get("rig") or {}).get("toml")
     if not text:

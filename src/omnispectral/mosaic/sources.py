@@ -345,9 +345,8 @@ def merge_session(session_path: str | Path, output: str | Path, *, register: Reg
     direction is read, so memory holds one direction.  Directions already written are skipped, and
     so are the planned directions in ``skip`` (e.g. ones with damaged frames), which are not planned here.
     """
-    from omnispectral.capture.rig import rig_toml
     from omnispectral.capture.session import Session
-    from omnispectral.capture.simulate import camera_model
+    from omnispectral.rig import camera_model, rig_toml
 
     session = Session.open(session_path)
     rig = session.rig()

@@ -13,8 +13,7 @@ from __future__ import annotations
 import functools
 import json
 
-from omnispectral.capture.rig import Rig
-from omnispectral.capture.simulate import two_camera_system
+from omnispectral.rig import Rig, two_camera_system
 from omnispectral.spectral.wiener import WienerEstimator
 
 HELD_OUT = "colorchecker"

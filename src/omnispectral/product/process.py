@@ -73,12 +73,11 @@ def merge_and_register(session_path: Path, out: Path, skip: set[int], min_confid
     registered to A by :func:`~omnispectral.product.align.align_direction`; returns the merged directions
     and the alignment of every direction."""
     from omnispectral.capture.session import Session
-    from omnispectral.capture.simulate import camera_model
     from omnispectral.mosaic.sources import merge_session
     from omnispectral.product.align import align_direction
 
     rig = Session.open(session_path).rig()
-    models = {c: camera_model(rig, c) for c in ("A", "B")}
+    models = {c: rig.camera_model(c) for c in ("A", "B")}
     t_reg, n_merged = 0.0, 0
 
     def register(direction: int, img_a, img_b):

@@ -19,8 +19,8 @@ from serial.tools import list_ports
 from omnispectral.capture.devices import Camera, DeviceError, PanTiltHead
 from omnispectral.capture.drivers.merlin import MerlinHead
 from omnispectral.capture.drivers.rodeon import RodeonHead
-from omnispectral.capture.rig import Rig
 from omnispectral.errors import ConfigurationError
+from omnispectral.rig import Rig
 
 #: keys of a camera's ``device = { driver = "genicam", … }`` table
 GENICAM_KEYS = ("driver", "cti", "serial", "user_id", "pixel_format", "gain_db", "fixed_exposure", "frame_rate_hz")

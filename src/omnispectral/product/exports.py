@@ -24,6 +24,7 @@ import numpy as np
 
 from omnispectral.errors import ConfigurationError
 from omnispectral.io import atomic_path
+from omnispectral.spectral.colour import spectra_to_linear_srgb, srgb_encode
 
 SPECTRAL_LAYOUT_VERSION = "1.0"
 
@@ -32,28 +33,6 @@ def spectral_channel_name(wavelength_nm: float, stokes: int = 0) -> str:
     """Fichet 2021 emissive channel name: ``S0.550,0nm`` (decimal comma, unit suffix)."""
     text = repr(float(wavelength_nm)).replace(".", ",")
     return f"S{stokes}.{text}nm"
-
-
-def spectra_to_xyz(spectra: np.ndarray, wavelength_nm: np.ndarray) -> np.ndarray:
-    """CIE 1931 2° tristimulus ``Σ S(λ) cmf(λ) Δλ`` of spectra ``(..., n)`` (no normalisation)."""
-    from omnispectral.spectral.metrics import cmfs_on_grid
-
-    cmfs = cmfs_on_grid(np.asarray(wavelength_nm, float)).T  # (n, 3)
-    dl = np.gradient(np.asarray(wavelength_nm, float))
-    return np.asarray(spectra, np.float32) @ (cmfs * dl[:, None]).astype(np.float32)
-
-
-def xyz_to_linear_srgb(xyz: np.ndarray) -> np.ndarray:
-    """Linear RGB with sRGB/Rec.709 primaries and D65 white (IEC 61966-2-1 matrix), no clipping."""
-    m = np.array([[3.2404542, -1.5371385, -0.4985314],
-                  [-0.9692660, 1.8760108, 0.0415560],
-                  [0.0556434, -0.2040259, 1.0572252]], np.float32)
-    return np.asarray(xyz, np.float32) @ m.T
-
-
-def spectra_to_linear_srgb(spectra: np.ndarray, wavelength_nm: np.ndarray) -> np.ndarray:
-    """Spectral radiance → linear sRGB-primaries RGB (Y = luminance in the spectra's units × Σȳ)."""
-    return xyz_to_linear_srgb(spectra_to_xyz(spectra, wavelength_nm))
 
 
 def tone_map_srgb(rgb_linear: np.ndarray, percentile: float = 99.0) -> np.ndarray:
@@ -72,8 +51,7 @@ def reinhard_srgb8(rgb_exposed: np.ndarray) -> np.ndarray:
     lx = x @ np.array([0.2126, 0.7152, 0.0722], np.float32) if x.shape[-1] == 3 else x[..., 0]
     scale = np.where(lx > 0, (1.8 * lx / (1.0 + lx)) / np.maximum(lx, 1e-12), 0.0)[..., None]
     y = np.clip(x * scale, 0, 1)
-    srgb = np.where(y <= 0.0031308, 12.92 * y, 1.055 * np.power(y, 1 / 2.4) - 0.055)
-    return np.round(srgb * 255).astype(np.uint8)
+    return np.round(srgb_encode(y) * 255).astype(np.uint8)
 
 
 def write_preview(path: str | Path, rgb_linear: np.ndarray) -> Path:

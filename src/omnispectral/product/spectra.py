@@ -38,7 +38,7 @@ def bands_to_linear_srgb(bands: np.ndarray, estimator) -> np.ndarray:
 def linear_srgb_map(bands: np.ndarray, estimator) -> tuple[np.ndarray, np.ndarray]:
     """``(6 × 3 matrix, offset (3,))`` taking six bands to linear sRGB-primaries RGB: the estimator's linear map
     for the region weights of ``bands`` (:func:`region_weights`), folded with the CIE 1931 observer."""
-    from omnispectral.product.exports import spectra_to_xyz, xyz_to_linear_srgb
+    from omnispectral.spectral.colour import spectra_to_xyz, xyz_to_linear_srgb
 
     m, b = estimator.linear_map(region_weights(bands, estimator))
     wl = np.asarray(estimator.wavelength_nm)
@@ -88,7 +88,7 @@ def spectrum_at(product: str | Path, lon_deg: float, lat_deg: float, level: int 
 def spectrum_in_store(index: dict, store, estimator, lon_deg: float, lat_deg: float, level: int = 0) -> dict:
     """:func:`spectrum_at` for a product already opened with :func:`open_product` (index, store, estimator)."""
     from omnispectral.imaging.geometry import lonlat_to_equirect_pixel
-    from omnispectral.product.exports import spectra_to_linear_srgb, spectra_to_xyz
+    from omnispectral.spectral.colour import spectra_to_linear_srgb, spectra_to_xyz
 
     if not (np.isfinite(lon_deg) and np.isfinite(lat_deg)) or abs(lat_deg) > 90:
         raise ConfigurationError(f"no direction at lon {lon_deg}, lat {lat_deg} (latitude must be in [-90, 90])")

@@ -24,6 +24,7 @@ import colour
 import numpy as np
 
 from omnispectral.errors import ConfigurationError
+from omnispectral.spectral.colour import cmfs_on_grid
 from omnispectral.spectral.curves import DEFAULT_WAVELENGTH_NM, SpectralSet, read_spectral_csv
 from omnispectral.spectral.evaluate import target_signals
 from omnispectral.spectral.library import (
@@ -36,7 +37,7 @@ from omnispectral.spectral.library import (
     load_illuminant,
     load_reflectances,
 )
-from omnispectral.spectral.metrics import cmfs_on_grid, nrmse
+from omnispectral.spectral.metrics import nrmse
 from omnispectral.spectral.prior import SpectralPrior, build_prior, calibration_signals
 from omnispectral.spectral.system import _sample_widths_nm
 

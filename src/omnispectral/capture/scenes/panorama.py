@@ -28,8 +28,8 @@ import colour
 import numpy as np
 
 from omnispectral.capture.scenes.base import RAY_BLOCK, BandProjectionCache, Scene, as_directions, as_origin
-from omnispectral.capture.scenes.sky import K_M_LM_PER_W, cmfs_xyz
 from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.spectral.colour import K_M_LM_PER_W, LUMINOUS_GRID_NM, cmfs_xyz
 from omnispectral.spectral.curves import DEFAULT_WAVELENGTH_NM
 
 
@@ -100,7 +100,7 @@ def mallett2019_emission_basis(wavelength_nm) -> np.ndarray:
         raise ConfigurationError(f"the Mallett 2019 basis covers {basis.wavelengths[0]:g}-{basis.wavelengths[-1]:g} "
                                  f"nm; the wavelength grid {wl.min():g}-{wl.max():g} nm goes beyond it")
     d65 = colour.SDS_ILLUMINANTS["D65"]
-    grid = np.arange(360.0, 830.0 + 1e-9, 5.0)
+    grid = LUMINOUS_GRID_NM
     k = K_M_LM_PER_W * float(np.sum(np.interp(grid, d65.wavelengths, d65.values) * cmfs_xyz(grid)[:, 1])) * 5.0
     e = np.interp(wl, d65.wavelengths, d65.values) / k
     return np.stack([np.interp(wl, basis.wavelengths, basis.values[:, c]) * e for c in range(3)])

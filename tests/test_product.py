@@ -70,7 +70,8 @@ def test_exports_read_back(product, tmp_path):
     from colour.io import read_spectral_image_Fichet2021
 
     from omnispectral.product.exports import export_product
-    from omnispectral.product.spectra import estimate_image, open_product
+    from omnispectral.product.layout import open_product
+    from omnispectral.product.spectra import estimate_image
 
     root, index = product
     export_product(root / "p", "spectral-exr", tmp_path / "s.exr", region=(200, 260, 500, 580))

@@ -11,6 +11,8 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
 from omnispectral.capture.devices import Camera, Clock, DeviceError, DeviceTimeout, PanTiltHead
 from omnispectral.capture.plan import Direction
 from omnispectral.capture.session import CAMERAS, Session
@@ -138,7 +140,6 @@ def run_capture(session: Session, head: PanTiltHead, cameras: dict[str, Camera],
 def _progress(enabled: bool, total: int, done: int, session: Session):
     if not enabled:
         return None, None
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     bar = Progress(TextColumn("capturing"), BarColumn(), MofNCompleteColumn(), TextColumn("frames"),
                    TimeRemainingColumn(), transient=True)

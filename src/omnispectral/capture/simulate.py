@@ -20,13 +20,17 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
+from omnispectral.capture.devices import FakeClock, SimulatedCamera, SimulatedHead
+from omnispectral.capture.plan import make_plan
+from omnispectral.capture.run import RetryPolicy, run_capture
+from omnispectral.capture.session import Session
 from omnispectral.errors import ConfigurationError
-from omnispectral.imaging.geometry import CameraModel
+from omnispectral.imaging.geometry import CameraModel, equirect_pixel_to_lonlat, lonlat_to_ray
 from omnispectral.io import atomic_path, atomic_write_json
 from omnispectral.rig import Rig
 from omnispectral.spectral.noise import SensorNoiseModel
@@ -53,7 +57,6 @@ def true_mounting_error_deg(seed: int, max_error_deg: float = DEFAULT_MOUNTING_E
 
 def perturbed_model(model: CameraModel, error_deg: tuple[float, float, float]) -> CameraModel:
     """``model`` with ``error_deg`` added to its mounting's misalignment (yaw, pitch, roll)."""
-    from dataclasses import replace
 
     return replace(model, mounting=model.mounting.with_misalignment_change(error_deg))
 
@@ -152,7 +155,6 @@ class RigRenderer:
 def calibrate_exposure(rig: Rig, scene, system: MultibandSystem, grid: tuple[int, int] = (256, 128)) -> float:
     """Electrons per second per unit band radiance (module docstring: bright surfaces at 80 % of full well
     at the bracket's geometric-mean exposure)."""
-    from omnispectral.imaging.geometry import equirect_pixel_to_lonlat, lonlat_to_ray
 
     w, h = grid
     col, row = np.meshgrid(np.arange(w), np.arange(h))
@@ -207,7 +209,6 @@ def write_ground_truth(directory: str | Path, renderer: RigRenderer, width: int,
     patches = renderer.scene.colorchecker_patches() if hasattr(renderer.scene, "colorchecker_patches") else []
     chart = {}
     if patches:
-        from omnispectral.imaging.geometry import lonlat_to_ray
 
         rays = lonlat_to_ray(np.array([p["lon_deg"] for p in patches]), np.array([p["lat_deg"] for p in patches]))
         radiance = renderer.scene.spectral_radiance(rays) * np.float32(scale)
@@ -238,7 +239,6 @@ def _fill_equirect(arr: np.ndarray, fn, rows_per_chunk: int, supersample: int = 
     """Fill an equirect array with ``fn(rays)`` averaged over ``supersample²`` points spread over each pixel's
     area: the truth is the mean radiance of the pixel's solid angle, as the simulated sensor's pixels
     integrate over their area (:attr:`RigRenderer.supersample`), so that edges compare like with like."""
-    from omnispectral.imaging.geometry import equirect_pixel_to_lonlat, lonlat_to_ray
 
     h, w = arr.shape[:2]
     s = max(1, int(supersample))
@@ -268,10 +268,6 @@ def simulate_session(output: str | Path, rig: Rig, scene, *, start: _dt.datetime
     Camera B is rendered with an unknown mounting error of up to ``mounting_error_deg`` per axis drawn
     from ``seed`` (:func:`true_mounting_error_deg`; 0 renders the rig file's mounting exactly).
     """
-    from omnispectral.capture.devices import FakeClock, SimulatedCamera, SimulatedHead
-    from omnispectral.capture.plan import make_plan
-    from omnispectral.capture.run import RetryPolicy, run_capture
-    from omnispectral.capture.session import Session
 
     plan = make_plan(rig, overlap=overlap)
     renderer = RigRenderer(rig, scene, noise=noise,

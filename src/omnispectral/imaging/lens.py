@@ -30,6 +30,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from PIL import Image, UnidentifiedImageError
 
 from omnispectral.errors import ConfigurationError, InputFileError, OmnispectralError
 from omnispectral.imaging.geometry import CameraModel
@@ -154,7 +155,6 @@ def read_gray8(path: str | Path) -> np.ndarray:
 
 
 def _check_complete(path: Path) -> None:
-    from PIL import Image, UnidentifiedImageError
 
     try:
         with Image.open(path) as im:

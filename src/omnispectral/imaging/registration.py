@@ -72,6 +72,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import scipy.fft as sfft
+from scipy import ndimage
 
 from omnispectral.errors import ConfigurationError
 
@@ -258,7 +259,6 @@ def saturation_mask(image, saturation: float | str | None = None) -> np.ndarray 
 
 def _fade_saturated(gray: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """Blend clipped regions (grown by 2 px, softened by a 1.5 px Gaussian) into the mean of the rest."""
-    from scipy import ndimage
 
     pad = _SATURATION_GROW_PX + int(np.ceil(4 * _SATURATION_SOFTNESS_PX)) + 1
     if not mask.any():
@@ -316,7 +316,7 @@ def _shift_mask(mask: np.ndarray, dx: float, dy: float) -> np.ndarray:
 @functools.lru_cache(maxsize=64)
 def window_1d(n: int, kind: str = DEFAULT_WINDOW) -> np.ndarray:
     """Symmetric 1-D window of ``n`` samples (read-only float32): Hann, Tukey (alpha 0.5) or none."""
-    from scipy.signal import windows
+    from scipy.signal import windows  # lazy: scipy.signal costs ~0.7 s to import; windows are cached
 
     if kind == "hann":
         w = windows.hann(n, sym=True)
@@ -747,7 +747,6 @@ def _block_origins(n: int, block: int, step: int) -> np.ndarray:
 def _grid_to_pixels(values: np.ndarray, x_px: np.ndarray, y_px: np.ndarray, shape: tuple[int, int],
                     nearest: bool = False) -> np.ndarray:
     """Values on the block-centre grid → every pixel (bilinear, or nearest block), edges held constant."""
-    from scipy import ndimage
 
     fy = np.interp(np.arange(shape[0]), y_px, np.arange(y_px.size))
     fx = np.interp(np.arange(shape[1]), x_px, np.arange(x_px.size))
@@ -759,7 +758,6 @@ def _grid_to_pixels(values: np.ndarray, x_px: np.ndarray, y_px: np.ndarray, shap
 
 def _sample_grid(values: np.ndarray, x_px: np.ndarray, y_px: np.ndarray, xq: np.ndarray, yq: np.ndarray) -> np.ndarray:
     """Bilinear sample of a block-centre grid at pixel positions ``(xq, yq)``."""
-    from scipy import ndimage
 
     fy = np.interp(yq, y_px, np.arange(y_px.size))
     fx = np.interp(xq, x_px, np.arange(x_px.size))
@@ -877,7 +875,6 @@ def _block_pass(view_a, view_b, org_y, org_x, mov_y, mov_x, window, band_limit, 
 
 def _finish_disparity(dx, dy, conf, clipped, x_px, y_px, shape, block, step, offset, far_offset, min_confidence,
                       consistency_tol_px, outlier_tol_px, occlusion_tol_px) -> DisparityMap:
-    from scipy import ndimage
 
     low = conf < min_confidence
     gy, gx = np.meshgrid(y_px, x_px, indexing="ij")

@@ -28,13 +28,15 @@ import json
 import os
 import resource
 import time
+import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 
-from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.errors import ConfigurationError, InputFileError, OmnispectralError
 from omnispectral.mosaic.blending import (
     BLENDS,
     DEFAULT_MULTIBAND_LEVELS,
@@ -43,6 +45,7 @@ from omnispectral.mosaic.blending import (
     multiband_blend,
     multiband_halo_px,
 )
+from omnispectral.mosaic.gain import estimate_gains
 from omnispectral.mosaic.interp import (
     KERNEL_RADIUS_PX,
     SPLINE_PREFILTER_MARGIN_PX,
@@ -50,9 +53,10 @@ from omnispectral.mosaic.interp import (
     remap,
     spline_prefilter,
 )
-from omnispectral.mosaic.maps import Canvas, Rect, SourceGeometry, source_map, tile_cone
-from omnispectral.mosaic.sources import BAND_NAMES, MergedDirections, SourceImage
+from omnispectral.mosaic.maps import Canvas, Rect, SourceGeometry, exact_map, source_map, tile_cone
+from omnispectral.mosaic.sources import BAND_NAMES, MergedDirections, SourceImage, merge_session, read_npy_rows
 from omnispectral.mosaic.store import PanoramaStore
+from omnispectral.rig import rig_from_dict, rig_system
 
 DEFAULT_TILE = 512
 DEFAULT_INTERP = "spline"
@@ -149,8 +153,6 @@ def parallax_positions(job: MosaicJob, i: int, row0: int, col0: int, u: np.ndarr
     pixel: never a blend of two surfaces); B sees that point along ``ray − w · c_B`` (``c_B``, B's
     optical centre), evaluated exactly where ``w > 0`` — still one interpolation of B's image.
     """
-    from omnispectral.mosaic.maps import exact_map
-    from omnispectral.mosaic.sources import read_npy_rows
 
     geo, img = job.geometry[i], job.images[i]
     a_geo = job.geometry[job.partner[i]]
@@ -236,7 +238,6 @@ def sample_crop(img: SourceImage, u: np.ndarray, v: np.ndarray, used: np.ndarray
 
 def _touches(bad: np.ndarray, u: np.ndarray, v: np.ndarray, radius: int) -> np.ndarray:
     """Positions whose kernel (``radius`` px) reaches a bad source pixel."""
-    import cv2
 
     grown = cv2.dilate(bad.astype(np.uint8), np.ones((2 * radius + 1, 2 * radius + 1), np.uint8))
     return remap(grown.astype(np.float32), u, v, "linear") > 0
@@ -337,7 +338,7 @@ def run_tasks(fn, shared, items: list[tuple], scheduler, workers: int | None,
     if not items:
         return []
     if scheduler is None:
-        import dask
+        import dask  # lazy: dask (~0.4 s) and distributed (~0.5 s) serve only the task runner
         from dask.callbacks import Callback
 
         tasks = [dask.delayed(fn, pure=False)(shared, *item) for item in items]
@@ -370,7 +371,6 @@ def run_tasks(fn, shared, items: list[tuple], scheduler, workers: int | None,
 def open_input(source: str | Path | MergedDirections, merged_dir: str | Path | None = None, dtype: str = "float16",
                register=None, progress: Callable[[int, int], None] | None = None) -> MergedDirections:
     """A merged-directions directory as is; a raw session is merged first (streaming, into ``merged_dir``)."""
-    from omnispectral.mosaic.sources import merge_session
 
     if isinstance(source, MergedDirections):
         return source
@@ -430,7 +430,6 @@ def mosaic(source: str | Path | MergedDirections, output: str | Path, *, width: 
         raise ConfigurationError(f"width must be an even number ≥ 8, got {width}")
     gains = None
     if gain_compensation:
-        from omnispectral.mosaic.gain import estimate_gains
 
         gains = estimate_gains(merged)
     job = build_job(merged, Path(output), width, tile, interp, blend, multiband_levels, gains)
@@ -467,7 +466,6 @@ def _ancestors(tiles: list[tuple[int, int]], level: int) -> list[tuple[int, int]
 
 
 def _run_level0(job, store, tiles, scheduler, workers, progress) -> int:
-    import cv2
 
     done = set(store.done_markers(0))
     todo = [t for t in tiles if t not in done]
@@ -538,10 +536,7 @@ def panorama_attributes(merged: MergedDirections, job: MosaicJob, gain_compensat
 
 def _rig_system(meta: dict) -> dict | None:
     """Sensitivities of the rig's six bands, if the rig snapshot can be read and its curves are known."""
-    import tomllib
 
-    from omnispectral.errors import OmnispectralError
-    from omnispectral.rig import rig_from_dict, rig_system
 
     text = (meta.get("rig") or {}).get("toml")
     if not text:

@@ -46,9 +46,12 @@ from pathlib import Path
 
 import numpy as np
 
+from omnispectral.capture.session import Session
 from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.imaging import merge_exposures
 from omnispectral.imaging.geometry import CameraModel
 from omnispectral.io import atomic_path, atomic_write_json
+from omnispectral.rig import camera_model, rig_toml
 
 FORMAT = "omnispectral-merged-directions"
 FORMAT_VERSION = 1
@@ -318,7 +321,6 @@ def calibrated_offset(offset_px: tuple[float, float] = (0.0, 0.0)) -> Registrati
 def merge_direction(session, direction: int, camera: str, n_exposures: int,
                     **merge_options) -> tuple[np.ndarray, tuple[float, float]]:
     """HDR merge (Eqs. (1)-(2)) of one camera's bracket; returns radiance (H, W, 3) and the reported pan/tilt."""
-    from omnispectral.imaging import merge_exposures
 
     frames, times, pans, tilts, bit_depth = [], [], [], [], 12
     for k in range(n_exposures):
@@ -345,8 +347,6 @@ def merge_session(session_path: str | Path, output: str | Path, *, register: Reg
     direction is read, so memory holds one direction.  Directions already written are skipped, and
     so are the planned directions in ``skip`` (e.g. ones with damaged frames), which are not planned here.
     """
-    from omnispectral.capture.session import Session
-    from omnispectral.rig import camera_model, rig_toml
 
     session = Session.open(session_path)
     rig = session.rig()

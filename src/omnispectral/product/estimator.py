@@ -14,6 +14,9 @@ import functools
 import json
 
 from omnispectral.rig import Rig, two_camera_system
+from omnispectral.spectral.evaluate import Protocol, fit_for_protocol
+from omnispectral.spectral.library import load_reflectances
+from omnispectral.spectral.noise import SensorNoiseModel
 from omnispectral.spectral.wiener import WienerEstimator
 
 HELD_OUT = "colorchecker"
@@ -29,9 +32,6 @@ def estimator_params(rig: Rig, mixture: bool = True) -> dict:
 
 @functools.lru_cache(maxsize=4)
 def _fit_cached(params_json: str) -> tuple[WienerEstimator, str]:
-    from omnispectral.spectral.evaluate import Protocol, fit_for_protocol
-    from omnispectral.spectral.library import load_reflectances
-    from omnispectral.spectral.noise import SensorNoiseModel
 
     p = json.loads(params_json)
     system = _system_from_params(p)

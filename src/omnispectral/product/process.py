@@ -27,20 +27,23 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from omnispectral.errors import InputFileError
+import numpy as np
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+from omnispectral.capture.session import Session, verify_session
+from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.imaging.geometry import CameraModel
+from omnispectral.imaging.registration import DEFAULT_MIN_CONFIDENCE
 from omnispectral.io import atomic_write_json
-
-PRODUCT_FORMAT = "omnispectral-product"
-PANORAMA = "panorama.zarr"
-MERGED = "merged"
-#: The rig calibration a product was made with (reusable: ``process --rig-calibration``).
-RIG_CALIBRATION = "rig-calibration.json"
-
-
-def product_paths(product: str | Path) -> dict[str, Path]:
-    root = Path(product)
-    return {"root": root, "index": root / "product.json", "panorama": root / PANORAMA, "merged": root / MERGED,
-            "report": root / "report", "rig_calibration": root / RIG_CALIBRATION}
+from omnispectral.mosaic import engine
+from omnispectral.mosaic.sources import MergedDirections, MergedDirectionsWriter, merge_session
+from omnispectral.mosaic.store import PanoramaStore
+from omnispectral.product.align import align_direction, parallax_direction
+from omnispectral.product.estimator import rig_estimator
+from omnispectral.product.layout import MERGED, PANORAMA, PRODUCT_FORMAT, RIG_CALIBRATION, product_paths
+from omnispectral.product.report import write_report
+from omnispectral.product.rigcal import RigCalibration, calibrate_from_merged
+from omnispectral.threads import ordered_thread_map
 
 
 def bad_directions(report: dict) -> dict[int, list[str]]:
@@ -52,7 +55,6 @@ def bad_directions(report: dict) -> dict[int, list[str]]:
 
 
 def _check_session(session_path: Path, skip_bad: bool, verify_checksums: bool) -> tuple[dict, dict[int, list[str]]]:
-    from omnispectral.capture.session import verify_session
 
     report = verify_session(session_path, check_pixels=False, checksums=verify_checksums)
     bad = bad_directions(report)
@@ -72,9 +74,6 @@ def merge_and_register(session_path: Path, out: Path, skip: set[int], min_confid
     """Stage 2: :func:`omnispectral.mosaic.sources.merge_session` (streamed per direction) with camera B
     registered to A by :func:`~omnispectral.product.align.align_direction`; returns the merged directions
     and the alignment of every direction."""
-    from omnispectral.capture.session import Session
-    from omnispectral.mosaic.sources import merge_session
-    from omnispectral.product.align import align_direction
 
     rig = Session.open(session_path).rig()
     models = {c: rig.camera_model(c) for c in ("A", "B")}
@@ -106,7 +105,6 @@ REGISTRATIONS = ("parallax", "paper")
 def merge_only(session_path: Path, out: Path, skip: set[int], progress=None, timings: dict | None = None,
                hdr_weight: str = "noise"):
     """Stage 2 without registration: the HDR merge of every direction (camera B at the rig file's mounting)."""
-    from omnispectral.mosaic.sources import MergedDirections, merge_session
 
     t0 = time.perf_counter()
     if (out / "merged.json").is_file():  # a resumed run: nothing to merge when the directory is complete
@@ -131,13 +129,7 @@ def register_parallax(merged, calibration=None, progress=None, timings: dict | N
     Resumes: directions whose parallax was computed with the same calibration are kept.  Returns the
     calibration and the per-direction parallax statistics.
     """
-    import numpy as np
 
-    from omnispectral.imaging.geometry import CameraModel
-    from omnispectral.mosaic.sources import MergedDirections, MergedDirectionsWriter
-    from omnispectral.product.align import parallax_direction
-    from omnispectral.product.rigcal import RigCalibration, calibrate_from_merged
-    from omnispectral.threads import ordered_thread_map
 
     t0 = time.perf_counter()
     nominal = merged.meta.get("rig_file_camera_b") or merged.meta["cameras"]["B"]  # the rig file's camera B
@@ -195,13 +187,6 @@ def process(session: str | Path, output: str | Path, *, width: int | None = None
     values of the shortest exposures bias dark regions upwards (+36 % at 360 DN in the longest
     exposure on the simulated rig; docs/benchmarks.md), which would show in the spectra.
     """
-    from omnispectral.capture.session import Session
-    from omnispectral.errors import ConfigurationError
-    from omnispectral.imaging.registration import DEFAULT_MIN_CONFIDENCE
-    from omnispectral.mosaic import engine
-    from omnispectral.mosaic.store import PanoramaStore
-    from omnispectral.product.estimator import rig_estimator
-    from omnispectral.product.rigcal import RigCalibration
 
     if registration not in REGISTRATIONS:
         raise ConfigurationError(f"registration must be one of {', '.join(REGISTRATIONS)}, got {registration!r}")
@@ -260,7 +245,6 @@ def process(session: str | Path, output: str | Path, *, width: int | None = None
              "timings_s": timings}
     atomic_write_json(paths["index"], index)
     if report:
-        from omnispectral.product.report import write_report
 
         t3 = time.perf_counter()
         rep = write_report(paths["root"])
@@ -277,7 +261,6 @@ class _Progress:
         self.bar = None
         self.tasks: dict[str, int] = {}
         if enabled:
-            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
             self.bar = Progress(TextColumn("{task.description:>16}"), BarColumn(), MofNCompleteColumn(),
                                 TimeElapsedColumn(), transient=False)

@@ -17,6 +17,8 @@ import numpy as np
 
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.io import atomic_path, atomic_write_json
+from omnispectral.product.layout import open_product, product_paths
+from omnispectral.product.process import process
 
 #: Default regions: the sky high above the horizon and the ground near the rig.
 DEFAULT_REGIONS = {"sky": (-180.0, 180.0, 45.0, 75.0), "ground": (-180.0, 180.0, -75.0, -45.0)}
@@ -49,10 +51,8 @@ def region_pixels(box, height: int, width: int) -> tuple[slice, slice]:
 def process_series(series: str | Path, output: str | Path, regions: dict | None = None, stack_width: int = 1024,
                    progress: bool = True) -> dict:
     """Process every complete slot of a series, stack the panoramas and analyse region spectra over time."""
-    import zarr
+    import zarr  # lazy: zarr costs ~0.25 s to import; only the time stack needs it here
 
-    from omnispectral.product.process import process, product_paths
-    from omnispectral.product.spectra import open_product
 
     series, out = Path(series), Path(output)
     try:
@@ -114,7 +114,7 @@ def process_series(series: str | Path, output: str | Path, regions: dict | None 
 
 def series_products(output: str | Path) -> list[tuple[str, Path]]:
     """``(time ISO 8601, product directory)`` of every slot of a :func:`process_series` output, in time order."""
-    import zarr
+    import zarr  # lazy: zarr costs ~0.25 s to import; only the time stack needs it here
 
     out = Path(output)
     stack = out / "timestack.zarr"
@@ -133,7 +133,7 @@ def series_products(output: str | Path) -> list[tuple[str, Path]]:
 
 
 def _plot_region_spectra(analysis: dict, path: Path) -> None:
-    import matplotlib
+    import matplotlib  # lazy: matplotlib (pyplot) is needed for this plot only, and the backend must be set first
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -13,6 +13,7 @@ row per wavelength.  Lines starting with ``#`` are comments.  Malformed files ra
 from __future__ import annotations
 
 import csv
+import io
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,7 +22,7 @@ import colour
 import numpy as np
 
 from omnispectral.errors import ConfigurationError, InputFileError
-from omnispectral.io import read_text_file
+from omnispectral.io import atomic_write_text, read_text_file
 
 DEFAULT_WAVELENGTH_NM = np.arange(400.0, 700.0 + 1e-9, 5.0)
 """The default wavelength grid: 400-700 nm every 5 nm (61 samples)."""
@@ -283,9 +284,7 @@ def read_spectral_csv(path: str | Path, kind: str, percent: bool | None = None) 
 
 def write_spectral_csv(spectral_set: SpectralSet, path: str | Path, comment: str | None = None) -> Path:
     """Write curves as ``wavelength_nm,<name>...`` CSV, atomically (temporary name, then rename)."""
-    import io
 
-    from omnispectral.io import atomic_write_text
 
     buf = io.StringIO()
     for c in (comment or "").splitlines():

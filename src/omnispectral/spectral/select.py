@@ -22,6 +22,7 @@ from pathlib import Path
 
 import colour
 import numpy as np
+from rich.progress import Progress
 
 from omnispectral.errors import ConfigurationError
 from omnispectral.spectral.colour import cmfs_on_grid
@@ -172,7 +173,6 @@ def select_filters(candidates: str | Path, top: int = 10, camera: str = DEFAULT_
     pairs = np.array([*itertools.combinations(range(n), 2), (n, n + 1)], dtype=int)
     tick = None
     if progress:
-        from rich.progress import Progress
 
         prog = Progress(transient=True)
         task = prog.add_task(f"scoring {len(pairs)} filter pairs", total=len(pairs))

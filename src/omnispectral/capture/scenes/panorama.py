@@ -25,10 +25,12 @@ import math
 from pathlib import Path
 
 import colour
+import cv2
 import numpy as np
 
 from omnispectral.capture.scenes.base import RAY_BLOCK, BandProjectionCache, Scene, as_directions, as_origin
 from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.imaging.bracket import read_exr
 from omnispectral.spectral.colour import K_M_LM_PER_W, LUMINOUS_GRID_NM, cmfs_xyz
 from omnispectral.spectral.curves import DEFAULT_WAVELENGTH_NM
 
@@ -44,7 +46,6 @@ def read_panorama(path: str | Path) -> np.ndarray:
         raise InputFileError(path, "no such file")
     suffix = path.suffix.lower()
     if suffix == ".hdr":
-        import cv2
 
         data = np.fromfile(str(path), dtype=np.uint8)
         img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
@@ -52,7 +53,6 @@ def read_panorama(path: str | Path) -> np.ndarray:
             raise InputFileError(path, "cannot be read as a Radiance HDR RGB image")
         rgb = img[:, :, 2::-1]  # OpenCV gives BGR
     elif suffix == ".exr":
-        from omnispectral.imaging.bracket import read_exr
 
         img, names = read_exr(path)
         if all(c in names for c in "RGB"):

@@ -90,10 +90,6 @@ class LensCalibration:
     def images_rejected(self) -> list[Path]:
         return [p for p, _ in self.rejected]
 
-    @property
-    def per_image_rms_px(self) -> dict[str, float]:
-        return {str(v.path): v.rms_px for v in self.views}
-
     def to_dict(self) -> dict[str, Any]:
         """The camera (:meth:`CameraModel.to_dict`) plus RMS, board and the images used and rejected."""
         return {**self.camera.to_dict(),
@@ -155,7 +151,6 @@ def read_gray8(path: str | Path) -> np.ndarray:
 
 
 def _check_complete(path: Path) -> None:
-
     try:
         with Image.open(path) as im:
             im.load()

@@ -37,11 +37,6 @@ _WAVELENGTH_HEADERS = ("wavelength_nm", "wavelength", "nm", "lambda_nm", "wl_nm"
 _NEGATIVE_TOLERANCE = 5e-3
 
 
-def default_wavelength_nm() -> np.ndarray:
-    """Return a fresh copy of the default 400-700 nm / 5 nm grid."""
-    return DEFAULT_WAVELENGTH_NM.copy()
-
-
 @dataclass(frozen=True)
 class SpectralSet:
     """Curves sampled on a common wavelength axis.
@@ -142,12 +137,6 @@ class SpectralSet:
         return SpectralSet(self.wavelength_nm, self.values[mask],
                            [n for n, keep in zip(self.names, mask, strict=True) if keep],
                            self.kind, self.source, self.notes)
-
-    def to_msds(self) -> colour.MultiSpectralDistributions:
-        """The same curves as colour-science ``MultiSpectralDistributions``."""
-        return colour.MultiSpectralDistributions(
-            self.values.T, self.wavelength_nm, labels=list(self.names), name=self.source
-        )
 
     @classmethod
     def from_colour(cls, data, kind: str, source: str, names=None) -> SpectralSet:

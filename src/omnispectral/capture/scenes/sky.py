@@ -288,11 +288,6 @@ class ClearSkyDaylight:
         n = np.asarray(normal, dtype=np.float64)
         return self.direct_normal_lx * max(0.0, float(n @ self.sun_direction) / float(np.linalg.norm(n)))
 
-    def global_horizontal_spectrum(self) -> np.ndarray:
-        """Spectral irradiance (W·m⁻²·nm⁻¹) on an unobstructed horizontal surface, on ``wavelength_nm``."""
-        up = np.array([0.0, 1.0, 0.0])
-        return self.sun_illuminance_lx(up) * self.sun_spectrum + self.sky_illuminance_lx(up) * self.sky_spectrum
-
     def daylight_cct_K(self, normal) -> float:
         """CCT of the daylight (unobstructed sun + sky) falling on a surface of unit ``normal``, on 360-830 nm."""
         wl = LUMINOUS_GRID_NM

@@ -71,7 +71,7 @@ def known(tmp_path_factory):
     """Merged directions of the smooth scene, rendered exactly (the truth is known)."""
     path = tmp_path_factory.mktemp("mosaic") / "merged"
     merged = write_synthetic_merged(path, smooth_scene, small_cameras(), grid_directions(), offset_b_px=(0.4, -0.3),
-                                    rig_name=RIG.name, rig_toml=rig_toml(RIG))
+                                    rig_name=RIG.name, rig_toml=rig_toml(RIG), system=RIG.system().to_dict())
     return merged, smooth_panorama(WIDTH)
 
 

@@ -121,7 +121,7 @@ def test_rig_calibration_of_the_procedural_scene(time_hhmm, seed, error_deg):
 def test_rig_calibration_on_a_real_hdr_panorama_with_noise(shared_data, tmp_path):
     """Everything at infinity (a real HDR panorama), sensor noise, the whole merge path."""
     from omnispectral.capture.simulate import simulate_session
-    from omnispectral.mosaic.sources import merge_session
+    from omnispectral.product.merge import merge_session
     from omnispectral.product.rigcal import calibrate_from_merged
 
     scene = PanoramaScene(shared_data / "hdr_envmaps" / "polyhaven_1k_hdr" / "venice_sunset_1k.hdr")

@@ -33,7 +33,7 @@ def _open_head(rig: Rig):
     return drivers.open_head(rig)
 
 
-def capture_with_devices(output: str | Path, rig: Rig, *, progress: bool = True) -> dict:
+def capture_with_devices(output: str | Path, rig: Rig, *, progress=None) -> dict:
     """Capture (or resume) a session at ``output`` with the rig's real devices; returns the run summary."""
     if drivers.rig_device_kind(rig) != "real":
         raise ConfigurationError(f"{rig.source}: the rig's devices are all simulated; use 'omnispectral simulate'")

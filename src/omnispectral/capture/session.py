@@ -147,7 +147,6 @@ class Session:
             raise InputFileError(self.path / "plan.json", f"not a valid plan ({exc})") from None
 
     def rig(self) -> Rig:
-
         p = self.path / "rig.toml"
         try:
             text = p.read_text(encoding="utf-8")

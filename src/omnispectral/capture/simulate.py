@@ -209,7 +209,6 @@ def write_ground_truth(directory: str | Path, renderer: RigRenderer, width: int,
     patches = renderer.scene.colorchecker_patches() if hasattr(renderer.scene, "colorchecker_patches") else []
     chart = {}
     if patches:
-
         rays = lonlat_to_ray(np.array([p["lon_deg"] for p in patches]), np.array([p["lat_deg"] for p in patches]))
         radiance = renderer.scene.spectral_radiance(rays) * np.float32(scale)
         refl = np.array([p["reflectance"] for p in patches], np.float32)
@@ -261,12 +260,13 @@ def _jsonable(x):
 
 
 def simulate_session(output: str | Path, rig: Rig, scene, *, start: _dt.datetime, noise: bool = True,
-                     seed: int = 0, ground_truth_width: int | None = None, progress: bool = True,
+                     seed: int = 0, ground_truth_width: int | None = None, progress=None,
                      overlap: float | None = None, mounting_error_deg: float = DEFAULT_MOUNTING_ERROR_DEG) -> dict:
     """``capture`` with the simulated rig plus the ground truth; resumable like any capture.
 
     Camera B is rendered with an unknown mounting error of up to ``mounting_error_deg`` per axis drawn
     from ``seed`` (:func:`true_mounting_error_deg`; 0 renders the rig file's mounting exactly).
+    ``progress(stage, done, total)`` follows the frames (:func:`~omnispectral.capture.run.run_capture`).
     """
 
     plan = make_plan(rig, overlap=overlap)

@@ -69,7 +69,6 @@ def read_frame(path: str | Path) -> np.ndarray:
         raise InputFileError(path, "file not found")
     suffix = path.suffix.lower()
     if suffix in (".tif", ".tiff"):
-
         try:
             img = tifffile.imread(path)
         except Exception as exc:  # tifffile raises many types for damaged files
@@ -205,13 +204,11 @@ def write_float_image(path: str | Path, image: np.ndarray, channel_names: Sequen
         if suffix == ".exr":
             _write_exr(tmp, img, channel_names, attributes)
         elif suffix == ".hdr":
-
             if c != 3:
                 raise ConfigurationError(f"{path}: Radiance .hdr holds 3 channels, the image has {c}")
             if not cv2.imwrite(str(tmp), np.ascontiguousarray(img[..., ::-1])):
                 raise InputFileError(path, "OpenCV could not write the Radiance file")
         elif suffix in (".tif", ".tiff"):
-
             tifffile.imwrite(tmp, img, photometric="rgb" if c == 3 else "minisblack",
                              compression="zlib", metadata=None)
         else:
@@ -224,7 +221,6 @@ def _default_channel_names(c: int) -> list[str]:
 
 
 def _write_exr(path: Path, img: np.ndarray, names: Sequence[str] | None, attributes) -> None:
-
     names = list(names) if names is not None else _default_channel_names(img.shape[2])
     if len(names) != img.shape[2]:
         raise ConfigurationError(f"{len(names)} channel names for {img.shape[2]} channels")
@@ -242,6 +238,13 @@ def guess_bit_depth(frames: Sequence[np.ndarray]) -> int:
         return 8
     top = max(int(np.max(f)) for f in frames)
     return next(b for b in (10, 12, 14, 16) if top < (1 << b))
+
+
+def auto_weight(bracket: Bracket, response: str | CameraResponse) -> str:
+    """The HDR weight that ``auto`` stands for: the paper's triangle (Eq. (2)) for linear raw frames, and the
+    inverse-variance weight (``noise``) for 8-bit frames that go through a recovered or given response."""
+    linear = isinstance(response, str) and response == "linear"
+    return "noise" if bracket.dtype.itemsize == 1 and not linear else "triangle"
 
 
 def merge_bracket(bracket: Bracket, bit_depth: int | None = None, weight: str = "triangle",

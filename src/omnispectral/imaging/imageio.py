@@ -68,7 +68,6 @@ def decode_with_opencv(path: Path) -> np.ndarray | None:
 
 
 def _read_tiff(path: Path) -> np.ndarray | None:
-
     try:
         image = tifffile.imread(path)
     except Exception:  # tifffile raises many types for corrupt files; all mean "not readable"

@@ -129,7 +129,6 @@ def opencv_is_exact(method: str) -> bool:
 
 
 def _cv_remap(src: np.ndarray, u: np.ndarray, v: np.ndarray, method: str) -> np.ndarray:
-
     flag = getattr(cv2, _CV_FLAGS[method])
     parts = [cv2.remap(src[..., c0:c0 + 4], u, v, flag, borderMode=cv2.BORDER_REPLICATE)
              for c0 in range(0, src.shape[2], 4)]

@@ -32,7 +32,6 @@ def estimator_params(rig: Rig, mixture: bool = True) -> dict:
 
 @functools.lru_cache(maxsize=4)
 def _fit_cached(params_json: str) -> tuple[WienerEstimator, str]:
-
     p = json.loads(params_json)
     system = _system_from_params(p)
     noise = SensorNoiseModel(p["full_well_e"], p["read_noise_e"], p["bit_depth"])

@@ -49,8 +49,11 @@ def region_pixels(box, height: int, width: int) -> tuple[slice, slice]:
 
 
 def process_series(series: str | Path, output: str | Path, regions: dict | None = None, stack_width: int = 1024,
-                   progress: bool = True) -> dict:
-    """Process every complete slot of a series, stack the panoramas and analyse region spectra over time."""
+                   progress=None) -> dict:
+    """Process every complete slot of a series, stack the panoramas and analyse region spectra over time.
+
+    ``progress(stage, done, total)`` follows the slots (stage ``slots``) and each slot's processing.
+    """
     import zarr  # lazy: zarr costs ~0.25 s to import; only the time stack needs it here
 
 
@@ -69,9 +72,9 @@ def process_series(series: str | Path, output: str | Path, regions: dict | None 
     for i, e in enumerate(slots):
         prod = out / e["session"]
         if not (prod / "product.json").exists():
-            if progress:
-                print(f"[{i + 1}/{len(slots)}] processing {e['session']} ({e['time'][11:16]})", flush=True)
-            process(series / e["session"], prod, progress=False, report=True, rig_calibration=calibration)
+            process(series / e["session"], prod, progress=progress, report=True, rig_calibration=calibration)
+        if progress:
+            progress("slots", i + 1, len(slots))
         if calibration is None and product_paths(prod)["rig_calibration"].is_file():
             calibration = product_paths(prod)["rig_calibration"]
         products.append(prod)

@@ -207,12 +207,9 @@ def load_reflectances(name: str) -> SpectralSet:
         s = read_spectral_csv(path, "reflectance", percent=False)
         return SpectralSet(s.wavelength_nm, s.values, s.names, s.kind, key)
     if key == "rawtoaces-training":
-
         return SpectralSet.from_colour(read_training_data_rawtoaces_v1(), "reflectance", key)
     if key == "cie-tcs":
-
         return _colour_mapping_set(SDS_TCS["CIE 1995"], key)
     if key == "nist-cqs":
-
         return _colour_mapping_set(SDS_VS["NIST CQS 9.0"], key)
     raise ConfigurationError(f"unknown reflectance set {name!r}; built-in: {reflectance_set_names()} or a CSV file")

@@ -46,14 +46,12 @@ def read_panorama(path: str | Path) -> np.ndarray:
         raise InputFileError(path, "no such file")
     suffix = path.suffix.lower()
     if suffix == ".hdr":
-
         data = np.fromfile(str(path), dtype=np.uint8)
         img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
         if img is None or img.ndim != 3 or img.shape[2] < 3:
             raise InputFileError(path, "cannot be read as a Radiance HDR RGB image")
         rgb = img[:, :, 2::-1]  # OpenCV gives BGR
     elif suffix == ".exr":
-
         img, names = read_exr(path)
         if all(c in names for c in "RGB"):
             rgb = img[:, :, [names.index(c) for c in "RGB"]]

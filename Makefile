@@ -1,5 +1,6 @@
 # omnispectral: `make demo` runs the main job on the built-in default, `make test` runs the tests.
-# Both create (or reuse) the virtual environment .venv and install what is needed from PyPI.
+# `make test-fast` leaves out the slow tests. All create (or reuse) the virtual environment .venv and install
+# what is needed from PyPI.
 
 PYTHON ?= python3
 VENV ?= .venv
@@ -7,7 +8,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.omnispectral-installed
 DEMO_OUT ?= demo-output
 
-.PHONY: demo test lint bench clean venv
+.PHONY: demo test test-fast lint bench clean venv
 
 venv: $(STAMP)
 
@@ -28,6 +29,10 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks scripts
 	$(BIN)/python -m pytest -q
+
+test-fast: $(STAMP)  # the edit-test loop: everything but the tests marked slow
+	$(BIN)/ruff check src tests benchmarks scripts
+	$(BIN)/python -m pytest -q -m "not slow"
 
 lint: $(STAMP)
 	$(BIN)/ruff check src tests benchmarks scripts

@@ -37,9 +37,10 @@ from pathlib import Path
 import numpy as np
 import scipy.fft as sfft
 
+from omnispectral.imaging.disparity import block_disparity
 from omnispectral.imaging.hdr import merge_exposures
 from omnispectral.imaging.imageio import read_image
-from omnispectral.imaging.registration import DEFAULT_MIN_CONFIDENCE, block_disparity, phase_correlate
+from omnispectral.imaging.registration import DEFAULT_MIN_CONFIDENCE, phase_correlate
 from omnispectral.spectral.noise import CMV2000
 
 PANORAMAS = Path(__file__).resolve().parents[2] / "shared" / "data" / "hdr_envmaps" / "polyhaven_1k_hdr"

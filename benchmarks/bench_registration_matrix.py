@@ -33,13 +33,13 @@ from pathlib import Path
 
 import numpy as np
 
-from omnispectral.capture.rig import load_preset
 from omnispectral.capture.scenes import PanoramaScene, ProceduralOutdoorScene
 from omnispectral.capture.simulate import simulate_session
 from omnispectral.imaging.geometry import CameraModel
 from omnispectral.mosaic.sources import MergedDirections
 from omnispectral.product.process import process
 from omnispectral.product.rigcal import RigCalibration, predict_b_px
+from omnispectral.rig import load_preset
 
 TIMES = ("06:30", "08:00", "09:30", "11:00", "12:30", "14:00", "15:30", "17:00", "18:00")
 SEEDS = (0, 1, 5)

@@ -18,9 +18,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from omnispectral.capture.rig import load_preset
 from omnispectral.capture.scenes import ProceduralOutdoorScene
 from omnispectral.capture.simulate import simulate_session
+from omnispectral.rig import load_preset
 
 
 def main() -> None:

@@ -30,10 +30,10 @@ from pathlib import Path
 
 import numpy as np
 
-from omnispectral.capture.rig import load_preset
 from omnispectral.cli import main as cli_main
 from omnispectral.mosaic.store import PanoramaStore
 from omnispectral.product.estimator import estimator_params
+from omnispectral.rig import load_preset
 from omnispectral.view.server import create_app
 
 BANDS = ["A:R", "A:G", "A:B", "B:R", "B:G", "B:B"]

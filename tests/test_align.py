@@ -7,10 +7,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from omnispectral.capture.rig import load_preset
 from omnispectral.capture.simulate import RigRenderer
 from omnispectral.imaging.geometry import Mounting
 from omnispectral.product.align import align_direction
+from omnispectral.rig import load_preset
 
 
 @pytest.fixture(scope="module")

@@ -17,10 +17,10 @@ import pytest
 
 from omnispectral.capture.devices import CameraFaults, FakeClock, HeadFaults, SimulatedCamera, SimulatedHead
 from omnispectral.capture.plan import direction_grid, grid_counts, make_plan, tradeoff
-from omnispectral.capture.rig import load_preset, load_rig, rig_toml
 from omnispectral.capture.run import RetryPolicy, run_capture
 from omnispectral.capture.session import Session, verify_session
 from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.rig import load_preset, load_rig, rig_toml
 
 
 # ------------------------------------------------------------------ planning
@@ -93,7 +93,7 @@ def test_rig_snapshot_round_trip(tmp_path):
     import tomllib
     from dataclasses import replace
 
-    from omnispectral.capture.rig import rig_from_dict
+    from omnispectral.rig import rig_from_dict
 
     rig = load_preset("paper-gigapixel")
     again = rig_from_dict(tomllib.loads(rig_toml(replace(rig, toml_text=""))))

@@ -7,7 +7,6 @@ import pytest
 
 from omnispectral.errors import ConfigurationError
 from omnispectral.product.exports import (
-    spectra_to_linear_srgb,
     spectral_channel_name,
     tone_map_srgb,
     write_envi,
@@ -15,6 +14,7 @@ from omnispectral.product.exports import (
     write_radiance_hdr,
     write_spectral_exr,
 )
+from omnispectral.spectral.colour import spectra_to_linear_srgb
 
 WL = np.arange(400.0, 701.0, 5.0)
 

@@ -4,8 +4,9 @@ import colour
 import numpy as np
 import pytest
 
+from omnispectral.spectral.colour import signal_to_XYZ
 from omnispectral.spectral.library import load_illuminant, load_reflectances
-from omnispectral.spectral.metrics import colour_differences, nrmse, signal_to_XYZ, spectral_angle_deg
+from omnispectral.spectral.metrics import colour_differences, nrmse, spectral_angle_deg
 
 WL = np.arange(400.0, 701.0, 5.0)
 

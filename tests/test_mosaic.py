@@ -7,8 +7,6 @@ import json
 import numpy as np
 import pytest
 
-from omnispectral.capture.rig import load_preset, rig_toml
-from omnispectral.capture.simulate import camera_model
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.imaging.geometry import (
     CameraModel,
@@ -38,6 +36,7 @@ from omnispectral.mosaic.maps import exact_map, tile_cone
 from omnispectral.mosaic.sources import MergedDirectionsWriter, encode_image, read_npy_rows
 from omnispectral.mosaic.store import box_average_2x2, pyramid_shapes
 from omnispectral.mosaic.synthetic import pad_over_poles, render_source, six_band_panorama, write_synthetic_merged
+from omnispectral.rig import camera_model, load_preset, rig_toml
 
 RIG = load_preset("small")  # the time-lapse geometry (95 x 61 deg, portrait, distortion) on a 256 x 136 sensor
 WIDTH = 256  # output panorama width in these tests
@@ -72,7 +71,7 @@ def known(tmp_path_factory):
     """Merged directions of the smooth scene, rendered exactly (the truth is known)."""
     path = tmp_path_factory.mktemp("mosaic") / "merged"
     merged = write_synthetic_merged(path, smooth_scene, small_cameras(), grid_directions(), offset_b_px=(0.4, -0.3),
-                                    rig_name=RIG.name, rig_toml=rig_toml(RIG))
+                                    rig_name=RIG.name, rig_toml=rig_toml(RIG), system=RIG.system().to_dict())
     return merged, smooth_panorama(WIDTH)
 
 

@@ -10,11 +10,10 @@ import sys
 import numpy as np
 import pytest
 
-from omnispectral.capture.rig import load_preset
-from omnispectral.capture.simulate import camera_model
 from omnispectral.cli import main
 from omnispectral.mosaic import PanoramaStore, mosaic
 from omnispectral.mosaic.synthetic import six_band_panorama, write_synthetic_merged
+from omnispectral.rig import camera_model, load_preset
 from omnispectral.spectral.curves import DEFAULT_WAVELENGTH_NM
 
 RIG = load_preset("small")

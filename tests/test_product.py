@@ -9,11 +9,11 @@ import shutil
 import numpy as np
 import pytest
 
-from omnispectral.capture.rig import load_preset, rig_from_dict
 from omnispectral.capture.simulate import simulate_session
 from omnispectral.cli import main
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.product.process import process
+from omnispectral.rig import load_preset, rig_from_dict
 
 NOON = dt.datetime(2017, 6, 21, 12, 0, tzinfo=dt.UTC)
 
@@ -70,7 +70,8 @@ def test_exports_read_back(product, tmp_path):
     from colour.io import read_spectral_image_Fichet2021
 
     from omnispectral.product.exports import export_product
-    from omnispectral.product.spectra import estimate_image, open_product
+    from omnispectral.product.layout import open_product
+    from omnispectral.product.spectra import estimate_image
 
     root, index = product
     export_product(root / "p", "spectral-exr", tmp_path / "s.exr", region=(200, 260, 500, 580))

@@ -6,9 +6,8 @@ import json
 
 import numpy as np
 
-from omnispectral.capture.rig import load_preset
-from omnispectral.capture.simulate import rig_system
 from omnispectral.product.estimator import _fit_cached, estimator_from_params, rig_estimator
+from omnispectral.rig import load_preset, rig_system
 from omnispectral.spectral.library import load_illuminant, load_reflectances
 from omnispectral.spectral.metrics import nrmse
 

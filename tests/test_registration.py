@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 
 from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.imaging.disparity import block_disparity
 from omnispectral.imaging.imageio import read_image
 from omnispectral.imaging.registration import (
     DEFAULT_MIN_CONFIDENCE,
-    block_disparity,
     phase_correlate,
     register_with_fallback,
 )

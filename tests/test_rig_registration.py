@@ -9,9 +9,8 @@ import numpy as np
 import pytest
 
 from omnispectral.capture.plan import make_plan
-from omnispectral.capture.rig import load_preset
 from omnispectral.capture.scenes import PanoramaScene, ProceduralOutdoorScene
-from omnispectral.capture.simulate import RigRenderer, camera_model, true_mounting_error_deg
+from omnispectral.capture.simulate import RigRenderer, true_mounting_error_deg
 from omnispectral.imaging.disparity import (
     epipolar_field,
     fill_from_neighbours,
@@ -28,6 +27,7 @@ from omnispectral.product.rigcal import (
     measure_direction,
     predict_b_px,
 )
+from omnispectral.rig import camera_model, load_preset
 
 RIG = load_preset("small")
 
@@ -126,7 +126,7 @@ def test_rig_calibration_of_the_procedural_scene(time_hhmm, seed, error_deg):
 def test_rig_calibration_on_a_real_hdr_panorama_with_noise(shared_data, tmp_path):
     """Everything at infinity (a real HDR panorama), sensor noise, the whole merge path."""
     from omnispectral.capture.simulate import simulate_session
-    from omnispectral.mosaic.sources import merge_session
+    from omnispectral.product.merge import merge_session
     from omnispectral.product.rigcal import calibrate_from_merged
 
     scene = PanoramaScene(shared_data / "hdr_envmaps" / "polyhaven_1k_hdr" / "venice_sunset_1k.hdr")

@@ -21,10 +21,10 @@ from omnispectral.capture.scenes import (
 from omnispectral.capture.scenes.procedural import GROUND_ID
 from omnispectral.capture.scenes.sky import (
     cie_sky_relative_luminance,
-    cmfs_xyz,
     hemisphere_quadrature,
 )
 from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.spectral.colour import cmfs_xyz
 from omnispectral.spectral.curves import DEFAULT_WAVELENGTH_NM
 
 WL = DEFAULT_WAVELENGTH_NM

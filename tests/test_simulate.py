@@ -8,9 +8,9 @@ import json
 import numpy as np
 import pytest
 
-from omnispectral.capture.rig import load_preset
-from omnispectral.capture.simulate import RigRenderer, camera_model, rig_system, sample_dn, simulate_session
+from omnispectral.capture.simulate import RigRenderer, sample_dn, simulate_session
 from omnispectral.imaging.geometry import ray_to_lonlat
+from omnispectral.rig import camera_model, load_preset, rig_system
 from omnispectral.spectral.curves import DEFAULT_WAVELENGTH_NM
 from omnispectral.spectral.noise import CMV2000
 

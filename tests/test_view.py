@@ -20,13 +20,13 @@ import cv2
 import numpy as np
 import pytest
 
-from omnispectral.capture.rig import load_preset
 from omnispectral.cli import main
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.mosaic.store import PanoramaStore
 from omnispectral.product.estimator import estimator_params
 from omnispectral.product.exports import reinhard_srgb8
 from omnispectral.product.spectra import spectrum_at
+from omnispectral.rig import load_preset
 from omnispectral.view.server import STATIC_DIR, create_app, load_static, probes_csv, view_slots
 from omnispectral.view.tiles import Display, SlotRenderer, TileCache, viewer_levels
 

@@ -10,6 +10,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from omnispectral.errors import InputFileError
+
 
 @contextlib.contextmanager
 def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
@@ -50,7 +52,6 @@ def atomic_write_json(path: str | Path, data: Any) -> Path:
 
 def read_text_file(path: str | Path, what: str = "file", encoding: str = "utf-8") -> str:
     """The text of a user's file; a missing or unreadable one is an ``InputFileError`` naming it."""
-    from omnispectral.errors import InputFileError
 
     path = Path(path)
     try:

@@ -17,6 +17,7 @@ from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 
+import cv2
 from threadpoolctl import ThreadpoolController
 
 _LOCK = threading.Lock()
@@ -67,7 +68,6 @@ def blocks(n_items: int, block: int) -> list[slice]:
 @contextmanager
 def single_threaded_libraries() -> Iterator[None]:
     """BLAS and OpenCV's own thread pool held to one thread (for work that is parallel across items)."""
-    import cv2
 
     before = cv2.getNumThreads()
     cv2.setNumThreads(1)

@@ -15,10 +15,10 @@ from pathlib import Path
 from omnispectral.capture import drivers
 from omnispectral.capture.devices import DeviceError, SimulatedHead, SystemClock
 from omnispectral.capture.plan import format_duration, make_plan
-from omnispectral.capture.rig import Rig
 from omnispectral.capture.run import RetryPolicy, run_capture
 from omnispectral.capture.session import CAMERAS, Session
 from omnispectral.errors import ConfigurationError, OmnispectralError
+from omnispectral.rig import Rig
 
 log = logging.getLogger(__name__)
 
@@ -33,7 +33,7 @@ def _open_head(rig: Rig):
     return drivers.open_head(rig)
 
 
-def capture_with_devices(output: str | Path, rig: Rig, *, progress: bool = True) -> dict:
+def capture_with_devices(output: str | Path, rig: Rig, *, progress=None) -> dict:
     """Capture (or resume) a session at ``output`` with the rig's real devices; returns the run summary."""
     if drivers.rig_device_kind(rig) != "real":
         raise ConfigurationError(f"{rig.source}: the rig's devices are all simulated; use 'omnispectral simulate'")

@@ -22,8 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from omnispectral.capture.rig import Rig
 from omnispectral.errors import ConfigurationError
+from omnispectral.io import atomic_path
+from omnispectral.rig import Rig
 
 
 @dataclass(frozen=True)
@@ -172,12 +173,11 @@ def tradeoff(rig: Rig, overlaps=None) -> list[dict]:
 
 def plot_tradeoff(rig: Rig, rows: list[dict], path) -> None:
     """Fig. 15a-style plot: relative acquisition time and directions against the overlap."""
-    import matplotlib
+    import matplotlib  # lazy: matplotlib (pyplot) is needed for this plot only, and the backend must be set first
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from omnispectral.io import atomic_path
 
     ref = make_plan(rig)
     fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)

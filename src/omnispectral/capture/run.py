@@ -3,12 +3,13 @@
 The same loop runs real and simulated devices.  It resumes a session after its last complete frame,
 retries a device that does not answer or reports a position off target a bounded number of times,
 and otherwise stops cleanly (an event with the reason is logged; the session stays valid and can be
-resumed).  Progress is shown per frame.
+resumed).  Progress is reported per frame to a callback ``progress("capture", done, total)``.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from omnispectral.capture.devices import Camera, Clock, DeviceError, DeviceTimeout, PanTiltHead
@@ -84,8 +85,10 @@ def expose_all(cameras: dict[str, Camera], names: list[str], exposure_s: float, 
 
 
 def run_capture(session: Session, head: PanTiltHead, cameras: dict[str, Camera], clock: Clock,
-                policy: RetryPolicy | None = None, progress: bool = True) -> CaptureResult:
-    """Capture (or resume) every planned frame of ``session`` with the given devices."""
+                policy: RetryPolicy | None = None,
+                progress: Callable[[str, int, int], None] | None = None) -> CaptureResult:
+    """Capture (or resume) every planned frame of ``session`` with the given devices; ``progress(stage, done,
+    total)`` is called after every frame written."""
     policy = policy or RetryPolicy()
     plan = session.plan()
     cut = session.repair_journal()
@@ -96,7 +99,9 @@ def run_capture(session: Session, head: PanTiltHead, cameras: dict[str, Camera],
     t_wall, t_sim = time.perf_counter(), clock.monotonic()
     written = 0
     stopped = None
-    bar, task = _progress(progress, n_planned, n_before, session)
+    progress = progress or None  # False (no progress) is accepted too
+    if progress is not None:
+        progress("capture", n_before, n_planned)
     try:
         for d in plan.directions:
             todo = [(c, k) for k in range(len(plan.exposures_s)) for c in CAMERAS if (d.index, c, k) not in done]
@@ -117,31 +122,16 @@ def run_capture(session: Session, head: PanTiltHead, cameras: dict[str, Camera],
                                         bit_depth=cameras[c].bit_depth, extra={"camera_metadata": meta})
                     done.add((d.index, c, k))
                     written += 1
-                    if bar is not None:
-                        bar.advance(task)
+                    if progress is not None:
+                        progress("capture", len(done), n_planned)
     except DeviceError as exc:
         stopped = str(exc)
         session.log_event("stop", reason=stopped, frames_done=len(done))
     except KeyboardInterrupt:
         session.log_event("stop", reason="interrupted", frames_done=len(done))
         raise
-    finally:
-        if bar is not None:
-            bar.stop()
     complete = len(done) >= n_planned
     if complete:
         session.log_event("complete", frames_done=len(done))
     return CaptureResult(str(session.path), n_planned, written, n_before, complete, stopped,
                          clock.monotonic() - t_sim, time.perf_counter() - t_wall)
-
-
-def _progress(enabled: bool, total: int, done: int, session: Session):
-    if not enabled:
-        return None, None
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-    bar = Progress(TextColumn("capturing"), BarColumn(), MofNCompleteColumn(), TextColumn("frames"),
-                   TimeRemainingColumn(), transient=True)
-    task = bar.add_task(str(session.path), total=total, completed=done)
-    bar.start()
-    return bar, task

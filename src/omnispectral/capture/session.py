@@ -23,15 +23,17 @@ import datetime as _dt
 import hashlib
 import json
 import os
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import tifffile
 
 from omnispectral.capture.plan import Plan
-from omnispectral.capture.rig import Rig, rig_from_dict, rig_toml
 from omnispectral.errors import InputFileError
 from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text
+from omnispectral.rig import Rig, rig_from_dict, rig_toml
 
 FORMAT_VERSION = 1
 CAMERAS = ("A", "B")
@@ -145,8 +147,6 @@ class Session:
             raise InputFileError(self.path / "plan.json", f"not a valid plan ({exc})") from None
 
     def rig(self) -> Rig:
-        import tomllib
-
         p = self.path / "rig.toml"
         try:
             text = p.read_text(encoding="utf-8")
@@ -214,7 +214,6 @@ class Session:
                     pan_deg_commanded: float, tilt_deg_commanded: float, pan_deg_reported: float,
                     tilt_deg_reported: float, timestamp: str, bit_depth: int, extra: dict | None = None) -> dict:
         """Write one raw frame (atomic) and then its journal line (fsynced); returns the record."""
-        import tifffile
 
         if frame.dtype != np.uint16 or frame.ndim not in (2, 3):
             raise ValueError(f"raw frames are (H, W[, C]) uint16, got {frame.shape} {frame.dtype}")
@@ -236,7 +235,6 @@ class Session:
 
     def read_frame(self, direction: int, camera: str, exposure_index: int) -> tuple[np.ndarray, dict]:
         """A raw frame and the metadata stored inside it; a damaged file is named in the error."""
-        import tifffile
 
         p = self.path / frame_relpath(direction, camera, exposure_index)
         if not p.exists():

@@ -20,41 +20,24 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from omnispectral.capture.rig import Rig
+from omnispectral.capture.devices import FakeClock, SimulatedCamera, SimulatedHead
+from omnispectral.capture.plan import make_plan
+from omnispectral.capture.run import RetryPolicy, run_capture
+from omnispectral.capture.session import Session
 from omnispectral.errors import ConfigurationError
-from omnispectral.imaging.geometry import CameraModel, Mounting
+from omnispectral.imaging.geometry import CameraModel, equirect_pixel_to_lonlat, lonlat_to_ray
 from omnispectral.io import atomic_path, atomic_write_json
+from omnispectral.rig import Rig
 from omnispectral.spectral.noise import SensorNoiseModel
-from omnispectral.spectral.system import MultibandSystem, build_system
+from omnispectral.spectral.system import MultibandSystem
 
 GROUND_TRUTH_FORMAT = "omnispectral-ground-truth"
 PAPER_PANORAMA_WIDTH_PX = 7260  # Table 2, for the 2048-px sensor
-
-
-def camera_model(rig: Rig, name: str) -> CameraModel:
-    """The geometric model of camera ``A`` or ``B`` of a rig: lens (calibration or field of view) and mounting."""
-    cam = rig.cameras[name]
-    if name == "A":
-        mounting = Mounting(roll_deg=cam.roll_deg)
-    else:
-        m = rig.mounting
-        mounting = Mounting(roll_deg=cam.roll_deg, misalignment_deg=(m.yaw_deg, m.pitch_deg, m.roll_deg),
-                            baseline_mm=m.baseline_mm)
-    if cam.lens.calibration:
-        from dataclasses import replace
-
-        model = CameraModel.from_json(cam.lens.calibration)
-        if (model.width, model.height) != (cam.width_px, cam.height_px):
-            raise ConfigurationError(f"camera {name}: lens calibration {cam.lens.calibration} is for "
-                                     f"{model.width}x{model.height}, the sensor is {cam.width_px}x{cam.height_px}")
-        return replace(model, mounting=mounting)
-    return _model_from_fovs(cam.width_px, cam.height_px, cam.lens.hfov_deg, cam.lens.vfov_deg, cam.lens.distortion,
-                            mounting)
 
 
 #: Largest error (deg, per axis) of camera B's true mounting against the rig file's in a simulation.
@@ -74,41 +57,8 @@ def true_mounting_error_deg(seed: int, max_error_deg: float = DEFAULT_MOUNTING_E
 
 def perturbed_model(model: CameraModel, error_deg: tuple[float, float, float]) -> CameraModel:
     """``model`` with ``error_deg`` added to its mounting's misalignment (yaw, pitch, roll)."""
-    from dataclasses import replace
 
     return replace(model, mounting=model.mounting.with_misalignment_change(error_deg))
-
-
-def _model_from_fovs(width: int, height: int, hfov_deg: float, vfov_deg: float, dist, mounting) -> CameraModel:
-    """A camera with the rig file's two fields of view: ``fx`` from the horizontal one (solved through the
-    distortion), ``fy`` so that the vertical one holds for the pinhole part (non-square pixels when the
-    stated angles do not match the sensor's aspect, as for the paper's telephoto: 14.5° × 10.8° on
-    2048 × 1088 — square pixels would give 7.7° and leave gaps between the 60 × 21 grid's rows)."""
-    import math
-    from dataclasses import replace
-
-    model = CameraModel.from_fov(width, height, hfov_deg, dist, mounting)
-    fx0 = 0.5 * width / math.tan(math.radians(hfov_deg) / 2)
-    fy0 = 0.5 * height / math.tan(math.radians(vfov_deg) / 2)
-    return replace(model, fy=model.fx * fy0 / fx0)
-
-
-def rig_system(rig: Rig, wavelength_nm: np.ndarray | None = None) -> MultibandSystem:
-    """The six-band system of a rig: camera A's sensitivity × filter A, then camera B's × filter B."""
-    pairs = tuple((rig.cameras[c].sensitivity, rig.cameras[c].filter) for c in ("A", "B"))
-    return two_camera_system(pairs, wavelength_nm, rig.name)
-
-
-def two_camera_system(pairs: tuple[tuple[str, str], tuple[str, str]], wavelength_nm: np.ndarray | None = None,
-                      name: str = "rig") -> MultibandSystem:
-    """Bands ``A:R … B:B`` of two cameras given as (sensitivity, filter) names or CSV files."""
-    from omnispectral.spectral.library import load_camera, load_filter
-
-    parts = [build_system(load_camera(sens), [load_filter(filt)], wavelength_nm) for sens, filt in pairs]
-    return MultibandSystem(parts[0].wavelength_nm, np.vstack([p.sensitivity for p in parts]),
-                           tuple(f"{c}:{b}" for c in ("A", "B") for b in ("R", "G", "B")),
-                           np.array([0, 0, 0, 1, 1, 1]),
-                           f"{name}: {parts[0].description} | {parts[1].description}")
 
 
 def sample_dn(electrons: np.ndarray, noise: SensorNoiseModel, rng: np.random.Generator) -> np.ndarray:
@@ -145,8 +95,8 @@ class RigRenderer:
     _last: dict = field(init=False, default_factory=dict)
 
     def __post_init__(self):
-        self.system = rig_system(self.rig, np.asarray(self.scene.wavelength_nm))
-        self.models = {c: camera_model(self.rig, c) for c in ("A", "B")}
+        self.system = self.rig.system(np.asarray(self.scene.wavelength_nm))
+        self.models = {c: self.rig.camera_model(c) for c in ("A", "B")}
         self.models["B"] = perturbed_model(self.models["B"], self.b_mounting_error_deg)
         if self.electrons_per_unit is None:
             self.electrons_per_unit = calibrate_exposure(self.rig, self.scene, self.system)
@@ -205,7 +155,6 @@ class RigRenderer:
 def calibrate_exposure(rig: Rig, scene, system: MultibandSystem, grid: tuple[int, int] = (256, 128)) -> float:
     """Electrons per second per unit band radiance (module docstring: bright surfaces at 80 % of full well
     at the bracket's geometric-mean exposure)."""
-    from omnispectral.imaging.geometry import equirect_pixel_to_lonlat, lonlat_to_ray
 
     w, h = grid
     col, row = np.meshgrid(np.arange(w), np.arange(h))
@@ -260,8 +209,6 @@ def write_ground_truth(directory: str | Path, renderer: RigRenderer, width: int,
     patches = renderer.scene.colorchecker_patches() if hasattr(renderer.scene, "colorchecker_patches") else []
     chart = {}
     if patches:
-        from omnispectral.imaging.geometry import lonlat_to_ray
-
         rays = lonlat_to_ray(np.array([p["lon_deg"] for p in patches]), np.array([p["lat_deg"] for p in patches]))
         radiance = renderer.scene.spectral_radiance(rays) * np.float32(scale)
         refl = np.array([p["reflectance"] for p in patches], np.float32)
@@ -291,7 +238,6 @@ def _fill_equirect(arr: np.ndarray, fn, rows_per_chunk: int, supersample: int = 
     """Fill an equirect array with ``fn(rays)`` averaged over ``supersample²`` points spread over each pixel's
     area: the truth is the mean radiance of the pixel's solid angle, as the simulated sensor's pixels
     integrate over their area (:attr:`RigRenderer.supersample`), so that edges compare like with like."""
-    from omnispectral.imaging.geometry import equirect_pixel_to_lonlat, lonlat_to_ray
 
     h, w = arr.shape[:2]
     s = max(1, int(supersample))
@@ -314,17 +260,14 @@ def _jsonable(x):
 
 
 def simulate_session(output: str | Path, rig: Rig, scene, *, start: _dt.datetime, noise: bool = True,
-                     seed: int = 0, ground_truth_width: int | None = None, progress: bool = True,
+                     seed: int = 0, ground_truth_width: int | None = None, progress=None,
                      overlap: float | None = None, mounting_error_deg: float = DEFAULT_MOUNTING_ERROR_DEG) -> dict:
     """``capture`` with the simulated rig plus the ground truth; resumable like any capture.
 
     Camera B is rendered with an unknown mounting error of up to ``mounting_error_deg`` per axis drawn
     from ``seed`` (:func:`true_mounting_error_deg`; 0 renders the rig file's mounting exactly).
+    ``progress(stage, done, total)`` follows the frames (:func:`~omnispectral.capture.run.run_capture`).
     """
-    from omnispectral.capture.devices import FakeClock, SimulatedCamera, SimulatedHead
-    from omnispectral.capture.plan import make_plan
-    from omnispectral.capture.run import RetryPolicy, run_capture
-    from omnispectral.capture.session import Session
 
     plan = make_plan(rig, overlap=overlap)
     renderer = RigRenderer(rig, scene, noise=noise,

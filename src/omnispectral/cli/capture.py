@@ -4,28 +4,25 @@ from __future__ import annotations
 
 from rich.table import Table
 
+from omnispectral.capture.plan import format_duration, make_plan, plot_tradeoff, tradeoff
+from omnispectral.capture.session import verify_session
 from omnispectral.cli._common import console, print_json
+from omnispectral.io import atomic_write_json
+from omnispectral.rig import PRESETS, resolve_rig
 
 
 def add_rig_args(p) -> None:
-    from omnispectral.capture.rig import PRESETS
-
     g = p.add_mutually_exclusive_group()
     g.add_argument("--preset", choices=PRESETS, default=None, help="built-in rig of the paper (or 'small')")
     g.add_argument("--rig", default=None, metavar="FILE.toml", help="rig description file")
 
 
 def rig_from_args(args, default_preset: str | None = None):
-    from omnispectral.capture.rig import resolve_rig
-
     preset = args.preset if args.preset or args.rig else default_preset
     return resolve_rig(preset, args.rig)
 
 
 def cmd_plan(args) -> int:
-    from omnispectral.capture.plan import format_duration, make_plan, plot_tradeoff, tradeoff
-    from omnispectral.io import atomic_write_json
-
     rig = rig_from_args(args)
     plan = make_plan(rig, overlap=args.overlap)
     out = plan.to_dict()
@@ -57,8 +54,6 @@ def cmd_plan(args) -> int:
 
 
 def cmd_session_verify(args) -> int:
-    from omnispectral.capture.session import verify_session
-
     report = verify_session(args.session, check_pixels=args.pixels)
     if args.json:
         print_json(report)

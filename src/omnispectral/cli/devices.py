@@ -5,14 +5,14 @@ from __future__ import annotations
 from rich.markup import escape
 from rich.table import Table
 
+from omnispectral.capture.drivers import list_serial_ports
+from omnispectral.capture.drivers.gentl import GenTLSystem, producer_paths
+from omnispectral.capture.hardware import probe_rig
 from omnispectral.cli._common import console, print_json
 from omnispectral.cli.capture import rig_from_args
 
 
 def cmd_devices_list(args) -> int:
-    from omnispectral.capture.drivers import list_serial_ports
-    from omnispectral.capture.drivers.gentl import GenTLSystem, producer_paths
-
     ports = list_serial_ports()
     producers = producer_paths(args.cti)
     cameras = []
@@ -46,8 +46,6 @@ def cmd_devices_list(args) -> int:
 
 
 def cmd_devices_probe(args) -> int:
-    from omnispectral.capture.hardware import probe_rig
-
     rig = rig_from_args(args)
     report = probe_rig(rig)
     if args.json:

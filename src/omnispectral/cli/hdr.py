@@ -5,28 +5,25 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+import numpy as np
+
 from omnispectral.cli._common import console, print_json
+from omnispectral.imaging.bracket import auto_weight, load_bracket, merge_bracket, write_float_image
+from omnispectral.imaging.response import CameraResponse
 
 
 def cmd_hdr_merge(args) -> int:
-    from omnispectral.imaging.bracket import load_bracket, merge_bracket, write_float_image
-    from omnispectral.imaging.response import CameraResponse
-
     t0 = time.perf_counter()
     bracket = load_bracket(args.files, times=args.times, times_list=args.times_list)
     response = args.response
     if response not in ("auto", "linear", "debevec"):
         response = CameraResponse.load(response)
-    weight = args.weight
-    if weight == "auto":  # the paper's triangle for linear raw frames; inverse variance after linearisation
-        weight = "noise" if bracket.dtype.itemsize == 1 and args.response != "linear" else "triangle"
+    weight = auto_weight(bracket, args.response) if args.weight == "auto" else args.weight
     result, resp, depth = merge_bracket(bracket, bit_depth=args.bit_depth, weight=weight, response=response,
                                         deghost=args.deghost, reference=args.reference)
     names = ["R", "G", "B"] if result.radiance.shape[2] == 3 else None
     image, channel_names = result.radiance, names
     if args.with_variance:
-        import numpy as np
-
         c = image.shape[2]
         base = names or [f"C{i}" for i in range(c)]
         image = np.concatenate([image, result.variance, result.valid.all(axis=2, keepdims=True)], axis=2)

@@ -7,6 +7,9 @@ import argparse
 from rich.table import Table
 
 from omnispectral.cli._common import console, print_json
+from omnispectral.errors import ConfigurationError
+from omnispectral.imaging.lens import DEFAULT_SUBPIX_WINDOW, DETECTORS, MIN_IMAGES, MODELS, calibrate_lens, parse_board
+from omnispectral.io import atomic_write_json
 
 
 def calibrate_group(sub) -> argparse._SubParsersAction:
@@ -24,9 +27,6 @@ def calibrate_group(sub) -> argparse._SubParsersAction:
 
 
 def _board(text: str) -> tuple[int, int]:
-    from omnispectral.errors import ConfigurationError
-    from omnispectral.imaging.lens import parse_board
-
     try:
         return parse_board(text)
     except ConfigurationError as exc:
@@ -56,9 +56,6 @@ def _subpix(text: str) -> int | str:
 
 
 def cmd_calibrate_lens(args) -> int:
-    from omnispectral.imaging.lens import calibrate_lens
-    from omnispectral.io import atomic_write_json
-
     result = calibrate_lens(args.images, board=args.board, square_mm=args.square_mm, model=args.model,
                             detector=args.detector, min_images=args.min_images,
                             subpix_window_px=args.subpix_window)
@@ -90,7 +87,6 @@ def cmd_calibrate_lens(args) -> int:
 
 def add_commands(sub) -> None:
     """Register ``calibrate lens``."""
-    from omnispectral.imaging.lens import DEFAULT_SUBPIX_WINDOW, DETECTORS, MIN_IMAGES, MODELS
 
     lens = calibrate_group(sub).add_parser(
         "lens", help="lens intrinsics and distortion from chessboard images (Zhang's method)",

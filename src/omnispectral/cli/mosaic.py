@@ -3,21 +3,19 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
+
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
+from omnispectral.cli._common import console, err_console, print_json
+from omnispectral.mosaic import mosaic
+from omnispectral.mosaic.blending import BLENDS, DEFAULT_MULTIBAND_LEVELS
+from omnispectral.mosaic.engine import DEFAULT_INTERP, DEFAULT_TILE
+from omnispectral.mosaic.interp import METHODS
+from omnispectral.product.merge import merge_session
 
 
 def cmd_mosaic(args) -> int:
-    from rich.progress import (
-        BarColumn,
-        MofNCompleteColumn,
-        Progress,
-        TextColumn,
-        TimeElapsedColumn,
-        TimeRemainingColumn,
-    )
-
-    from omnispectral.cli._common import console, err_console, print_json
-    from omnispectral.mosaic import mosaic
-
     region = tuple(args.region) if args.region else None
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                TimeRemainingColumn())
@@ -33,10 +31,14 @@ def cmd_mosaic(args) -> int:
                 description = f"tiles (last: {result.get('n_sources', 0)} sources, {result.get('seconds', 0):.2f} s)"
             bar.update(tasks[stage], completed=done, total=total, description=description)
 
-        summary = mosaic(args.input, args.output, width=args.width, tile=args.tile, interp=args.interp,
+        source = Path(args.input)
+        if (source / "session.json").is_file():  # a raw session: merge it into directions first
+            merged_dir = Path(args.merged_dir) if args.merged_dir is not None else source / "merged"
+            source = merge_session(source, merged_dir, progress=lambda d, n: progress("merge", {}, d, n))
+        summary = mosaic(source, args.output, width=args.width, tile=args.tile, interp=args.interp,
                          blend=args.blend, multiband_levels=args.levels, gain_compensation=args.gain_compensation,
                          scheduler=args.scheduler, workers=args.workers, overwrite=args.overwrite,
-                         merged_dir=args.merged_dir, region=region, progress=progress)
+                         region=region, progress=progress)
     if args.json:
         print_json(summary)
         return 0
@@ -57,10 +59,6 @@ def cmd_mosaic(args) -> int:
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
-    from omnispectral.mosaic.blending import BLENDS, DEFAULT_MULTIBAND_LEVELS
-    from omnispectral.mosaic.engine import DEFAULT_INTERP, DEFAULT_TILE
-    from omnispectral.mosaic.interp import METHODS
-
     p = sub.add_parser(
         "mosaic", help="stitch a capture session or merged directions into a six-band panorama (Zarr)",
         description="One resampling per output pixel through the composed geometry (equirect pixel -> ray -> "

@@ -2,23 +2,28 @@
 
 from __future__ import annotations
 
-import datetime as _dt
-import time
 from pathlib import Path
 
 from rich.markup import escape
 from rich.table import Table
 
-from omnispectral.cli._common import console, print_json
+from omnispectral.cli._common import ProgressBars, console, print_json
+from omnispectral.cli.lens import calibrate_group
+from omnispectral.product.demo import run_demo
+from omnispectral.product.exports import FORMATS, export_product
+from omnispectral.product.process import process
+from omnispectral.product.report import write_report
+from omnispectral.product.rigcal import calibrate_session
+from omnispectral.product.series import DEFAULT_REGIONS, parse_region, process_series
+from omnispectral.product.spectra import spectrum_at
 
 
 def cmd_process(args) -> int:
-    from omnispectral.product.process import process
-
-    index = process(args.session, args.output, width=args.width, tile=args.tile, interp=args.interp,
-                    scheduler=args.scheduler, skip_bad=args.skip_bad, min_confidence=args.min_confidence,
-                    hdr_weight=args.hdr_weight, progress=not args.json, verify_checksums=args.verify_checksums,
-                    registration=args.registration, rig_calibration=args.rig_calibration)
+    with ProgressBars(enabled=not args.json) as bars:
+        index = process(args.session, args.output, width=args.width, tile=args.tile, interp=args.interp,
+                        scheduler=args.scheduler, skip_bad=args.skip_bad, min_confidence=args.min_confidence,
+                        hdr_weight=args.hdr_weight, progress=bars, verify_checksums=args.verify_checksums,
+                        registration=args.registration, rig_calibration=args.rig_calibration)
     if args.json:
         print_json(index)
         return 0
@@ -51,8 +56,6 @@ def _print_summary(index: dict) -> None:
 
 
 def cmd_spectrum(args) -> int:
-    from omnispectral.product.spectra import spectrum_at
-
     out = spectrum_at(args.product, args.lon, args.lat, level=args.level)
     if args.json:
         print_json(out)
@@ -70,8 +73,6 @@ def cmd_spectrum(args) -> int:
 
 
 def cmd_export(args) -> int:
-    from omnispectral.product.exports import export_product
-
     out = export_product(args.product, args.format, args.output,
                          tuple(args.region) if args.region else None, args.level)
     if args.json:
@@ -83,8 +84,6 @@ def cmd_export(args) -> int:
 
 
 def cmd_report(args) -> int:
-    from omnispectral.product.report import write_report
-
     rep = write_report(args.product)
     if args.json:
         print_json(rep["report"])
@@ -112,61 +111,28 @@ def _print_accuracy(acc: dict | None) -> None:
 
 
 def cmd_demo(args) -> int:
-    from omnispectral.capture.rig import load_preset
-    from omnispectral.capture.simulate import simulate_session
-    from omnispectral.cli.simulate import DEFAULT_DATE, build_scene
-    from omnispectral.product.exports import export_product
-    from omnispectral.product.process import process
-
     out = Path(args.out)
-    rig = load_preset("paper-timelapse" if args.full else "small")
-    start = _dt.datetime.combine(DEFAULT_DATE, _dt.time.fromisoformat(args.time), tzinfo=_dt.UTC)
-    t0 = time.perf_counter()
-    console.print(f"[bold]1/4 simulate[/bold] the {rig.name} rig ({rig.camera_a.width_px}×{rig.camera_a.height_px}, "
-                  f"36 directions × 2 cameras × {len(rig.bracket.exposures_s)} exposures) on the procedural scene "
-                  f"at {args.time}")
-    sim = simulate_session(out / "session", rig, build_scene("procedural", None, start, seed=args.seed), start=start,
-                           seed=args.seed)
-    console.print(f"[bold]2/4 process[/bold] into {out / 'product'}")
-    index = process(out / "session", out / "product", report=True)
-    console.print("[bold]3/4 export[/bold]")
-    h, w = index["height"], index["width"]
-    exports = {}
-    level = 0 if not args.full else 1
-    for fmt, name in (("spectral-exr", "panorama_spectral.exr"), ("png", "panorama_preview.png"),
-                      ("rgb-exr", "panorama_rgb.exr"), ("hdr", "panorama_rgb.hdr"), ("envi", "panorama_envi.hdr"),
-                      ("uncertainty", "panorama_uncertainty.exr")):
-        exports[fmt] = export_product(out / "product", fmt, out / name, level=level)["output"]
-    console.print("[bold]4/4 report[/bold]")
-    import json
 
-    report = json.loads((out / "product" / "report" / "report.json").read_text())
-    summary = {"accuracy": report["accuracy"], "timings_s": report["timings_s"], "simulation_s": sim["wall_s"],
-               "total_s": time.perf_counter() - t0, "panorama": [w, h], "session": str(out / "session"),
-               "product": str(out / "product"), "report_html": str(out / "product" / "report" / "report.html"),
-               "exports": exports}
-    from omnispectral.io import atomic_write_json
+    def step(k: int, n: int, text: str) -> None:
+        verb, _, rest = text.partition(" ")
+        console.print(f"[bold]{k}/{n} {verb}[/bold]" + (f" {rest}" if rest else ""))
 
-    accuracy = dict(report["accuracy"])
-    if accuracy.get("colorchecker"):  # the summary keeps the numbers, the product's report keeps the spectra
-        accuracy["colorchecker"] = {k: v for k, v in accuracy["colorchecker"].items()
-                                    if k not in ("estimated", "true", "wavelength_nm")}
-    atomic_write_json(out / "report.json", {**summary, "accuracy": accuracy})
-    _print_accuracy(report["accuracy"])
+    with ProgressBars() as bars:
+        summary = run_demo(out, full=args.full, time_hhmm=args.time, seed=args.seed, on_step=step, progress=bars)
+    _print_accuracy(summary["accuracy"])
     console.print(f"Done in {summary['total_s']:.0f} s. Everything is in {out}/:")
-    for label, path in (("session (raw frames, journal, ground truth)", out / "session"),
-                        ("product (six-band Zarr panorama + estimator)", out / "product"),
-                        ("report (HTML)", out / "product" / "report" / "report.html"),
-                        ("report (JSON)", out / "report.json"), *exports.items()):
+    for label, path in (("session (raw frames, journal, ground truth)", summary["session"]),
+                        ("product (six-band Zarr panorama + estimator)", summary["product"]),
+                        ("report (HTML)", summary["report_html"]),
+                        ("report (JSON)", out / "report.json"), *summary["exports"].items()):
         console.print(f"  {label}: {path}")
     return 0
 
 
 def cmd_process_series(args) -> int:
-    from omnispectral.product.series import DEFAULT_REGIONS, parse_region, process_series
-
     regions = dict(parse_region(r) for r in args.region) if args.region else dict(DEFAULT_REGIONS)
-    out = process_series(args.series, args.output, regions, progress=not args.json)
+    with ProgressBars(enabled=not args.json) as bars:
+        out = process_series(args.series, args.output, regions, progress=bars)
     if args.json:
         print_json(out)
     else:
@@ -177,8 +143,6 @@ def cmd_process_series(args) -> int:
 
 
 def cmd_calibrate_rig(args) -> int:
-    from omnispectral.product.rigcal import calibrate_session
-
     cal = calibrate_session(args.session, args.output, args.work)
     if args.json:
         print_json(cal.to_dict())
@@ -199,8 +163,6 @@ def cmd_calibrate_rig(args) -> int:
 def add_commands(sub) -> None:
     """Register ``process``, ``process-series``, ``spectrum``, ``export``, ``report``, ``demo`` and
     ``calibrate rig``."""
-    from omnispectral.cli.lens import calibrate_group
-    from omnispectral.product.exports import FORMATS
 
     c = calibrate_group(sub).add_parser(
         "rig", help="camera B's mounting relative to camera A, fitted from a session's images",

@@ -4,12 +4,20 @@ from __future__ import annotations
 
 import argparse
 
+from omnispectral.cli._common import console, print_json
+from omnispectral.imaging.imageio import read_image
+from omnispectral.imaging.registration import (
+    DEFAULT_BAND_LIMIT,
+    DEFAULT_MIN_CONFIDENCE,
+    DEFAULT_PREPROCESS,
+    PREPROCESS,
+    WINDOWS,
+    phase_correlate,
+    register_with_fallback,
+)
+
 
 def cmd_register(args) -> int:
-    from omnispectral.cli._common import console, print_json
-    from omnispectral.imaging.imageio import read_image
-    from omnispectral.imaging.registration import phase_correlate, register_with_fallback
-
     reference = read_image(args.reference)
     moving = read_image(args.moving)
     options = {"window": args.window, "band_limit": args.band_limit, "preprocess": args.preprocess}
@@ -40,14 +48,6 @@ def cmd_register(args) -> int:
 
 
 def add_commands(sub: argparse._SubParsersAction) -> None:
-    from omnispectral.imaging.registration import (
-        DEFAULT_BAND_LIMIT,
-        DEFAULT_MIN_CONFIDENCE,
-        DEFAULT_PREPROCESS,
-        PREPROCESS,
-        WINDOWS,
-    )
-
     p = sub.add_parser(
         "register", help="sub-pixel shift of image B relative to image A (phase-only correlation)",
         description="Band-limited phase-only correlation with a sub-pixel peak model (paper Eq. (3); Takita et al. "

@@ -7,48 +7,29 @@ from pathlib import Path
 
 from rich.markup import escape
 
-from omnispectral.cli._common import console, print_json
+from omnispectral.capture.devices import FakeClock
+from omnispectral.capture.drivers import rig_device_kind
+from omnispectral.capture.hardware import capture_with_devices, dry_run
+from omnispectral.capture.scenes import DEFAULT_DATE, build_scene
+from omnispectral.capture.simulate import simulate_session
+from omnispectral.capture.timelapse import parse_hhmm, parse_interval_s, run_timelapse, slot_times
+from omnispectral.cli._common import ProgressBars, console, print_json
 from omnispectral.cli.capture import add_rig_args, rig_from_args
-from omnispectral.errors import ConfigurationError
-
-DEFAULT_DATE = _dt.date(2017, 6, 21)  # summer solstice; the paper's captures are from 2016-2017 in Japan
-
-
-def build_scene(scene: str, cube: str | None, when: _dt.datetime, wavelength_nm=None, seed: int = 0,
-                chart_distance_m: float | None = None, chart_patch_m: float | None = None):
-    """The scene named on the command line: ``procedural``, an HDR panorama file, optionally a cube on a wall."""
-    from omnispectral.capture import scenes
-
-    kwargs = {} if wavelength_nm is None else {"wavelength_nm": wavelength_nm}
-    if scene == "procedural":
-        chart = {k: v for k, v in (("chart_distance_m", chart_distance_m), ("chart_patch_m", chart_patch_m))
-                 if v is not None}
-        base = scenes.ProceduralOutdoorScene(time_hhmm=f"{when:%H:%M}", day_of_year=when.timetuple().tm_yday,
-                                             seed=seed, **chart, **kwargs)
-    else:
-        if cube:
-            raise ConfigurationError("--cube mounts the cube on a wall of the procedural scene; use --scene procedural")
-        return scenes.PanoramaScene(scene, **kwargs)
-    return scenes.CubeOnWallScene(cube, base=base) if cube else base
 
 
 def _start_time(text: str, date: str | None) -> _dt.datetime:
-    from omnispectral.capture.timelapse import parse_hhmm
-
     day = _dt.date.fromisoformat(date) if date else DEFAULT_DATE
     return parse_hhmm(text, day, _dt.UTC)
 
 
 def cmd_simulate(args) -> int:
-    from omnispectral.capture.simulate import simulate_session
-
     rig = rig_from_args(args, default_preset="small")
     start = _start_time(args.time, args.date)
     scene = build_scene(args.scene, args.cube, start, seed=args.seed, chart_distance_m=args.chart_distance,
                         chart_patch_m=args.chart_patch)
-    out = simulate_session(args.output, rig, scene, start=start, noise=args.noise == "on", seed=args.seed,
-                           ground_truth_width=args.gt_width, progress=not args.json,
-                           mounting_error_deg=args.mounting_error)
+    with ProgressBars(enabled=not args.json, transient=True) as bars:
+        out = simulate_session(args.output, rig, scene, start=start, noise=args.noise == "on", seed=args.seed,
+                               ground_truth_width=args.gt_width, progress=bars, mounting_error_deg=args.mounting_error)
     out["rig"] = rig.name
     if args.json:
         print_json(out)
@@ -61,9 +42,6 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_capture(args) -> int:
-    from omnispectral.capture.drivers import rig_device_kind
-    from omnispectral.capture.hardware import capture_with_devices, dry_run
-
     rig = rig_from_args(args)
     kind = rig_device_kind(rig)
     if args.dry_run:
@@ -86,7 +64,8 @@ def cmd_capture(args) -> int:
         return 0
     if kind == "simulated":
         return cmd_simulate(args)
-    out = capture_with_devices(args.output, rig, progress=not args.json)
+    with ProgressBars(enabled=not args.json, transient=True) as bars:
+        out = capture_with_devices(args.output, rig, progress=bars)
     if args.json:
         print_json(out)
     else:
@@ -98,10 +77,6 @@ def cmd_capture(args) -> int:
 
 
 def cmd_timelapse(args) -> int:
-    from omnispectral.capture.devices import FakeClock
-    from omnispectral.capture.simulate import simulate_session
-    from omnispectral.capture.timelapse import parse_interval_s, run_timelapse, slot_times
-
     rig = rig_from_args(args, default_preset="small")
     start = _start_time(args.start, args.date)
     end = _start_time(args.end, args.date)

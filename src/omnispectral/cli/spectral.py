@@ -6,15 +6,19 @@ import argparse
 
 from rich.table import Table
 
-from omnispectral.cli._common import console, print_json
+from omnispectral.cli._common import ProgressBars, console, print_json
 from omnispectral.errors import OmnispectralError
+from omnispectral.io import atomic_write_json
+from omnispectral.spectral import library as lib
+from omnispectral.spectral.evaluate import PAPER_FIGURES, Protocol, evaluate, public
+from omnispectral.spectral.library import DEFAULT_CAMERA, DEFAULT_FILTERS, DEFAULT_ILLUMINANT, DEFAULT_TARGET
+from omnispectral.spectral.noise import CMV2000
+from omnispectral.spectral.plots import plot_estimates
+from omnispectral.spectral.select import select_filters
 
 
 # --------------------------------------------------------------------------------- spectral
 def _protocol_from_args(args):
-    from omnispectral.spectral.evaluate import Protocol
-    from omnispectral.spectral.noise import CMV2000
-
     return Protocol(
         target=args.target, illuminant=args.illuminant, camera=args.camera, filters=tuple(args.filter),
         noise=CMV2000 if args.noise == "on" else None, patch_px=args.patch_px, seed=args.seed,
@@ -26,8 +30,6 @@ def _protocol_from_args(args):
 
 
 def _add_protocol_args(p: argparse.ArgumentParser) -> None:
-    from omnispectral.spectral.library import DEFAULT_CAMERA, DEFAULT_ILLUMINANT, DEFAULT_TARGET
-
     p.add_argument("--target", default=DEFAULT_TARGET,
                    help="reflectance set to evaluate: colorchecker (default), another built-in set or FILE.csv")
     p.add_argument("--illuminant", default=DEFAULT_ILLUMINANT,
@@ -50,12 +52,7 @@ def _add_protocol_args(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_spectral_evaluate(args) -> int:
-    from omnispectral.spectral.evaluate import PAPER_FIGURES, evaluate, public
-    from omnispectral.spectral.plots import plot_estimates
-
     if args.filter is None:
-        from omnispectral.spectral.library import DEFAULT_FILTERS
-
         args.filter = list(DEFAULT_FILTERS)
     if len(args.filter) != 2:
         raise OmnispectralError("--filter must be given twice (camera A's and camera B's filter) or not at all")
@@ -66,8 +63,6 @@ def cmd_spectral_evaluate(args) -> int:
     out = public(result)
     out["plot"] = None if plot_path is None else str(plot_path)
     if args.json_out:
-        from omnispectral.io import atomic_write_json
-
         atomic_write_json(args.json_out, out)
     if args.json:
         print_json(out)
@@ -112,12 +107,10 @@ def cmd_spectral_evaluate(args) -> int:
 
 
 def cmd_spectral_select(args) -> int:
-    from omnispectral.spectral.select import select_filters
-
-    result = select_filters(args.candidates, top=args.top, camera=args.camera, target=args.target,
-                            illuminant=args.illuminant, reference=tuple(args.reference),
-                            mixture=args.estimator == "mixture",
-                            progress=not args.json)
+    with ProgressBars(enabled=not args.json, transient=True) as bars:
+        result = select_filters(args.candidates, top=args.top, camera=args.camera, target=args.target,
+                                illuminant=args.illuminant, reference=tuple(args.reference),
+                                mixture=args.estimator == "mixture", progress=bars)
     if args.json:
         print_json(result)
         return 0
@@ -138,8 +131,6 @@ def cmd_spectral_select(args) -> int:
 
 
 def cmd_spectral_list(args) -> int:
-    from omnispectral.spectral import library as lib
-
     data = {"cameras": lib.camera_names(), "filters": lib.filter_names(),
             "reflectance_sets": lib.reflectance_set_names(), "illuminants": lib.illuminant_names(),
             "prior_illuminants": list(lib.PRIOR_ILLUMINANTS),
@@ -154,7 +145,6 @@ def cmd_spectral_list(args) -> int:
 
 def add_commands(sub) -> None:
     """Register ``spectral evaluate | select-filters | list``."""
-    from omnispectral.spectral.library import DEFAULT_FILTERS
 
 
     spectral = sub.add_parser("spectral", help="six-band system, Wiener estimation, accuracy, filter selection",
@@ -186,7 +176,6 @@ def add_commands(sub) -> None:
                      help="reference pair to rank (default: the paper's 34A + SP-18 stand-in)")
     sel.add_argument("--estimator", choices=["mixture", "pooled"], default="pooled",
                      help="estimator used to score pairs (default pooled: paper Eq. (7))")
-    from omnispectral.spectral.library import DEFAULT_CAMERA, DEFAULT_ILLUMINANT, DEFAULT_TARGET
 
     sel.add_argument("--camera", default=DEFAULT_CAMERA, help="camera sensitivities (name or FILE.csv)")
     sel.add_argument("--target", default=DEFAULT_TARGET, help="reflectance set to score on")

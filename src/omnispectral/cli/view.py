@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 from omnispectral.cli._common import console, err_console
+from omnispectral.view.server import LOCAL_HOSTS, serve
 
 
 def cmd_view(args) -> int:
-    from omnispectral.view.server import LOCAL_HOSTS, serve
-
     if args.host not in LOCAL_HOSTS:
         err_console.print(f"[bold yellow]warning:[/bold yellow] serving on {args.host}: anyone who can reach this "
                           f"machine on port {args.port} can look at the product (read-only). The default is 127.0.0.1.")

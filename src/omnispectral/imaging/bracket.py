@@ -17,11 +17,16 @@ from dataclasses import dataclass
 from fractions import Fraction
 from pathlib import Path
 
+import cv2
 import numpy as np
+import OpenEXR
+import tifffile
+from PIL import Image, UnidentifiedImageError
 
 from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.imaging.hdr import merge_exposures
 from omnispectral.imaging.imageio import decode_with_opencv, read_exr  # noqa: F401  (read_exr: re-exported)
-from omnispectral.imaging.response import CameraResponse
+from omnispectral.imaging.response import CameraResponse, recover_response
 from omnispectral.io import atomic_path
 
 #: EXIF tag numbers (EXIF 2.32, CIPA DC-008): the Exif sub-IFD pointer and ExposureTime in it.
@@ -64,8 +69,6 @@ def read_frame(path: str | Path) -> np.ndarray:
         raise InputFileError(path, "file not found")
     suffix = path.suffix.lower()
     if suffix in (".tif", ".tiff"):
-        import tifffile
-
         try:
             img = tifffile.imread(path)
         except Exception as exc:  # tifffile raises many types for damaged files
@@ -83,7 +86,6 @@ def read_frame(path: str | Path) -> np.ndarray:
 
 def _check_jpeg_complete(path: Path) -> None:
     """OpenCV decodes a truncated JPEG with a warning; Pillow's strict loader refuses it."""
-    from PIL import Image
 
     try:
         with Image.open(path) as im:
@@ -94,7 +96,6 @@ def _check_jpeg_complete(path: Path) -> None:
 
 def exif_exposure_s(path: str | Path) -> float | None:
     """EXIF ``ExposureTime`` in seconds, or ``None`` when the file has none."""
-    from PIL import Image, UnidentifiedImageError
 
     try:
         with Image.open(path) as im:
@@ -203,15 +204,11 @@ def write_float_image(path: str | Path, image: np.ndarray, channel_names: Sequen
         if suffix == ".exr":
             _write_exr(tmp, img, channel_names, attributes)
         elif suffix == ".hdr":
-            import cv2
-
             if c != 3:
                 raise ConfigurationError(f"{path}: Radiance .hdr holds 3 channels, the image has {c}")
             if not cv2.imwrite(str(tmp), np.ascontiguousarray(img[..., ::-1])):
                 raise InputFileError(path, "OpenCV could not write the Radiance file")
         elif suffix in (".tif", ".tiff"):
-            import tifffile
-
             tifffile.imwrite(tmp, img, photometric="rgb" if c == 3 else "minisblack",
                              compression="zlib", metadata=None)
         else:
@@ -224,8 +221,6 @@ def _default_channel_names(c: int) -> list[str]:
 
 
 def _write_exr(path: Path, img: np.ndarray, names: Sequence[str] | None, attributes) -> None:
-    import OpenEXR
-
     names = list(names) if names is not None else _default_channel_names(img.shape[2])
     if len(names) != img.shape[2]:
         raise ConfigurationError(f"{len(names)} channel names for {img.shape[2]} channels")
@@ -245,6 +240,13 @@ def guess_bit_depth(frames: Sequence[np.ndarray]) -> int:
     return next(b for b in (10, 12, 14, 16) if top < (1 << b))
 
 
+def auto_weight(bracket: Bracket, response: str | CameraResponse) -> str:
+    """The HDR weight that ``auto`` stands for: the paper's triangle (Eq. (2)) for linear raw frames, and the
+    inverse-variance weight (``noise``) for 8-bit frames that go through a recovered or given response."""
+    linear = isinstance(response, str) and response == "linear"
+    return "noise" if bracket.dtype.itemsize == 1 and not linear else "triangle"
+
+
 def merge_bracket(bracket: Bracket, bit_depth: int | None = None, weight: str = "triangle",
                   response: str | CameraResponse = "auto", deghost: bool = False,
                   reference: int | None = None, samples: int = 400, smoothness: float = 50.0):
@@ -253,8 +255,6 @@ def merge_bracket(bracket: Bracket, bit_depth: int | None = None, weight: str = 
     ``response``: ``"auto"`` (Debevec-Malik recovery for 8-bit frames, linear otherwise),
     ``"linear"``, ``"debevec"`` or a :class:`CameraResponse`.  Returns ``(HDRResult, response, bit_depth)``.
     """
-    from omnispectral.imaging.hdr import merge_exposures
-    from omnispectral.imaging.response import recover_response
 
     depth = bit_depth or guess_bit_depth(bracket.frames)
     top = (1 << depth) - 1

@@ -65,8 +65,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.optimize import brentq
 
 from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.io import atomic_write_json, read_text_file
 
 #: Names of OpenCV's distortion coefficients, in OpenCV's order.
 DIST_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4", "tau_x", "tau_y")
@@ -450,7 +452,6 @@ class CameraModel:
 
         if not any(dist):
             return make(f0)
-        from scipy.optimize import brentq
 
         def excess(log_f: float) -> float:
             fov = make(math.exp(log_f)).hfov_deg
@@ -496,7 +497,6 @@ class CameraModel:
     @classmethod
     def from_json(cls, path: str | Path) -> CameraModel:
         """Read a camera written by :meth:`to_json` or by ``omnispectral calibrate lens``."""
-        from omnispectral.io import read_text_file
 
         path = Path(path)
         text = read_text_file(path)
@@ -519,7 +519,6 @@ class CameraModel:
 
     def to_json(self, path: str | Path, extra: dict[str, Any] | None = None) -> Path:
         """Write :meth:`to_dict` (plus ``extra`` keys, e.g. calibration statistics) atomically."""
-        from omnispectral.io import atomic_write_json
 
         return atomic_write_json(path, {**self.to_dict(), **(extra or {})})
 

@@ -15,7 +15,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
+import OpenEXR
+import tifffile
 
 from omnispectral.errors import InputFileError
 
@@ -50,7 +53,6 @@ def read_image(path: str | Path) -> np.ndarray:
 
 def decode_with_opencv(path: Path) -> np.ndarray | None:
     """The file's pixels as stored (any depth), channels in R, G, B(, A) order; ``None`` if OpenCV cannot."""
-    import cv2
 
     # np.fromfile + imdecode copes with non-ASCII paths, which cv2.imread does not on every platform.
     data = np.fromfile(str(path), dtype=np.uint8)
@@ -66,8 +68,6 @@ def decode_with_opencv(path: Path) -> np.ndarray | None:
 
 
 def _read_tiff(path: Path) -> np.ndarray | None:
-    import tifffile
-
     try:
         image = tifffile.imread(path)
     except Exception:  # tifffile raises many types for corrupt files; all mean "not readable"
@@ -80,7 +80,6 @@ def _read_tiff(path: Path) -> np.ndarray | None:
 def read_exr(path: str | Path) -> tuple[np.ndarray, list[str]]:
     """Every channel of a single-part OpenEXR file, ``(H, W, C)`` float32, and the channel names
     (R, G, B, A, Y first when present, then the rest alphabetically)."""
-    import OpenEXR
 
     path = Path(path)
 

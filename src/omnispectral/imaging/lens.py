@@ -30,6 +30,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from PIL import Image, UnidentifiedImageError
 
 from omnispectral.errors import ConfigurationError, InputFileError, OmnispectralError
 from omnispectral.imaging.geometry import CameraModel
@@ -88,10 +89,6 @@ class LensCalibration:
     @property
     def images_rejected(self) -> list[Path]:
         return [p for p, _ in self.rejected]
-
-    @property
-    def per_image_rms_px(self) -> dict[str, float]:
-        return {str(v.path): v.rms_px for v in self.views}
 
     def to_dict(self) -> dict[str, Any]:
         """The camera (:meth:`CameraModel.to_dict`) plus RMS, board and the images used and rejected."""
@@ -154,8 +151,6 @@ def read_gray8(path: str | Path) -> np.ndarray:
 
 
 def _check_complete(path: Path) -> None:
-    from PIL import Image, UnidentifiedImageError
-
     try:
         with Image.open(path) as im:
             im.load()

@@ -68,10 +68,11 @@ from __future__ import annotations
 
 import functools
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 
 import numpy as np
 import scipy.fft as sfft
+from scipy import ndimage
 
 from omnispectral.errors import ConfigurationError
 
@@ -97,12 +98,9 @@ COARSE_MIN_SIZE_PX = 512
 #: Peak height below which a whole-image registration is not trusted and the calibrated offset is
 #: used instead.  Measured (docs/benchmarks.md, "Registration"): pure CMV2000 noise peaks at 0.03-0.04
 #: (256 px) and 0.01 (1024 px); textured crops of real panoramas give 0.3-0.99.  Images smaller than
-#: about 128 px have higher noise peaks: raise the threshold there (see DEFAULT_BLOCK_MIN_CONFIDENCE).
+#: about 128 px have higher noise peaks: raise the threshold there (see
+#: ``imaging.disparity.DEFAULT_BLOCK_MIN_CONFIDENCE``).
 DEFAULT_MIN_CONFIDENCE = 0.15
-
-#: Block-wise default: smaller blocks have fewer frequencies, so noise peaks are higher
-#: (measured on 32 px blocks of pure sensor noise: 99th percentile 0.30, maximum 0.34).
-DEFAULT_BLOCK_MIN_CONFIDENCE = 0.35
 
 #: Smallest image side accepted (below this a Hann window leaves almost nothing).
 MIN_SIZE_PX = 8
@@ -114,7 +112,6 @@ _MAX_REFINE_CORRECTION_PX = 1.0
 _TUKEY_ALPHA = 0.5
 _TAYLOR_TERMS = 7
 _TAYLOR_RADIUS_PX = 0.2
-_BLOCK_CHUNK = 4096
 
 
 @dataclass(frozen=True)
@@ -145,40 +142,6 @@ class Registration:
         out["shape"] = list(self.shape)
         out["convention"] = "moving(x, y) ~= reference(x - dx, y - dy); x = column, y = row, pixels"
         return out
-
-
-@dataclass(frozen=True)
-class DisparityMap:
-    """Block-wise POC disparity of ``moving`` (camera B) relative to ``reference`` (camera A).
-
-    Grid arrays are ``(ny, nx)`` with block centres at ``y_px[i], x_px[j]`` (pixel coordinates of
-    the reference).  ``unreliable`` marks blocks with low confidence, a left-right inconsistency
-    or an outlier against their neighbours; ``occluded`` is ``(H, W)``: reference pixels hidden in
-    the moving image by a nearer surface (z-buffer forward warp of the block disparities).
-    """
-
-    x_px: np.ndarray
-    y_px: np.ndarray
-    dx: np.ndarray
-    dy: np.ndarray
-    confidence: np.ndarray
-    unreliable: np.ndarray
-    low_confidence: np.ndarray
-    inconsistent: np.ndarray
-    outlier: np.ndarray
-    occluded: np.ndarray
-    block: int
-    step: int
-    shape: tuple[int, int]
-    offset: tuple[float, float] = (0.0, 0.0)
-    extras: dict = field(default_factory=dict)
-
-    def to_full_resolution(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Bilinear ``dx, dy, confidence`` and nearest-block ``unreliable`` at every reference pixel, ``(H, W)``."""
-        return (_grid_to_pixels(self.dx, self.x_px, self.y_px, self.shape),
-                _grid_to_pixels(self.dy, self.x_px, self.y_px, self.shape),
-                _grid_to_pixels(self.confidence, self.x_px, self.y_px, self.shape),
-                _grid_to_pixels(self.unreliable, self.x_px, self.y_px, self.shape, nearest=True))
 
 
 # ------------------------------------------------------------------------------------------ input
@@ -258,7 +221,6 @@ def saturation_mask(image, saturation: float | str | None = None) -> np.ndarray 
 
 def _fade_saturated(gray: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """Blend clipped regions (grown by 2 px, softened by a 1.5 px Gaussian) into the mean of the rest."""
-    from scipy import ndimage
 
     pad = _SATURATION_GROW_PX + int(np.ceil(4 * _SATURATION_SOFTNESS_PX)) + 1
     if not mask.any():
@@ -316,7 +278,7 @@ def _shift_mask(mask: np.ndarray, dx: float, dy: float) -> np.ndarray:
 @functools.lru_cache(maxsize=64)
 def window_1d(n: int, kind: str = DEFAULT_WINDOW) -> np.ndarray:
     """Symmetric 1-D window of ``n`` samples (read-only float32): Hann, Tukey (alpha 0.5) or none."""
-    from scipy.signal import windows
+    from scipy.signal import windows  # lazy: scipy.signal costs ~0.7 s to import; windows are cached
 
     if kind == "hann":
         w = windows.hann(n, sym=True)
@@ -734,170 +696,3 @@ def register_with_fallback(reference, moving, calibrated_offset: tuple[float, fl
         return Registration(**{**asdict(reg), "min_confidence": float(min_confidence)})
     return Registration(**{**asdict(reg), "dx": float(off[0]), "dy": float(off[1]), "used_fallback": True,
                            "min_confidence": float(min_confidence)})
-
-
-# ------------------------------------------------------------------------------ block disparity
-def _block_origins(n: int, block: int, step: int) -> np.ndarray:
-    starts = np.arange(0, n - block + 1, step)
-    if starts[-1] != n - block:
-        starts = np.append(starts, n - block)
-    return starts
-
-
-def _grid_to_pixels(values: np.ndarray, x_px: np.ndarray, y_px: np.ndarray, shape: tuple[int, int],
-                    nearest: bool = False) -> np.ndarray:
-    """Values on the block-centre grid → every pixel (bilinear, or nearest block), edges held constant."""
-    from scipy import ndimage
-
-    fy = np.interp(np.arange(shape[0]), y_px, np.arange(y_px.size))
-    fx = np.interp(np.arange(shape[1]), x_px, np.arange(x_px.size))
-    if nearest:
-        return values[np.rint(fy).astype(int)[:, None], np.rint(fx).astype(int)[None, :]]
-    coords = np.stack(np.meshgrid(fy, fx, indexing="ij"))
-    return ndimage.map_coordinates(values.astype(np.float32), coords, order=1, mode="nearest")
-
-
-def _sample_grid(values: np.ndarray, x_px: np.ndarray, y_px: np.ndarray, xq: np.ndarray, yq: np.ndarray) -> np.ndarray:
-    """Bilinear sample of a block-centre grid at pixel positions ``(xq, yq)``."""
-    from scipy import ndimage
-
-    fy = np.interp(yq, y_px, np.arange(y_px.size))
-    fx = np.interp(xq, x_px, np.arange(x_px.size))
-    return ndimage.map_coordinates(values, np.stack([fy, fx]), order=1, mode="nearest")
-
-
-def _occlusion_zbuffer(dx_px: np.ndarray, dy_px: np.ndarray, nearness: np.ndarray, tol_px: float) -> np.ndarray:
-    """Reference pixels whose target ``p + d(p)`` in the moving image is taken by a nearer pixel (z-buffer)."""
-    h, w = dx_px.shape
-    yy, xx = np.mgrid[0:h, 0:w]
-    tx = np.rint(xx + dx_px).astype(np.int64)
-    ty = np.rint(yy + dy_px).astype(np.int64)
-    inside = (tx >= 0) & (tx < w) & (ty >= 0) & (ty < h)
-    key = (ty * w + tx)[inside]
-    near = nearness[inside]
-    top = np.full(h * w, -np.inf, dtype=np.float64)
-    np.maximum.at(top, key, near)
-    occluded = np.zeros((h, w), dtype=bool)
-    occluded[inside] = near < top[key] - tol_px
-    return occluded
-
-
-def block_disparity(reference, moving, *, block: int = 32, step: int | None = None,
-                    offset: tuple[float, float] = (0.0, 0.0), far_offset: tuple[float, float] | None = None,
-                    window: str = DEFAULT_WINDOW, band_limit: float = DEFAULT_BAND_LIMIT,
-                    upsample: float = DEFAULT_UPSAMPLE, preprocess: str = DEFAULT_PREPROCESS,
-                    saturation: float | str | None = None, fit_radius: int = DEFAULT_FIT_RADIUS,
-                    min_confidence: float = DEFAULT_BLOCK_MIN_CONFIDENCE, consistency_tol_px: float = 1.0,
-                    outlier_tol_px: float = 1.0, occlusion_tol_px: float = 0.5) -> DisparityMap:
-    """Dense (block-grid) disparity of ``moving`` (camera B) against ``reference`` (camera A) by block-wise POC.
-
-    Each ``block x block`` window of the reference, every ``step`` pixels, is registered with the
-    window of the moving image at the same place moved by the rounded ``offset`` (e.g. the rig's
-    calibrated offset, so that blocks measure only the parallax of near objects).  All blocks go
-    through one batched ``rfft2`` per chunk, the band-limited POC and the vectorised peak fit of
-    :func:`phase_correlate`; a second pass re-pairs every block with the moving block displaced by
-    its rounded first-pass disparity.  Disparities follow the module convention (content at ``p`` in the
-    reference is at ``p + d`` in the moving image) and include ``offset``; they must stay below
-    about ``block / 3`` around ``offset`` for the first pass to find them.
-
-    Masks on the block grid (``unreliable`` is their union, plus blocks that leave the image):
-
-    - ``low_confidence``: peak height below ``min_confidence`` (flat regions, mixed motions);
-    - ``inconsistent``: left-right check -- the disparity at ``p`` and the one found where ``p``
-      lands, ``p + d(p)``, differ by more than ``consistency_tol_px`` (depth edges);
-    - ``outlier``: more than ``outlier_tol_px`` from the 3 x 3 median of the neighbouring blocks.
-
-    ``occluded`` (full resolution): reference pixels hidden in the moving image by a nearer
-    surface -- a z-buffer forward warp of the nearest-block disparities, where nearness is the
-    distance of the disparity from ``far_offset`` (default: the median disparity of reliable
-    blocks, i.e. the background).  This is the paper's occlusion problem around close objects.
-    """
-    _check_options(window, band_limit, upsample, preprocess, fit_radius)
-    ref, mov = _check_pair(reference, moving)
-    step = block // 2 if step is None else step
-    h, w = ref.shape[:2]
-    if int(block) != block or block < MIN_SIZE_PX:
-        raise ConfigurationError(f"block must be an integer >= {MIN_SIZE_PX} px, got {block}")
-    if block > min(h, w):
-        raise ConfigurationError(f"block {block} px is larger than the image ({h}x{w})")
-    if int(step) != step or step < 1:
-        raise ConfigurationError(f"step must be a positive integer, got {step}")
-    off = np.asarray(offset, dtype=np.float64)
-    if off.shape != (2,) or not np.isfinite(off).all():
-        raise ConfigurationError(f"offset must be two finite numbers (dx, dy), got {offset!r}")
-    a, sat_a = _prepare(ref, "reference", preprocess, saturation)
-    b, sat_b = _prepare(mov, "moving", preprocess, saturation)
-    if sat_a is not None:
-        a = _fade_saturated(a, sat_a)
-    if sat_b is not None:
-        b = _fade_saturated(b, sat_b)
-
-    ys, xs = _block_origins(h, block, step), _block_origins(w, block, step)
-    ny, nx = ys.size, xs.size
-    org_y = np.repeat(ys, nx)
-    org_x = np.tile(xs, ny)
-    view_a = np.lib.stride_tricks.sliding_window_view(a, (block, block))
-    view_b = np.lib.stride_tricks.sliding_window_view(b, (block, block))
-    # Pass 1 pairs each block with the moving block displaced by the rounded offset; pass 2 with the
-    # one displaced by the rounded pass-1 disparity, so the residual is below half a pixel and the
-    # window (fixed while the content moves) no longer pulls large disparities towards zero.
-    guess_x = np.full(ny * nx, float(round(off[0])))
-    guess_y = np.full(ny * nx, float(round(off[1])))
-    for _ in range(2):
-        mov_y = np.clip(org_y + np.rint(guess_y).astype(np.int64), 0, h - block)
-        mov_x = np.clip(org_x + np.rint(guess_x).astype(np.int64), 0, w - block)
-        res_x, res_y, conf = _block_pass(view_a, view_b, org_y, org_x, mov_y, mov_x, window, band_limit, upsample,
-                                         fit_radius)
-        guess_x = (mov_x - org_x) + res_x
-        guess_y = (mov_y - org_y) + res_y
-    clipped = ((mov_y - org_y) != np.rint(guess_y - res_y)) | ((mov_x - org_x) != np.rint(guess_x - res_x))
-    clipped |= (org_y + np.rint(guess_y) < 0) | (org_y + np.rint(guess_y) > h - block)
-    clipped |= (org_x + np.rint(guess_x) < 0) | (org_x + np.rint(guess_x) > w - block)
-    dx = guess_x.reshape(ny, nx).astype(np.float32)
-    dy = guess_y.reshape(ny, nx).astype(np.float32)
-    conf = conf.reshape(ny, nx).astype(np.float32)
-    clipped = clipped.reshape(ny, nx)
-    x_px = xs + (block - 1) / 2.0
-    y_px = ys + (block - 1) / 2.0
-    return _finish_disparity(dx, dy, conf, clipped, x_px, y_px, (h, w), block, step, (float(off[0]), float(off[1])),
-                             far_offset, min_confidence, consistency_tol_px, outlier_tol_px, occlusion_tol_px)
-
-
-def _block_pass(view_a, view_b, org_y, org_x, mov_y, mov_x, window, band_limit, upsample, fit_radius):
-    """POC of reference blocks at ``(org_y, org_x)`` against moving blocks at ``(mov_y, mov_x)``, in chunks."""
-    n = org_y.size
-    dx, dy, conf = np.empty(n), np.empty(n), np.empty(n)
-    for start in range(0, n, _BLOCK_CHUNK):
-        sel = slice(start, start + _BLOCK_CHUNK)
-        blocks_a = _apply_window(view_a[org_y[sel], org_x[sel]], window)
-        blocks_b = _apply_window(view_b[mov_y[sel], mov_x[sel]], window)
-        dx[sel], dy[sel], conf[sel] = _poc_shift(blocks_a, blocks_b, band_limit, upsample, fit_radius)
-    return dx, dy, conf
-
-
-def _finish_disparity(dx, dy, conf, clipped, x_px, y_px, shape, block, step, offset, far_offset, min_confidence,
-                      consistency_tol_px, outlier_tol_px, occlusion_tol_px) -> DisparityMap:
-    from scipy import ndimage
-
-    low = conf < min_confidence
-    gy, gx = np.meshgrid(y_px, x_px, indexing="ij")
-    dx_back = _sample_grid(dx, x_px, y_px, (gx + dx).ravel(), (gy + dy).ravel()).reshape(dx.shape)
-    dy_back = _sample_grid(dy, x_px, y_px, (gx + dx).ravel(), (gy + dy).ravel()).reshape(dy.shape)
-    inconsistent = np.hypot(dx - dx_back, dy - dy_back) > consistency_tol_px
-    med_x = ndimage.median_filter(dx, size=3, mode="nearest")
-    med_y = ndimage.median_filter(dy, size=3, mode="nearest")
-    outlier = np.hypot(dx - med_x, dy - med_y) > outlier_tol_px
-    unreliable = low | inconsistent | outlier | clipped
-    if far_offset is None:
-        good = ~unreliable
-        far = (float(np.median(dx[good])), float(np.median(dy[good]))) if good.any() else offset
-    else:
-        far = (float(far_offset[0]), float(far_offset[1]))
-    dx_px = _grid_to_pixels(dx, x_px, y_px, shape, nearest=True)
-    dy_px = _grid_to_pixels(dy, x_px, y_px, shape, nearest=True)
-    nearness = np.hypot(dx_px - far[0], dy_px - far[1])
-    occluded = _occlusion_zbuffer(dx_px, dy_px, nearness, occlusion_tol_px)
-    return DisparityMap(x_px=x_px, y_px=y_px, dx=dx, dy=dy, confidence=conf, unreliable=unreliable,
-                        low_confidence=low, inconsistent=inconsistent, outlier=outlier, occluded=occluded,
-                        block=int(block), step=int(step), shape=(int(shape[0]), int(shape[1])), offset=offset,
-                        extras={"far_offset": far, "min_confidence": float(min_confidence)})

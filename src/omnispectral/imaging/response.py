@@ -15,6 +15,7 @@ the whole code range of the middle exposure, and the curve is made monotonic aft
 
 from __future__ import annotations
 
+import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -68,7 +69,6 @@ class CameraResponse:
     @classmethod
     def load(cls, path: str | Path) -> CameraResponse:
         """Read a response written by :meth:`save`; errors name the file."""
-        import json
 
         path = Path(path)
         try:

@@ -2,10 +2,10 @@
 
 Public API
 ----------
-:func:`mosaic`                 stitch a session or merged directions into a Zarr panorama store
+:func:`mosaic`                 stitch merged directions into a Zarr panorama store (a raw session is merged
+                               first by :func:`omnispectral.product.merge.merge_session`)
 :func:`render_tile`            one output tile in memory (the engine's unit of work)
 :class:`MergedDirections`      the engine's input on disk; :class:`MergedDirectionsWriter` writes it
-:func:`merge_session`          stream a raw capture session into merged directions (HDR merge per direction)
 :class:`PanoramaStore`         the output store (levels, chunks, markers, metadata)
 :func:`polar_image`, :func:`polar_angles_rad`   Eq. (4)
 :func:`feather_weight`, :func:`multiband_blend`, :func:`estimate_gains`   blending and gain compensation
@@ -17,10 +17,10 @@ from omnispectral.mosaic.gain import estimate_gains
 from omnispectral.mosaic.interp import METHODS, remap
 from omnispectral.mosaic.maps import Canvas, Rect, SourceGeometry, source_map
 from omnispectral.mosaic.polar import PolarImage, polar_angles_rad, polar_image, polar_to_image_px
-from omnispectral.mosaic.sources import MergedDirections, MergedDirectionsWriter, SourceImage, merge_session
+from omnispectral.mosaic.sources import MergedDirections, MergedDirectionsWriter, SourceImage
 from omnispectral.mosaic.store import PanoramaStore
 
 __all__ = ["METHODS", "Canvas", "MergedDirections", "MergedDirectionsWriter", "MosaicJob", "PanoramaStore",
            "PolarImage", "Rect", "SourceGeometry", "SourceImage", "build_job", "estimate_gains", "feather_weight",
-           "merge_session", "mosaic", "multiband_blend", "native_width", "polar_angles_rad", "polar_image",
+           "mosaic", "multiband_blend", "native_width", "polar_angles_rad", "polar_image",
            "polar_to_image_px", "remap", "render_tile", "source_map"]

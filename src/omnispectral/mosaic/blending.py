@@ -24,6 +24,7 @@ agree) and no dark halo leaks in from uncovered areas.  It runs per output tile 
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 BLENDS = ("linear", "multiband")
@@ -65,20 +66,13 @@ class LinearBlend:
             out[covered, b] = self.numerator[covered, b] / den[covered, None]
         return out
 
-    def weight_sum(self, bands: tuple[int, ...]) -> np.ndarray:
-        return self.denominator.get(bands, np.zeros(self.shape, np.float32))
-
 
 # ------------------------------------------------------------------------------------------ multi-band
 def _down(img: np.ndarray) -> np.ndarray:
-    import cv2
-
     return cv2.pyrDown(img, borderType=cv2.BORDER_REFLECT101)
 
 
 def _up(img: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    import cv2
-
     return cv2.pyrUp(img, dstsize=(shape[1], shape[0]), borderType=cv2.BORDER_REFLECT101)
 
 

@@ -32,6 +32,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from omnispectral.errors import ConfigurationError, InputFileError
@@ -43,6 +44,7 @@ from omnispectral.mosaic.blending import (
     multiband_blend,
     multiband_halo_px,
 )
+from omnispectral.mosaic.gain import estimate_gains
 from omnispectral.mosaic.interp import (
     KERNEL_RADIUS_PX,
     SPLINE_PREFILTER_MARGIN_PX,
@@ -50,8 +52,8 @@ from omnispectral.mosaic.interp import (
     remap,
     spline_prefilter,
 )
-from omnispectral.mosaic.maps import Canvas, Rect, SourceGeometry, source_map, tile_cone
-from omnispectral.mosaic.sources import BAND_NAMES, MergedDirections, SourceImage
+from omnispectral.mosaic.maps import Canvas, Rect, SourceGeometry, exact_map, source_map, tile_cone
+from omnispectral.mosaic.sources import BAND_NAMES, MergedDirections, SourceImage, read_npy_rows
 from omnispectral.mosaic.store import PanoramaStore
 
 DEFAULT_TILE = 512
@@ -149,8 +151,6 @@ def parallax_positions(job: MosaicJob, i: int, row0: int, col0: int, u: np.ndarr
     pixel: never a blend of two surfaces); B sees that point along ``ray − w · c_B`` (``c_B``, B's
     optical centre), evaluated exactly where ``w > 0`` — still one interpolation of B's image.
     """
-    from omnispectral.mosaic.maps import exact_map
-    from omnispectral.mosaic.sources import read_npy_rows
 
     geo, img = job.geometry[i], job.images[i]
     a_geo = job.geometry[job.partner[i]]
@@ -236,7 +236,6 @@ def sample_crop(img: SourceImage, u: np.ndarray, v: np.ndarray, used: np.ndarray
 
 def _touches(bad: np.ndarray, u: np.ndarray, v: np.ndarray, radius: int) -> np.ndarray:
     """Positions whose kernel (``radius`` px) reaches a bad source pixel."""
-    import cv2
 
     grown = cv2.dilate(bad.astype(np.uint8), np.ones((2 * radius + 1, 2 * radius + 1), np.uint8))
     return remap(grown.astype(np.float32), u, v, "linear") > 0
@@ -337,7 +336,7 @@ def run_tasks(fn, shared, items: list[tuple], scheduler, workers: int | None,
     if not items:
         return []
     if scheduler is None:
-        import dask
+        import dask  # lazy: dask (~0.4 s) and distributed (~0.5 s) serve only the task runner
         from dask.callbacks import Callback
 
         tasks = [dask.delayed(fn, pure=False)(shared, *item) for item in items]
@@ -367,19 +366,17 @@ def run_tasks(fn, shared, items: list[tuple], scheduler, workers: int | None,
 
 
 # ------------------------------------------------------------------------------------------ the entry point
-def open_input(source: str | Path | MergedDirections, merged_dir: str | Path | None = None, dtype: str = "float16",
-               register=None, progress: Callable[[int, int], None] | None = None) -> MergedDirections:
-    """A merged-directions directory as is; a raw session is merged first (streaming, into ``merged_dir``)."""
-    from omnispectral.mosaic.sources import merge_session
-
+def open_input(source: str | Path | MergedDirections) -> MergedDirections:
+    """Merged directions, open or as a directory; a raw session must be merged first
+    (:func:`omnispectral.product.merge.merge_session`, which the ``mosaic`` command runs)."""
     if isinstance(source, MergedDirections):
         return source
     path = Path(source)
     if (path / "merged.json").is_file():
         return MergedDirections.open(path)
     if (path / "session.json").is_file():
-        out = Path(merged_dir) if merged_dir is not None else path / "merged"
-        return merge_session(path, out, register=register, dtype=dtype, progress=progress)
+        raise InputFileError(path, "a capture session: merge it into directions first "
+                                   "(omnispectral.product.merge.merge_session, or the 'mosaic' command)")
     raise InputFileError(path, "neither a capture session (session.json) nor merged directions (merged.json)")
 
 
@@ -387,16 +384,16 @@ def mosaic(source: str | Path | MergedDirections, output: str | Path, *, width: 
            tile: int = DEFAULT_TILE, interp: str = DEFAULT_INTERP, blend: str = "linear",
            multiband_levels: int = DEFAULT_MULTIBAND_LEVELS, gain_compensation: bool = False,
            scheduler=None, workers: int | None = None, overwrite: bool = False, compression: str = "blosc-zstd",
-           merged_dir: str | Path | None = None, register=None, region: tuple[int, int, int, int] | None = None,
+           region: tuple[int, int, int, int] | None = None,
            progress: Callable[[str, dict, int, int], None] | None = None) -> dict:
     """Stitch a six-band panorama into a Zarr store; returns a summary (see :func:`summarise`).
 
     Parameters
     ----------
     source
-        A merged-directions directory (:mod:`omnispectral.mosaic.sources`) or a raw capture session
-        (its brackets are merged first into ``merged_dir``, default ``SESSION/merged``, with camera B
-        offset by ``register``, default the calibrated offset 0).
+        Merged directions (:mod:`omnispectral.mosaic.sources`), open or as a directory; everything the
+        panorama's metadata needs (camera models, sensitivities, rig snapshot) is read from them, never
+        from a rig file or a session.
     output
         The panorama store (``.zarr`` directory); an interrupted run with the same parameters resumes.
     width
@@ -413,8 +410,7 @@ def mosaic(source: str | Path | MergedDirections, output: str | Path, *, width: 
         ``(row0, row1, col0, col1)``: compute only the tiles meeting this window of level 0 (the
         rest stays NaN; a later run can add more).
     progress
-        ``progress(stage, result, done, total)`` per finished tile (``stage`` is ``"tiles"`` or ``"pyramid"``)
-        and per merged direction (``"merge"``).
+        ``progress(stage, result, done, total)`` per finished tile (``stage`` is ``"tiles"`` or ``"pyramid"``).
     """
     check_method(interp)
     if blend not in BLENDS:
@@ -422,16 +418,13 @@ def mosaic(source: str | Path | MergedDirections, output: str | Path, *, width: 
     if tile < 16:
         raise ConfigurationError(f"tile must be at least 16 px, got {tile}")
     t_start = time.perf_counter()
-    merge_progress = (lambda d, n: progress("merge", {}, d, n)) if progress else None
-    merged = open_input(source, merged_dir, register=register, progress=merge_progress)
+    merged = open_input(source)
     merged.check_files()
     width = int(width) if width is not None else native_width(merged.cameras["A"].fx)
     if width < 8 or width % 2:
         raise ConfigurationError(f"width must be an even number ≥ 8, got {width}")
     gains = None
     if gain_compensation:
-        from omnispectral.mosaic.gain import estimate_gains
-
         gains = estimate_gains(merged)
     job = build_job(merged, Path(output), width, tile, interp, blend, multiband_levels, gains)
     attrs = panorama_attributes(merged, job, gain_compensation)
@@ -467,8 +460,6 @@ def _ancestors(tiles: list[tuple[int, int]], level: int) -> list[tuple[int, int]
 
 
 def _run_level0(job, store, tiles, scheduler, workers, progress) -> int:
-    import cv2
-
     done = set(store.done_markers(0))
     todo = [t for t in tiles if t not in done]
     for level in range(1, len(store.shapes)):  # new level-0 chunks make their pyramid chunks stale
@@ -511,7 +502,7 @@ def _run_pyramid(store, tiles, scheduler, workers, progress) -> None:
 def panorama_attributes(merged: MergedDirections, job: MosaicJob, gain_compensation: bool) -> dict:
     """The store's ``omnispectral`` attributes: bands, sensitivities, estimator, rig, session, geometry, method."""
     meta = merged.meta
-    system = _rig_system(meta)
+    system = meta.get("system")  # recorded by the merge (product.merge); None for directions made without it
     return {
         "bands": list(meta.get("band_names", BAND_NAMES)),
         "units": meta.get("units", "DN per second of exposure"),
@@ -534,23 +525,6 @@ def panorama_attributes(merged: MergedDirections, job: MosaicJob, gain_compensat
                    "weights": "linear blending: tent (1 - |2(u+1/2)/W - 1|)(1 - |2(v+1/2)/H - 1|) per sensor",
                    "fill": "NaN where no direction covers a pixel"},
     }
-
-
-def _rig_system(meta: dict) -> dict | None:
-    """Sensitivities of the rig's six bands, if the rig snapshot can be read and its curves are known."""
-    import tomllib
-
-    from omnispectral.capture.rig import rig_from_dict
-    from omnispectral.capture.simulate import rig_system
-    from omnispectral.errors import OmnispectralError
-
-    text = (meta.get("rig") or {}).get("toml")
-    if not text:
-        return None
-    try:
-        return rig_system(rig_from_dict(tomllib.loads(text), "merged.json rig", text)).to_dict()
-    except (OmnispectralError, tomllib.TOMLDecodeError, KeyError, ValueError):
-        return None
 
 
 def fingerprint(merged: MergedDirections, job: MosaicJob) -> dict:

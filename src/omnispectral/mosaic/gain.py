@@ -24,10 +24,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from omnispectral.imaging.geometry import lonlat_to_equirect_pixel, ray_to_lonlat
 from omnispectral.mosaic.blending import feather_weight
 from omnispectral.mosaic.interp import remap
 from omnispectral.mosaic.maps import Canvas, Rect, SourceGeometry, source_map
-from omnispectral.mosaic.sources import CAMERAS, MergedDirections, SourceImage, read_npy_rows
+from omnispectral.mosaic.sources import CAMERAS, MergedDirections, SourceImage, npy_shape, read_npy_rows
 
 SIGMA_N = 0.1
 SIGMA_G = 1.0
@@ -40,7 +41,6 @@ def coarse_width(fx_px: float, decimate: int) -> int:
 
 def read_decimated(img: SourceImage, decimate: int) -> np.ndarray:
     """Every ``decimate``-th row and column of a source (float32 DN/s), read row by row."""
-    from omnispectral.mosaic.sources import npy_shape
 
     h = npy_shape(img.path)[0][0]
     rows = [read_npy_rows(img.path, r, r + 1)[0, ::decimate] for r in range(0, h, decimate)]
@@ -67,7 +67,6 @@ def source_samples(img: SourceImage, geo: SourceGeometry, canvas: Canvas, decima
 
 def _cone_rect(geo: SourceGeometry, canvas: Canvas) -> Rect:
     """A canvas rectangle holding the source's bounding cone (whole rows around a pole)."""
-    from omnispectral.imaging.geometry import lonlat_to_equirect_pixel, ray_to_lonlat
 
     lon, lat = (float(x) for x in ray_to_lonlat(geo.axis))
     r = np.degrees(geo.radius_rad)

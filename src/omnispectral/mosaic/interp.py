@@ -36,7 +36,9 @@ from __future__ import annotations
 
 import functools
 
+import cv2
 import numpy as np
+from scipy.ndimage import spline_filter1d
 
 from omnispectral.errors import ConfigurationError
 
@@ -93,7 +95,6 @@ def spline_prefilter(image: np.ndarray) -> np.ndarray:
     Interpolating the result with the B-spline kernel reproduces ``image`` at the pixel centres
     (Unser et al. 1991).  float32 in, float32 out (the recursion runs in float64).
     """
-    from scipy.ndimage import spline_filter1d
 
     out = np.asarray(image, dtype=np.float32)
     for axis in (0, 1):
@@ -113,7 +114,6 @@ def opencv_is_exact(method: str) -> bool:
     Probe: a 1/100-px shift of a random image must change the result by about 1/100 of the gradient
     (OpenCV 4 rounds positions to 1/32 px, so the shift would vanish).
     """
-    import cv2
 
     if method not in _CV_FLAGS:
         return False
@@ -129,8 +129,6 @@ def opencv_is_exact(method: str) -> bool:
 
 
 def _cv_remap(src: np.ndarray, u: np.ndarray, v: np.ndarray, method: str) -> np.ndarray:
-    import cv2
-
     flag = getattr(cv2, _CV_FLAGS[method])
     parts = [cv2.remap(src[..., c0:c0 + 4], u, v, flag, borderMode=cv2.BORDER_REPLICATE)
              for c0 in range(0, src.shape[2], 4)]

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from omnispectral.errors import ConfigurationError
+from omnispectral.mosaic.interp import remap
 
 
 def polar_angles_rad(x_px, y_px, f_px: float) -> tuple[np.ndarray, np.ndarray]:
@@ -73,7 +74,6 @@ def polar_image(image: np.ndarray, f_px: float, cx: float | None = None, cy: flo
     on ``x`` only) and of the top/bottom edges on the centre column in ``φ``; away from the centre
     column the top and bottom borders curve inwards (``φ`` shrinks as ``sqrt(x² + f²)`` grows).
     """
-    from omnispectral.mosaic.interp import remap
 
     img = np.asarray(image, dtype=np.float32)
     squeeze = img.ndim == 2

@@ -1,4 +1,4 @@
-"""Merged directions: the mosaic engine's input on disk, and the streaming HDR merge of a raw session into it.
+"""Merged directions: the mosaic engine's input on disk (a raw session is merged into it by ``product.merge``).
 
 Layout (``format = "omnispectral-merged-directions"``, version 1)::
 
@@ -11,8 +11,9 @@ Layout (``format = "omnispectral-merged-directions"``, version 1)::
 ``merged.json`` holds ``units`` (DN per second of exposure, the HDR merge's unit), ``band_names``
 (``A:R … B:B``), ``camera_bands`` (``{"A": [0, 1, 2], "B": [3, 4, 5]}``), ``cameras`` (each
 camera's :class:`~omnispectral.imaging.geometry.CameraModel` as JSON: lens, distortion, mounting),
-``rig`` (name and the TOML snapshot of the rig), ``session`` (where the frames came from, or
-null), ``estimator`` (optional: a spectral estimator to carry into the panorama's metadata),
+``rig`` (name and the TOML snapshot of the rig), ``system`` (the six bands' spectral sensitivities,
+:meth:`~omnispectral.spectral.system.MultibandSystem.to_dict`, or null), ``session`` (where the frames
+came from, or null), ``estimator`` (optional: a spectral estimator to carry into the panorama's metadata),
 ``dtype`` and ``directions``: a list of ``{"index", "pan_deg", "tilt_deg", "images": {camera:
 {"file", "scale", "offset_px": [dx, dy]}}}``.  ``complete`` turns true when every planned
 direction is there.
@@ -31,7 +32,7 @@ coordinates (``moving(x, y) ≈ reference(x - dx, y - dy)`` as :mod:`omnispectra
 reports); camera A's is ``(0, 0)``.
 
 Every file is written to a temporary name and renamed; ``merged.json`` is rewritten after each
-direction, so an interrupted :func:`merge_session` resumes where it stopped.
+direction, so an interrupted merge (:func:`omnispectral.product.merge.merge_session`) resumes where it stopped.
 """
 
 from __future__ import annotations
@@ -40,7 +41,6 @@ import datetime as _dt
 import json
 import math
 import os
-from collections.abc import Callable, Collection
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -225,7 +225,8 @@ class MergedDirectionsWriter:
     @classmethod
     def create(cls, path: str | Path, cameras: dict[str, CameraModel], directions: list[dict], *,
                rig_name: str = "", rig_toml: str = "", session: dict | None = None, dtype: str = "float16",
-               estimator: dict | None = None, band_names=BAND_NAMES) -> MergedDirectionsWriter:
+               estimator: dict | None = None, band_names=BAND_NAMES,
+               system: dict | None = None) -> MergedDirectionsWriter:
         """``directions``: the planned ``{"index", "pan_deg", "tilt_deg"}`` (pan/tilt may be updated by ``add``)."""
         if dtype not in DTYPES:
             raise ConfigurationError(f"dtype must be one of {DTYPES}, got {dtype!r}")
@@ -241,7 +242,8 @@ class MergedDirectionsWriter:
         meta = {"format": FORMAT, "format_version": FORMAT_VERSION, "created_utc": _utc_now(), "units": UNITS,
                 "band_names": list(band_names), "camera_bands": {c: list(b) for c, b in CAMERA_BANDS.items()},
                 "dtype": dtype, "cameras": {c: cameras[c].to_dict() for c in CAMERAS},
-                "rig": {"name": rig_name, "toml": rig_toml}, "session": session, "estimator": estimator,
+                "rig": {"name": rig_name, "toml": rig_toml}, "system": system, "session": session,
+                "estimator": estimator,
                 "n_planned": len(planned), "planned": planned, "complete": False, "directions": []}
         writer = cls(path, meta)
         writer._flush()
@@ -301,82 +303,3 @@ class MergedDirectionsWriter:
 
 def _utc_now() -> str:
     return _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
-
-
-# ------------------------------------------------------------------------------------------ sessions
-#: ``register(direction, image_a, image_b) -> (dx, dy)``: camera B's offset for one direction; it may also
-#: return ``(dx, dy, extra)`` with a dict recorded in the direction's entry of ``merged.json``.
-Registration = Callable[[int, np.ndarray, np.ndarray], tuple]
-
-
-def calibrated_offset(offset_px: tuple[float, float] = (0.0, 0.0)) -> Registration:
-    """A :data:`Registration` that returns the rig's calibrated offset for every direction."""
-    dx, dy = float(offset_px[0]), float(offset_px[1])
-    return lambda direction, image_a, image_b: (dx, dy)
-
-
-def merge_direction(session, direction: int, camera: str, n_exposures: int,
-                    **merge_options) -> tuple[np.ndarray, tuple[float, float]]:
-    """HDR merge (Eqs. (1)-(2)) of one camera's bracket; returns radiance (H, W, 3) and the reported pan/tilt."""
-    from omnispectral.imaging import merge_exposures
-
-    frames, times, pans, tilts, bit_depth = [], [], [], [], 12
-    for k in range(n_exposures):
-        frame, meta = session.read_frame(direction, camera, k)
-        frames.append(frame)
-        times.append(float(meta["exposure_s"]))
-        pans.append(float(meta.get("pan_deg_reported", meta.get("pan_deg_commanded"))))
-        tilts.append(float(meta.get("tilt_deg_reported", meta.get("tilt_deg_commanded"))))
-        bit_depth = int(meta.get("bit_depth", bit_depth))
-    result = merge_exposures(frames, times, bit_depth, **merge_options)
-    radiance = result.radiance if result.radiance.ndim == 3 else result.radiance[..., None]
-    return radiance, (float(np.mean(pans)), float(np.mean(tilts)))
-
-
-def merge_session(session_path: str | Path, output: str | Path, *, register: Registration | None = None,
-                  dtype: str = "float16", progress: Callable[[int, int], None] | None = None,
-                  skip: Collection[int] = (), **merge_options) -> MergedDirections:
-    """Stream a raw capture session into a merged-directions directory, one direction at a time.
-
-    Each direction's brackets are merged (:func:`omnispectral.imaging.merge_exposures`, options passed
-    through), camera B's offset comes from ``register`` (default: the calibrated offset 0 — the
-    end-to-end pipeline plugs phase-only correlation in here), the pan/tilt recorded is the mean
-    position the head reported during the bracket, and the images are written before the next
-    direction is read, so memory holds one direction.  Directions already written are skipped, and
-    so are the planned directions in ``skip`` (e.g. ones with damaged frames), which are not planned here.
-    """
-    from omnispectral.capture.rig import rig_toml
-    from omnispectral.capture.session import Session
-    from omnispectral.capture.simulate import camera_model
-
-    session = Session.open(session_path)
-    rig = session.rig()
-    plan = session.plan()
-    register = register or calibrated_offset()
-    cameras = {c: camera_model(rig, c) for c in CAMERAS}
-    directions = [d for d in plan.directions if d.index not in set(skip)]
-    writer = MergedDirectionsWriter.create(
-        output, cameras, [d.to_dict() for d in directions], rig_name=rig.name, rig_toml=rig_toml(rig),
-        session={"path": str(Path(session_path).resolve()), **_session_summary(session)}, dtype=dtype)
-    done = writer.done()
-    n = len(directions)
-    for i, d in enumerate(directions):
-        if d.index not in done:
-            img_a, (pan, tilt) = merge_direction(session, d.index, "A", len(plan.exposures_s), **merge_options)
-            img_b, _ = merge_direction(session, d.index, "B", len(plan.exposures_s), **merge_options)
-            dx, dy, *rest = register(d.index, img_a, img_b)
-            writer.add(d.index, pan, tilt, {"A": img_a, "B": img_b}, {"B": (dx, dy)},
-                       {"pan_deg_commanded": d.pan_deg, "tilt_deg_commanded": d.tilt_deg, **(rest[0] if rest else {})})
-            del img_a, img_b
-        if progress is not None:
-            progress(i + 1, n)
-    return MergedDirections.open(output)
-
-
-def _session_summary(session) -> dict:
-    meta = session.metadata()
-    keep = ("kind", "rig", "created_utc", "format_version")
-    out = {k: meta[k] for k in keep if k in meta}
-    if "simulation" in meta:
-        out["simulation"] = meta["simulation"]
-    return out

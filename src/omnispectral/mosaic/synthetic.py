@@ -78,12 +78,14 @@ def render_scene(scene, model: CameraModel, camera: str, pan_deg: float, tilt_de
 def write_synthetic_merged(path: str | Path, panorama6, cameras: dict[str, CameraModel],
                            directions: list[tuple[float, float]], offset_b_px: tuple[float, float] = (0.0, 0.0),
                            dtype: str = "float32", interp: str = "cubic", rig_name: str = "",
-                           rig_toml: str = "", gains: np.ndarray | None = None) -> MergedDirections:
+                           rig_toml: str = "", gains: np.ndarray | None = None,
+                           system: dict | None = None) -> MergedDirections:
     """Merged directions of ``panorama6`` seen from ``directions`` ``[(pan_deg, tilt_deg), …]``.
 
     ``panorama6`` is an (H, W, 6) equirectangular image (looked up with ``interp``) or an analytic
     scene, a callable ``rays (..., 3) -> (..., 6)`` (evaluated exactly).  ``gains`` (n_directions, 6),
-    if given, multiplies each direction's bands (a simulated exposure drift).
+    if given, multiplies each direction's bands (a simulated exposure drift).  ``system``: the six bands'
+    sensitivities to record (:meth:`~omnispectral.spectral.system.MultibandSystem.to_dict`), if any.
     """
     if callable(panorama6):
         padded, h, w = None, 0, 0
@@ -92,7 +94,7 @@ def write_synthetic_merged(path: str | Path, panorama6, cameras: dict[str, Camer
         padded = pad_over_poles(np.asarray(panorama6, np.float32))
     plan = [{"index": k, "pan_deg": p, "tilt_deg": t} for k, (p, t) in enumerate(directions)]
     writer = MergedDirectionsWriter.create(path, cameras, plan, rig_name=rig_name, rig_toml=rig_toml, dtype=dtype,
-                                           session={"synthetic": "rendered from a panorama"})
+                                           session={"synthetic": "rendered from a panorama"}, system=system)
     for k, (pan, tilt) in enumerate(directions):
         if k in writer.done():
             continue

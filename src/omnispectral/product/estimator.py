@@ -13,8 +13,10 @@ from __future__ import annotations
 import functools
 import json
 
-from omnispectral.capture.rig import Rig
-from omnispectral.capture.simulate import two_camera_system
+from omnispectral.rig import Rig, two_camera_system
+from omnispectral.spectral.evaluate import Protocol, fit_for_protocol
+from omnispectral.spectral.library import load_reflectances
+from omnispectral.spectral.noise import SensorNoiseModel
 from omnispectral.spectral.wiener import WienerEstimator
 
 HELD_OUT = "colorchecker"
@@ -30,10 +32,6 @@ def estimator_params(rig: Rig, mixture: bool = True) -> dict:
 
 @functools.lru_cache(maxsize=4)
 def _fit_cached(params_json: str) -> tuple[WienerEstimator, str]:
-    from omnispectral.spectral.evaluate import Protocol, fit_for_protocol
-    from omnispectral.spectral.library import load_reflectances
-    from omnispectral.spectral.noise import SensorNoiseModel
-
     p = json.loads(params_json)
     system = _system_from_params(p)
     noise = SensorNoiseModel(p["full_well_e"], p["read_noise_e"], p["bit_depth"])

@@ -17,13 +17,21 @@ and renames into place.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Mapping
 from pathlib import Path
 
+import cv2
 import numpy as np
+import OpenEXR
+import spectral.io.envi as envi
 
 from omnispectral.errors import ConfigurationError
+from omnispectral.imaging.bracket import write_float_image
 from omnispectral.io import atomic_path
+from omnispectral.product.layout import open_product
+from omnispectral.product.spectra import bands_to_linear_srgb, estimate_image
+from omnispectral.spectral.colour import spectra_to_linear_srgb, srgb_encode
 
 SPECTRAL_LAYOUT_VERSION = "1.0"
 
@@ -32,28 +40,6 @@ def spectral_channel_name(wavelength_nm: float, stokes: int = 0) -> str:
     """Fichet 2021 emissive channel name: ``S0.550,0nm`` (decimal comma, unit suffix)."""
     text = repr(float(wavelength_nm)).replace(".", ",")
     return f"S{stokes}.{text}nm"
-
-
-def spectra_to_xyz(spectra: np.ndarray, wavelength_nm: np.ndarray) -> np.ndarray:
-    """CIE 1931 2° tristimulus ``Σ S(λ) cmf(λ) Δλ`` of spectra ``(..., n)`` (no normalisation)."""
-    from omnispectral.spectral.metrics import cmfs_on_grid
-
-    cmfs = cmfs_on_grid(np.asarray(wavelength_nm, float)).T  # (n, 3)
-    dl = np.gradient(np.asarray(wavelength_nm, float))
-    return np.asarray(spectra, np.float32) @ (cmfs * dl[:, None]).astype(np.float32)
-
-
-def xyz_to_linear_srgb(xyz: np.ndarray) -> np.ndarray:
-    """Linear RGB with sRGB/Rec.709 primaries and D65 white (IEC 61966-2-1 matrix), no clipping."""
-    m = np.array([[3.2404542, -1.5371385, -0.4985314],
-                  [-0.9692660, 1.8760108, 0.0415560],
-                  [0.0556434, -0.2040259, 1.0572252]], np.float32)
-    return np.asarray(xyz, np.float32) @ m.T
-
-
-def spectra_to_linear_srgb(spectra: np.ndarray, wavelength_nm: np.ndarray) -> np.ndarray:
-    """Spectral radiance → linear sRGB-primaries RGB (Y = luminance in the spectra's units × Σȳ)."""
-    return xyz_to_linear_srgb(spectra_to_xyz(spectra, wavelength_nm))
 
 
 def tone_map_srgb(rgb_linear: np.ndarray, percentile: float = 99.0) -> np.ndarray:
@@ -72,13 +58,11 @@ def reinhard_srgb8(rgb_exposed: np.ndarray) -> np.ndarray:
     lx = x @ np.array([0.2126, 0.7152, 0.0722], np.float32) if x.shape[-1] == 3 else x[..., 0]
     scale = np.where(lx > 0, (1.8 * lx / (1.0 + lx)) / np.maximum(lx, 1e-12), 0.0)[..., None]
     y = np.clip(x * scale, 0, 1)
-    srgb = np.where(y <= 0.0031308, 12.92 * y, 1.055 * np.power(y, 1 / 2.4) - 0.055)
-    return np.round(srgb * 255).astype(np.uint8)
+    return np.round(srgb_encode(y) * 255).astype(np.uint8)
 
 
 def write_preview(path: str | Path, rgb_linear: np.ndarray) -> Path:
     """sRGB PNG/JPEG preview of a linear RGB image (:func:`tone_map_srgb`)."""
-    import cv2
 
     path = Path(path)
     img = tone_map_srgb(rgb_linear)
@@ -95,7 +79,6 @@ def write_spectral_exr(path: str | Path, spectra: np.ndarray, wavelength_nm: np.
     ``units`` is recorded in ``emissiveUnits`` (the layout's attribute; e.g. ``"W.m^-2.sr^-1"``, or the
     product's relative unit) and the extra ``attributes`` as strings.
     """
-    import OpenEXR
 
     spectra = np.asarray(spectra, np.float32)
     wl = np.asarray(wavelength_nm, float)
@@ -123,7 +106,6 @@ def write_spectral_exr(path: str | Path, spectra: np.ndarray, wavelength_nm: np.
 def write_envi(path: str | Path, cube: np.ndarray, wavelength_nm: np.ndarray | None = None,
                band_names: list[str] | None = None, description: str = "") -> Path:
     """ENVI image (``.hdr`` header + ``.img`` data, float32, BSQ by Spectral Python) with wavelengths in nm."""
-    import spectral.io.envi as envi
 
     path = Path(path)
     if path.suffix.lower() != ".hdr":
@@ -146,14 +128,12 @@ def write_envi(path: str | Path, cube: np.ndarray, wavelength_nm: np.ndarray | N
 
 def write_rgb_exr(path: str | Path, rgb_linear: np.ndarray, attributes: Mapping[str, str] | None = None) -> Path:
     """Linear RGB OpenEXR (float32) for image-based lighting."""
-    from omnispectral.imaging.bracket import write_float_image
 
     return write_float_image(path, rgb_linear, ["R", "G", "B"], attributes)
 
 
 def write_radiance_hdr(path: str | Path, rgb_linear: np.ndarray) -> Path:
     """Radiance RGBE ``.hdr`` (negative values clipped to 0)."""
-    from omnispectral.imaging.bracket import write_float_image
 
     return write_float_image(path, np.clip(np.nan_to_num(rgb_linear), 0, None), ["R", "G", "B"])
 
@@ -169,9 +149,7 @@ def export_product(product: str | Path, fmt: str, output: str | Path, region: tu
     float32 values per pixel; an export whose array would exceed ``max_bytes`` (default: half the
     machine's memory) is refused before anything is computed, naming the size and the way out.
     """
-    import os
 
-    from omnispectral.product.spectra import bands_to_linear_srgb, estimate_image, open_product
 
     if fmt not in FORMATS:
         raise ConfigurationError(f"unknown format {fmt!r}; expected one of {', '.join(FORMATS)}")
@@ -205,7 +183,6 @@ def export_product(product: str | Path, fmt: str, output: str | Path, region: tu
         spectra, std = estimate_image(bands, estimator, with_std=True)
         rms = np.sqrt(np.mean(std**2, axis=2))
         rel = rms / np.maximum(np.sqrt(np.mean(spectra**2, axis=2)), 1e-30)
-        from omnispectral.imaging.bracket import write_float_image
 
         path = write_float_image(output, np.stack([rel, rms], axis=2), ["relative_std", "std_rms"], attrs)
     else:

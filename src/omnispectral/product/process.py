@@ -6,10 +6,11 @@ Stages (each timed, with progress; the whole run is resumable):
    sizes against the journal, SHA-256 with ``verify_checksums``): a missing or damaged frame stops the
    run with its name, unless ``skip_bad`` leaves out the directions concerned (recorded as holes in
    ``product.json``);
-2. **merge + register**, one direction at a time (memory holds one direction): the HDR merge of each
-   camera's bracket (Eq. (1), inverse-variance weight by default), then camera B registered to A by
-   POC through the geometry (:func:`~omnispectral.product.align.align_direction`, falling back to the
-   calibrated offset when the confidence is low), written to ``PRODUCT/merged/``;
+2. **merge + register** (:mod:`omnispectral.product.merge`), one direction at a time (memory holds one
+   direction): the HDR merge of each camera's bracket (Eq. (1), inverse-variance weight by default),
+   then camera B registered to A by POC through the geometry
+   (:func:`~omnispectral.product.align.align_direction`, falling back to the calibrated offset when the
+   confidence is low), written to ``PRODUCT/merged/``;
 3. **mosaic**: :func:`omnispectral.mosaic.engine.mosaic` into ``PRODUCT/panorama.zarr`` (one resampling
    per pixel, linear blending, pyramid; local threads or a Dask cluster).  Interpolation defaults to
    bilinear here: it never overshoots, which keeps small high-contrast targets (a ColorChecker patch a
@@ -25,22 +26,34 @@ Stages (each timed, with progress; the whole run is resumable):
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from pathlib import Path
 
-from omnispectral.errors import InputFileError
+import numpy as np
+
+from omnispectral.capture.session import Session, verify_session
+from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.imaging.geometry import CameraModel
+from omnispectral.imaging.registration import DEFAULT_MIN_CONFIDENCE
 from omnispectral.io import atomic_write_json
+from omnispectral.mosaic import engine
+from omnispectral.mosaic.sources import MergedDirections, MergedDirectionsWriter
+from omnispectral.mosaic.store import PanoramaStore
+from omnispectral.product.align import align_direction, parallax_direction
+from omnispectral.product.estimator import rig_estimator
+from omnispectral.product.layout import MERGED, PANORAMA, PRODUCT_FORMAT, RIG_CALIBRATION, product_paths
+from omnispectral.product.merge import merge_session
+from omnispectral.product.report import write_report
+from omnispectral.product.rigcal import RigCalibration, calibrate_from_merged
+from omnispectral.threads import ordered_thread_map
 
-PRODUCT_FORMAT = "omnispectral-product"
-PANORAMA = "panorama.zarr"
-MERGED = "merged"
-#: The rig calibration a product was made with (reusable: ``process --rig-calibration``).
-RIG_CALIBRATION = "rig-calibration.json"
+#: ``progress(stage, done, total)``: how far a named stage of a long run is (the command line draws it).
+ProgressCallback = Callable[[str, int, int], None]
 
 
-def product_paths(product: str | Path) -> dict[str, Path]:
-    root = Path(product)
-    return {"root": root, "index": root / "product.json", "panorama": root / PANORAMA, "merged": root / MERGED,
-            "report": root / "report", "rig_calibration": root / RIG_CALIBRATION}
+def _stage(progress: ProgressCallback | None, name: str) -> Callable[[int, int], None] | None:
+    """A ``(done, total)`` callback reporting as stage ``name`` (``None`` when there is no progress)."""
+    return None if progress is None else (lambda done, total: progress(name, done, total))
 
 
 def bad_directions(report: dict) -> dict[int, list[str]]:
@@ -52,8 +65,6 @@ def bad_directions(report: dict) -> dict[int, list[str]]:
 
 
 def _check_session(session_path: Path, skip_bad: bool, verify_checksums: bool) -> tuple[dict, dict[int, list[str]]]:
-    from omnispectral.capture.session import verify_session
-
     report = verify_session(session_path, check_pixels=False, checksums=verify_checksums)
     bad = bad_directions(report)
     if report["journal_bad_lines"]:
@@ -67,18 +78,13 @@ def _check_session(session_path: Path, skip_bad: bool, verify_checksums: bool) -
     return report, bad
 
 
-def merge_and_register(session_path: Path, out: Path, skip: set[int], min_confidence: float, progress=None,
-                       timings: dict | None = None, hdr_weight: str = "noise") -> tuple[object, list[dict]]:
-    """Stage 2: :func:`omnispectral.mosaic.sources.merge_session` (streamed per direction) with camera B
+def merge_and_register(session: Session, out: Path, skip: set[int], min_confidence: float, progress=None,
+                       timings: dict | None = None, hdr_weight: str = "noise",
+                       models: dict | None = None) -> tuple[object, list[dict]]:
+    """Stage 2: :func:`omnispectral.product.merge.merge_session` (streamed per direction) with camera B
     registered to A by :func:`~omnispectral.product.align.align_direction`; returns the merged directions
-    and the alignment of every direction."""
-    from omnispectral.capture.session import Session
-    from omnispectral.capture.simulate import camera_model
-    from omnispectral.mosaic.sources import merge_session
-    from omnispectral.product.align import align_direction
-
-    rig = Session.open(session_path).rig()
-    models = {c: camera_model(rig, c) for c in ("A", "B")}
+    and the alignment of every direction.  ``models``: the rig's camera models (default: built here)."""
+    models = models or {c: session.rig().camera_model(c) for c in ("A", "B")}
     t_reg, n_merged = 0.0, 0
 
     def register(direction: int, img_a, img_b):
@@ -91,7 +97,8 @@ def merge_and_register(session_path: Path, out: Path, skip: set[int], min_confid
         return (*al.offset_px, {"alignment": al.to_dict()})
 
     t0 = time.perf_counter()
-    merged = merge_session(session_path, out, register=register, skip=skip, progress=progress, weight=hdr_weight)
+    merged = merge_session(session, out, register=register, skip=skip, progress=progress, cameras=models,
+                           weight=hdr_weight)
     if timings is not None:
         merging = time.perf_counter() - t0 - t_reg if n_merged else 0.0  # a resumed run may merge nothing
         timings["hdr_merge"] = timings.get("hdr_merge", 0.0) + merging
@@ -104,11 +111,9 @@ def merge_and_register(session_path: Path, out: Path, skip: set[int], min_confid
 REGISTRATIONS = ("parallax", "paper")
 
 
-def merge_only(session_path: Path, out: Path, skip: set[int], progress=None, timings: dict | None = None,
-               hdr_weight: str = "noise"):
+def merge_only(session: Session, out: Path, skip: set[int], progress=None, timings: dict | None = None,
+               hdr_weight: str = "noise", models: dict | None = None):
     """Stage 2 without registration: the HDR merge of every direction (camera B at the rig file's mounting)."""
-    from omnispectral.mosaic.sources import MergedDirections, merge_session
-
     t0 = time.perf_counter()
     if (out / "merged.json").is_file():  # a resumed run: nothing to merge when the directory is complete
         try:
@@ -118,7 +123,7 @@ def merge_only(session_path: Path, out: Path, skip: set[int], progress=None, tim
             return done
         except InputFileError:
             pass
-    merged = merge_session(session_path, out, skip=skip, progress=progress, weight=hdr_weight)
+    merged = merge_session(session, out, skip=skip, progress=progress, cameras=models, weight=hdr_weight)
     if timings is not None:
         timings["hdr_merge"] = timings.get("hdr_merge", 0.0) + time.perf_counter() - t0
     return merged
@@ -132,13 +137,7 @@ def register_parallax(merged, calibration=None, progress=None, timings: dict | N
     Resumes: directions whose parallax was computed with the same calibration are kept.  Returns the
     calibration and the per-direction parallax statistics.
     """
-    import numpy as np
 
-    from omnispectral.imaging.geometry import CameraModel
-    from omnispectral.mosaic.sources import MergedDirections, MergedDirectionsWriter
-    from omnispectral.product.align import parallax_direction
-    from omnispectral.product.rigcal import RigCalibration, calibrate_from_merged
-    from omnispectral.threads import ordered_thread_map
 
     t0 = time.perf_counter()
     nominal = merged.meta.get("rig_file_camera_b") or merged.meta["cameras"]["B"]  # the rig file's camera B
@@ -188,21 +187,17 @@ def register_parallax(merged, calibration=None, progress=None, timings: dict | N
 def process(session: str | Path, output: str | Path, *, width: int | None = None, tile: int | None = None,
             interp: str | None = None, scheduler=None, workers: int | None = None, skip_bad: bool = False,
             min_confidence: float | None = None, hdr_weight: str = "noise", report: bool = True,
-            progress: bool = True, verify_checksums: bool = False, registration: str = "parallax",
+            progress: ProgressCallback | None = None, verify_checksums: bool = False, registration: str = "parallax",
             rig_calibration: str | Path | None = None) -> dict:
     """Run stages 1-4 (module docstring) and write ``product.json`` and, by default, the report.
 
     ``hdr_weight`` defaults to the inverse-variance weight: the paper's triangle weight lets 1-DN
     values of the shortest exposures bias dark regions upwards (+36 % at 360 DN in the longest
     exposure on the simulated rig; docs/benchmarks.md), which would show in the spectra.
+
+    ``progress(stage, done, total)`` is called as each stage advances (``merge``, ``parallax`` or
+    ``merge + register``, then the mosaic's ``tiles`` and ``pyramid``); the command line draws it.
     """
-    from omnispectral.capture.session import Session
-    from omnispectral.errors import ConfigurationError
-    from omnispectral.imaging.registration import DEFAULT_MIN_CONFIDENCE
-    from omnispectral.mosaic import engine
-    from omnispectral.mosaic.store import PanoramaStore
-    from omnispectral.product.estimator import rig_estimator
-    from omnispectral.product.rigcal import RigCalibration
 
     if registration not in REGISTRATIONS:
         raise ConfigurationError(f"registration must be one of {', '.join(REGISTRATIONS)}, got {registration!r}")
@@ -214,29 +209,28 @@ def process(session: str | Path, output: str | Path, *, width: int | None = None
     t0 = time.perf_counter()
     check, bad = _check_session(session_path, skip_bad, verify_checksums)
     timings["check"] = time.perf_counter() - t0
-    s = Session.open(session_path)
+    s = Session.open(session_path)  # opened once for the run: the merge reads its frames through it
     rig = s.rig()
-    bar = _Progress(progress)
+    models = {c: rig.camera_model(c) for c in ("A", "B")}
+    progress = progress or None  # False (no progress) is accepted too
     parallax_stats = None
-    try:
-        if registration == "paper":
-            merged, alignments = merge_and_register(session_path, paths["merged"], set(bad),
-                                                    DEFAULT_MIN_CONFIDENCE if min_confidence is None
-                                                    else min_confidence,
-                                                    bar.callback("merge + register"), timings, hdr_weight)
-        else:
-            merged = merge_only(session_path, paths["merged"], set(bad), bar.callback("merge"), timings, hdr_weight)
-            merged, calibration, parallax_stats = register_parallax(merged, calibration, bar.callback("parallax"),
-                                                                    timings)
-            alignments = []
-        t1 = time.perf_counter()
-        kwargs = {k: v for k, v in (("width", width), ("tile", tile)) if v is not None}
-        kwargs["interp"] = interp or "linear"
-        summary = engine.mosaic(merged, paths["panorama"], scheduler=scheduler, workers=workers,
-                                progress=bar.stage_callback(), **kwargs)
-        timings["mosaic"] = time.perf_counter() - t1
-    finally:
-        bar.stop()
+    if registration == "paper":
+        merged, alignments = merge_and_register(s, paths["merged"], set(bad),
+                                                DEFAULT_MIN_CONFIDENCE if min_confidence is None
+                                                else min_confidence,
+                                                _stage(progress, "merge + register"), timings, hdr_weight, models)
+    else:
+        merged = merge_only(s, paths["merged"], set(bad), _stage(progress, "merge"), timings, hdr_weight, models)
+        merged, calibration, parallax_stats = register_parallax(merged, calibration, _stage(progress, "parallax"),
+                                                                timings)
+        alignments = []
+    t1 = time.perf_counter()
+    kwargs = {k: v for k, v in (("width", width), ("tile", tile)) if v is not None}
+    kwargs["interp"] = interp or "linear"
+    summary = engine.mosaic(merged, paths["panorama"], scheduler=scheduler, workers=workers,
+                            progress=None if progress is None else
+                            (lambda stage, _result, done, total: progress(stage, done, total)), **kwargs)
+    timings["mosaic"] = time.perf_counter() - t1
     t2 = time.perf_counter()
     est, est_info = rig_estimator(rig)
     estimator = {"params": est_info["params"], "sigma2": est_info["sigma2"], "prior": est_info["prior"],
@@ -261,42 +255,9 @@ def process(session: str | Path, output: str | Path, *, width: int | None = None
              "timings_s": timings}
     atomic_write_json(paths["index"], index)
     if report:
-        from omnispectral.product.report import write_report
-
         t3 = time.perf_counter()
         rep = write_report(paths["root"])
         index["timings_s"]["report"] = time.perf_counter() - t3
         index["report"] = rep["files"]
         atomic_write_json(paths["index"], index)
     return index
-
-
-class _Progress:
-    """Rich progress bars for the stages (or nothing)."""
-
-    def __init__(self, enabled: bool):
-        self.bar = None
-        self.tasks: dict[str, int] = {}
-        if enabled:
-            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-            self.bar = Progress(TextColumn("{task.description:>16}"), BarColumn(), MofNCompleteColumn(),
-                                TimeElapsedColumn(), transient=False)
-            self.bar.start()
-
-    def _update(self, name: str, done: int, total: int) -> None:
-        if self.bar is None:
-            return
-        if name not in self.tasks:
-            self.tasks[name] = self.bar.add_task(name, total=total)
-        self.bar.update(self.tasks[name], completed=done, total=total)
-
-    def callback(self, name: str):
-        return lambda done, total: self._update(name, done, total)
-
-    def stage_callback(self):
-        return lambda stage, result, done, total: self._update(stage, done, total)
-
-    def stop(self) -> None:
-        if self.bar is not None:
-            self.bar.stop()

@@ -20,14 +20,21 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import cv2
 import numpy as np
 
+from omnispectral.capture.session import Session
+from omnispectral.imaging.geometry import equirect_pixel_to_lonlat, lonlat_to_equirect_pixel, lonlat_to_ray
 from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text
+from omnispectral.product.exports import write_preview
+from omnispectral.product.layout import open_product, product_paths
+from omnispectral.product.rigcal import DIRECTION_WARNING_PX
+from omnispectral.product.spectra import bands_to_linear_srgb
+from omnispectral.spectral.metrics import colour_differences, nrmse
 
 
 def _resize_to(image: np.ndarray, height: int, width: int) -> np.ndarray:
     """Area average (or linear when enlarging) onto an equirect grid of ``height × width`` (same conventions)."""
-    import cv2
 
     h, w = image.shape[:2]
     if (h, w) == (height, width):
@@ -41,7 +48,6 @@ def _resize_to(image: np.ndarray, height: int, width: int) -> np.ndarray:
 def _saturated_mask(saturated: np.ndarray, height: int, width: int, margin_px: int = 3) -> np.ndarray:
     """Pixels of a ``height × width`` grid touched by the ground truth's ``saturated`` pixels (with a margin
     for the interpolation kernel): the sun saturates every exposure and is flagged, not measured."""
-    import cv2
 
     small = cv2.resize(saturated.astype(np.float32), (width, height), interpolation=cv2.INTER_AREA) > 0
     return cv2.dilate(small.astype(np.uint8), np.ones((2 * margin_px + 1,) * 2, np.uint8)) > 0
@@ -56,7 +62,6 @@ def psnr_db(estimate: np.ndarray, truth: np.ndarray, valid: np.ndarray) -> float
 
 def patch_bands(bands: np.ndarray, lon_deg: float, lat_deg: float, radius_deg: float) -> np.ndarray:
     """Mean six-band value within ``radius_deg`` of a direction on an equirect panorama (NaNs ignored)."""
-    from omnispectral.imaging.geometry import lonlat_to_equirect_pixel, lonlat_to_ray
 
     h, w = bands.shape[:2]
     radius_deg = max(radius_deg, 0.75 * 360.0 / w)  # at least the nearest pixel centre
@@ -65,7 +70,6 @@ def patch_bands(bands: np.ndarray, lon_deg: float, lat_deg: float, radius_deg: f
     r0, r1 = int(max(0, np.floor(row - r_px - 1))), int(min(h, np.ceil(row + r_px + 2)))
     c0, c1 = int(max(0, np.floor(col - r_px - 1))), int(min(w, np.ceil(col + r_px + 2)))
     rr, cc = np.mgrid[r0:r1, c0:c1]
-    from omnispectral.imaging.geometry import equirect_pixel_to_lonlat
 
     lon, lat = equirect_pixel_to_lonlat(cc, rr, w, h)
     centre = lonlat_to_ray(lon_deg, lat_deg)
@@ -77,7 +81,6 @@ def patch_bands(bands: np.ndarray, lon_deg: float, lat_deg: float, radius_deg: f
 
 def accuracy(bands: np.ndarray, estimator, gt_dir: Path, shortest_s: float, max_dn: int) -> dict:
     """Accuracy of a panorama against the simulator's ground truth (module docstring)."""
-    from omnispectral.spectral.metrics import colour_differences, nrmse
 
     meta = json.loads((gt_dir / "ground_truth.json").read_text())
     h, w = bands.shape[:2]
@@ -125,7 +128,7 @@ def accuracy(bands: np.ndarray, estimator, gt_dir: Path, shortest_s: float, max_
 
 
 def _plot_registration(alignments: list[dict], path: Path) -> None:
-    import matplotlib
+    import matplotlib  # lazy: matplotlib (pyplot) is needed for this plot only, and the backend must be set first
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -148,12 +151,11 @@ def _plot_registration(alignments: list[dict], path: Path) -> None:
 
 def _plot_rig_residuals(directions: list[dict], path: Path) -> None:
     """Per direction: camera B's median residual across the epipolar lines after the rig calibration."""
-    import matplotlib
+    import matplotlib  # lazy: matplotlib (pyplot) is needed for this plot only, and the backend must be set first
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from omnispectral.product.rigcal import DIRECTION_WARNING_PX
 
     d = [x["direction"] for x in directions]
     r = [x["median_perpendicular_px"] if x["median_perpendicular_px"] is not None else np.nan for x in directions]
@@ -171,7 +173,7 @@ def _plot_rig_residuals(directions: list[dict], path: Path) -> None:
 
 
 def _plot_chart(chart: dict, path: Path) -> None:
-    import matplotlib
+    import matplotlib  # lazy: matplotlib (pyplot) is needed for this plot only, and the backend must be set first
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -195,20 +197,12 @@ def _plot_chart(chart: dict, path: Path) -> None:
 
 def write_report(product: str | Path, preview_width: int = 2048) -> dict:
     """Write ``report/report.json``, ``report.html`` and its PNGs for a processed product."""
-    from omnispectral.capture.session import Session
-    from omnispectral.mosaic.store import PanoramaStore
-    from omnispectral.product.estimator import estimator_from_params
-    from omnispectral.product.exports import write_preview
-    from omnispectral.product.process import product_paths
-    from omnispectral.product.spectra import bands_to_linear_srgb
 
     paths = product_paths(product)
-    index = json.loads(paths["index"].read_text())
+    index, store, estimator = open_product(product)
     out_dir = paths["report"]
     out_dir.mkdir(parents=True, exist_ok=True)
-    store = PanoramaStore.open(paths["panorama"])
     level = next((k for k, (_, w) in enumerate(store.shapes) if w <= preview_width), len(store.shapes) - 1)
-    estimator, _ = estimator_from_params(index["estimator"]["params"])
     preview = store.read(level)
     files = {"preview": str(write_preview(out_dir / "preview.png", bands_to_linear_srgb(preview, estimator)))}
     reg = index["registration"]

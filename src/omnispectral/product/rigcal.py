@@ -8,7 +8,7 @@ parallax (:mod:`omnispectral.imaging.disparity`).
 
 Measurements.  Per direction, B's merged image is resampled onto A's grid for points at infinity with
 the rig file's mounting (:func:`~omnispectral.product.align.warp_b_onto_a`) and registered block by
-block (POC, :func:`~omnispectral.imaging.registration.block_disparity`); a reliable block at A's
+block (POC, :func:`~omnispectral.imaging.disparity.block_disparity`); a reliable block at A's
 pixel ``p`` gives the B pixel ``q`` where B saw the same content.
 
 Model.  ``q = π_B(R(δ)ᵀ (r_A(p) − w c))``: A's ray ``r_A(p)``, B's optical centre ``c`` (the rig file's
@@ -368,7 +368,7 @@ def calibrate_session(session: str | Path, output: str | Path, work_dir: str | P
     mounting from them; saved to ``output`` (JSON) for ``process --rig-calibration``."""
     import tempfile
 
-    from omnispectral.mosaic.sources import merge_session
+    from omnispectral.product.merge import merge_session
 
     with tempfile.TemporaryDirectory(prefix="omnispectral-rigcal-") as tmp:
         merged = merge_session(session, Path(work_dir) if work_dir else Path(tmp) / "merged",

@@ -17,6 +17,8 @@ import numpy as np
 
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.io import atomic_path, atomic_write_json
+from omnispectral.product.layout import open_product, product_paths
+from omnispectral.product.process import process
 
 #: Default regions: the sky high above the horizon and the ground near the rig.
 DEFAULT_REGIONS = {"sky": (-180.0, 180.0, 45.0, 75.0), "ground": (-180.0, 180.0, -75.0, -45.0)}
@@ -47,12 +49,13 @@ def region_pixels(box, height: int, width: int) -> tuple[slice, slice]:
 
 
 def process_series(series: str | Path, output: str | Path, regions: dict | None = None, stack_width: int = 1024,
-                   progress: bool = True) -> dict:
-    """Process every complete slot of a series, stack the panoramas and analyse region spectra over time."""
-    import zarr
+                   progress=None) -> dict:
+    """Process every complete slot of a series, stack the panoramas and analyse region spectra over time.
 
-    from omnispectral.product.process import process, product_paths
-    from omnispectral.product.spectra import open_product
+    ``progress(stage, done, total)`` follows the slots (stage ``slots``) and each slot's processing.
+    """
+    import zarr  # lazy: zarr costs ~0.25 s to import; only the time stack needs it here
+
 
     series, out = Path(series), Path(output)
     try:
@@ -69,9 +72,9 @@ def process_series(series: str | Path, output: str | Path, regions: dict | None 
     for i, e in enumerate(slots):
         prod = out / e["session"]
         if not (prod / "product.json").exists():
-            if progress:
-                print(f"[{i + 1}/{len(slots)}] processing {e['session']} ({e['time'][11:16]})", flush=True)
-            process(series / e["session"], prod, progress=False, report=True, rig_calibration=calibration)
+            process(series / e["session"], prod, progress=progress, report=True, rig_calibration=calibration)
+        if progress:
+            progress("slots", i + 1, len(slots))
         if calibration is None and product_paths(prod)["rig_calibration"].is_file():
             calibration = product_paths(prod)["rig_calibration"]
         products.append(prod)
@@ -114,7 +117,7 @@ def process_series(series: str | Path, output: str | Path, regions: dict | None 
 
 def series_products(output: str | Path) -> list[tuple[str, Path]]:
     """``(time ISO 8601, product directory)`` of every slot of a :func:`process_series` output, in time order."""
-    import zarr
+    import zarr  # lazy: zarr costs ~0.25 s to import; only the time stack needs it here
 
     out = Path(output)
     stack = out / "timestack.zarr"
@@ -133,7 +136,7 @@ def series_products(output: str | Path) -> list[tuple[str, Path]]:
 
 
 def _plot_region_spectra(analysis: dict, path: Path) -> None:
-    import matplotlib
+    import matplotlib  # lazy: matplotlib (pyplot) is needed for this plot only, and the backend must be set first
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

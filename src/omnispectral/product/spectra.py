@@ -9,12 +9,14 @@ previews, the single linear map the mixture becomes for the region's mean compon
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from omnispectral.errors import ConfigurationError
+from omnispectral.imaging.geometry import lonlat_to_equirect_pixel
+from omnispectral.product.layout import open_product
+from omnispectral.spectral.colour import spectra_to_linear_srgb, spectra_to_xyz, xyz_to_linear_srgb
 
 
 def region_weights(bands: np.ndarray, estimator, n_sample: int = 20000, seed: int = 0) -> np.ndarray | None:
@@ -38,7 +40,6 @@ def bands_to_linear_srgb(bands: np.ndarray, estimator) -> np.ndarray:
 def linear_srgb_map(bands: np.ndarray, estimator) -> tuple[np.ndarray, np.ndarray]:
     """``(6 × 3 matrix, offset (3,))`` taking six bands to linear sRGB-primaries RGB: the estimator's linear map
     for the region weights of ``bands`` (:func:`region_weights`), folded with the CIE 1931 observer."""
-    from omnispectral.product.exports import spectra_to_xyz, xyz_to_linear_srgb
 
     m, b = estimator.linear_map(region_weights(bands, estimator))
     wl = np.asarray(estimator.wavelength_nm)
@@ -61,25 +62,6 @@ def estimate_image(bands: np.ndarray, estimator, with_std: bool = False):
     return spectra.reshape(h, w, -1), std.reshape(h, w, -1)
 
 
-def open_product(product: str | Path):
-    """``(index, PanoramaStore, estimator)`` of a processed product directory."""
-    from omnispectral.errors import InputFileError
-    from omnispectral.mosaic.store import PanoramaStore
-    from omnispectral.product.estimator import estimator_from_params
-    from omnispectral.product.process import product_paths
-
-    paths = product_paths(product)
-    try:
-        index = json.loads(paths["index"].read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputFileError(paths["root"], "not a processed product (no product.json)") from None
-    except (OSError, ValueError) as exc:
-        raise InputFileError(paths["index"], f"unreadable ({exc})") from None
-    store = PanoramaStore.open(paths["panorama"])
-    estimator, _ = estimator_from_params(index["estimator"]["params"])
-    return index, store, estimator
-
-
 def spectrum_at(product: str | Path, lon_deg: float, lat_deg: float, level: int = 0) -> dict:
     """The six bands, estimated spectrum, its posterior std and colour at a direction (bilinear in the bands)."""
     return spectrum_in_store(*open_product(product), lon_deg, lat_deg, level=level)
@@ -87,8 +69,6 @@ def spectrum_at(product: str | Path, lon_deg: float, lat_deg: float, level: int 
 
 def spectrum_in_store(index: dict, store, estimator, lon_deg: float, lat_deg: float, level: int = 0) -> dict:
     """:func:`spectrum_at` for a product already opened with :func:`open_product` (index, store, estimator)."""
-    from omnispectral.imaging.geometry import lonlat_to_equirect_pixel
-    from omnispectral.product.exports import spectra_to_linear_srgb, spectra_to_xyz
 
     if not (np.isfinite(lon_deg) and np.isfinite(lat_deg)) or abs(lat_deg) > 90:
         raise ConfigurationError(f"no direction at lon {lon_deg}, lat {lat_deg} (latitude must be in [-90, 90])")

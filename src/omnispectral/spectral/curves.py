@@ -13,6 +13,7 @@ row per wavelength.  Lines starting with ``#`` are comments.  Malformed files ra
 from __future__ import annotations
 
 import csv
+import io
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,7 +22,7 @@ import colour
 import numpy as np
 
 from omnispectral.errors import ConfigurationError, InputFileError
-from omnispectral.io import read_text_file
+from omnispectral.io import atomic_write_text, read_text_file
 
 DEFAULT_WAVELENGTH_NM = np.arange(400.0, 700.0 + 1e-9, 5.0)
 """The default wavelength grid: 400-700 nm every 5 nm (61 samples)."""
@@ -34,11 +35,6 @@ _WAVELENGTH_HEADERS = ("wavelength_nm", "wavelength", "nm", "lambda_nm", "wl_nm"
 # Measured curves carry small negative values from noise; beyond this share of the column
 # maximum a negative value is an error, below it the value is clipped to zero.
 _NEGATIVE_TOLERANCE = 5e-3
-
-
-def default_wavelength_nm() -> np.ndarray:
-    """Return a fresh copy of the default 400-700 nm / 5 nm grid."""
-    return DEFAULT_WAVELENGTH_NM.copy()
 
 
 @dataclass(frozen=True)
@@ -141,12 +137,6 @@ class SpectralSet:
         return SpectralSet(self.wavelength_nm, self.values[mask],
                            [n for n, keep in zip(self.names, mask, strict=True) if keep],
                            self.kind, self.source, self.notes)
-
-    def to_msds(self) -> colour.MultiSpectralDistributions:
-        """The same curves as colour-science ``MultiSpectralDistributions``."""
-        return colour.MultiSpectralDistributions(
-            self.values.T, self.wavelength_nm, labels=list(self.names), name=self.source
-        )
 
     @classmethod
     def from_colour(cls, data, kind: str, source: str, names=None) -> SpectralSet:
@@ -283,9 +273,7 @@ def read_spectral_csv(path: str | Path, kind: str, percent: bool | None = None) 
 
 def write_spectral_csv(spectral_set: SpectralSet, path: str | Path, comment: str | None = None) -> Path:
     """Write curves as ``wavelength_nm,<name>...`` CSV, atomically (temporary name, then rename)."""
-    import io
 
-    from omnispectral.io import atomic_write_text
 
     buf = io.StringIO()
     for c in (comment or "").splitlines():

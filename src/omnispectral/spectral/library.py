@@ -17,6 +17,8 @@ from pathlib import Path
 
 import colour
 import numpy as np
+from colour.characterisation import read_training_data_rawtoaces_v1
+from colour.quality import SDS_TCS, SDS_VS
 
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.spectral.curves import SpectralSet, read_spectral_csv
@@ -205,15 +207,9 @@ def load_reflectances(name: str) -> SpectralSet:
         s = read_spectral_csv(path, "reflectance", percent=False)
         return SpectralSet(s.wavelength_nm, s.values, s.names, s.kind, key)
     if key == "rawtoaces-training":
-        from colour.characterisation import read_training_data_rawtoaces_v1
-
         return SpectralSet.from_colour(read_training_data_rawtoaces_v1(), "reflectance", key)
     if key == "cie-tcs":
-        from colour.quality import SDS_TCS
-
         return _colour_mapping_set(SDS_TCS["CIE 1995"], key)
     if key == "nist-cqs":
-        from colour.quality import SDS_VS
-
         return _colour_mapping_set(SDS_VS["NIST CQS 9.0"], key)
     raise ConfigurationError(f"unknown reflectance set {name!r}; built-in: {reflectance_set_names()} or a CSV file")

@@ -4,7 +4,8 @@ NRMSE (as in paper Sec. 5.2 and Fig. 11): both spectra are scaled to unit L2 nor
 wavelength grid (61 samples for 400-700 nm / 5 nm), then the RMS difference is taken over
 wavelengths; a set's figure is the mean over its spectra.  Colour differences use CIE 1931 2°
 XYZ, with the light source as the white (a perfect reflecting diffuser under it has Y = 100),
-and colour-science's CIELAB, ΔE*ab (CIE 1976) and ΔE00 (CIE 2000).
+and colour-science's CIELAB, ΔE*ab (CIE 1976) and ΔE00 (CIE 2000); the conversions are in
+:mod:`omnispectral.spectral.colour`.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from __future__ import annotations
 import colour
 import numpy as np
 
-from omnispectral.spectral.curves import SpectralSet
+from omnispectral.spectral.colour import signal_to_Lab
 
 NRMSE_DEFINITION = (
     "NRMSE: estimated and true spectra each scaled to unit L2 norm over the wavelength grid "
@@ -39,33 +40,11 @@ def spectral_angle_deg(estimated: np.ndarray, true: np.ndarray) -> np.ndarray:
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
 
 
-def cmfs_on_grid(wavelength_nm: np.ndarray,
-                 observer: str = "CIE 1931 2 Degree Standard Observer") -> np.ndarray:
-    """Colour-matching functions ``(3, n)`` resampled onto ``wavelength_nm`` (colour-science data)."""
-    cmfs = colour.MSDS_CMFS[observer]
-    return SpectralSet(cmfs.wavelengths, cmfs.values.T, ["x", "y", "z"], "sensitivity", observer).resample(
-        wavelength_nm).values
-
-
-def signal_to_XYZ(signals: np.ndarray, white_spd: np.ndarray, wavelength_nm: np.ndarray) -> np.ndarray:
-    """Tristimulus values of colour signals ``(..., n)`` relative to a white ``(n,)`` with ``Y_white = 100``.
-
-    For a reflectance ``r`` under illuminant ``S`` (signal ``r S``, white ``S``) this is CIE 015's
-    :math:`X = k\\sum r S \\bar x\\,\\Delta\\lambda`, :math:`k = 100/\\sum S \\bar y\\,\\Delta\\lambda`,
-    which colour-science computes as ``sd_to_XYZ(r, illuminant=S, method="Integration")``.
-    """
-    cmfs = cmfs_on_grid(wavelength_nm)
-    k = 100.0 / float(np.asarray(white_spd) @ cmfs[1])
-    return k * (np.asarray(signals, dtype=np.float64) @ cmfs.T)
-
-
 def colour_differences(estimated: np.ndarray, true: np.ndarray, white_spd: np.ndarray,
                        wavelength_nm: np.ndarray) -> dict[str, np.ndarray]:
     """ΔE*ab and ΔE00 between estimated and true colour signals, viewed under ``white_spd``."""
-    white_XYZ = signal_to_XYZ(white_spd, white_spd, wavelength_nm)
-    white_xy = colour.XYZ_to_xy(white_XYZ)
-    lab_e = colour.XYZ_to_Lab(signal_to_XYZ(estimated, white_spd, wavelength_nm) / 100.0, white_xy)
-    lab_t = colour.XYZ_to_Lab(signal_to_XYZ(true, white_spd, wavelength_nm) / 100.0, white_xy)
+    lab_e = signal_to_Lab(estimated, white_spd, wavelength_nm)
+    lab_t = signal_to_Lab(true, white_spd, wavelength_nm)
     return {
         "delta_e_ab": np.asarray(colour.delta_E(lab_t, lab_e, method="CIE 1976")),
         "delta_e_2000": np.asarray(colour.delta_E(lab_t, lab_e, method="CIE 2000")),

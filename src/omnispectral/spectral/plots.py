@@ -22,7 +22,7 @@ def plot_estimates(result: dict, path: str | Path, patches: tuple[int, ...] | No
     ``result`` is the output of :func:`omnispectral.spectral.evaluate.evaluate`.  The six-band
     estimate is drawn with its ±2σ posterior band; the RGB estimate dotted.
     """
-    import matplotlib
+    import matplotlib  # lazy: matplotlib (pyplot) is needed for this plot only, and the backend must be set first
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

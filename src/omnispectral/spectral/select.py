@@ -24,6 +24,7 @@ import colour
 import numpy as np
 
 from omnispectral.errors import ConfigurationError
+from omnispectral.spectral.colour import cmfs_on_grid
 from omnispectral.spectral.curves import DEFAULT_WAVELENGTH_NM, SpectralSet, read_spectral_csv
 from omnispectral.spectral.evaluate import target_signals
 from omnispectral.spectral.library import (
@@ -36,7 +37,7 @@ from omnispectral.spectral.library import (
     load_illuminant,
     load_reflectances,
 )
-from omnispectral.spectral.metrics import cmfs_on_grid, nrmse
+from omnispectral.spectral.metrics import nrmse
 from omnispectral.spectral.prior import SpectralPrior, build_prior, calibration_signals
 from omnispectral.spectral.system import _sample_widths_nm
 
@@ -147,7 +148,7 @@ def score_pairs(filters: np.ndarray, pairs: np.ndarray, camera: np.ndarray, prio
 def select_filters(candidates: str | Path, top: int = 10, camera: str = DEFAULT_CAMERA,
                    target: str = DEFAULT_TARGET, illuminant: str = DEFAULT_ILLUMINANT,
                    reference: tuple[str, str] = DEFAULT_FILTERS, mixture: bool = False,
-                   progress: bool = False, wavelength_nm: np.ndarray | None = None) -> dict:
+                   progress=None, wavelength_nm: np.ndarray | None = None) -> dict:
     """Score all pairs of a candidate filter table; return the ``top`` pairs and the reference pair's rank."""
     t0 = time.perf_counter()
     wl = DEFAULT_WAVELENGTH_NM if wavelength_nm is None else np.asarray(wavelength_nm, dtype=np.float64)
@@ -171,20 +172,13 @@ def select_filters(candidates: str | Path, top: int = 10, camera: str = DEFAULT_
     pairs = np.array([*itertools.combinations(range(n), 2), (n, n + 1)], dtype=int)
     tick = None
     if progress:
-        from rich.progress import Progress
-
-        prog = Progress(transient=True)
-        task = prog.add_task(f"scoring {len(pairs)} filter pairs", total=len(pairs))
-        prog.start()
+        scored = [0]
 
         def tick(k):
-            prog.advance(task, k)
+            scored[0] += k
+            progress(f"scoring {len(pairs)} filter pairs", scored[0], len(pairs))
 
-    try:
-        scores = score_pairs(filters, pairs, cam, prior, calib, signals, spd, wl, mixture, progress=tick)
-    finally:
-        if progress:
-            prog.stop()
+    scores = score_pairs(filters, pairs, cam, prior, calib, signals, spd, wl, mixture, progress=tick)
     order = np.argsort(scores["nrmse"][:-1], kind="stable")
     rank_of_ref = int(np.searchsorted(np.sort(scores["nrmse"][:-1]), scores["nrmse"][-1], side="left")) + 1
 

@@ -1,7 +1,7 @@
 """The viewer's read-only web application (Starlette) and its server (uvicorn).
 
 What a request can reach is fixed when the application is made: the product (or the products of a
-time-lapse series) it was given, opened through :func:`omnispectral.product.spectra.open_product`, and the
+time-lapse series) it was given, opened through :func:`omnispectral.product.layout.open_product`, and the
 front-end files of ``view/static`` read into memory at start.  No part of a request path or query is ever
 joined to a file-system path: static files are looked up by name in that in-memory table, tiles are
 addressed by integers checked against the level's grid, and every parameter is parsed and range-checked
@@ -33,6 +33,7 @@ import mimetypes
 import re
 import socket
 import threading
+import webbrowser
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -359,8 +360,6 @@ def serve(path: str | Path, host: str = "127.0.0.1", port: int = 8000, open_brow
             if on_ready is not None:
                 on_ready(url)
             if open_browser:
-                import webbrowser
-
                 webbrowser.open(url)
 
     threading.Thread(target=announce, daemon=True).start()

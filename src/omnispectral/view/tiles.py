@@ -38,7 +38,8 @@ import numpy as np
 from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.geometry import lonlat_to_ray
 from omnispectral.product.exports import reinhard_srgb8
-from omnispectral.product.spectra import linear_srgb_map, open_product
+from omnispectral.product.layout import open_product
+from omnispectral.product.spectra import linear_srgb_map
 
 MODES = ("colour", "band", "uncertainty", "registration")
 #: Colour of occluded pixels in the ``registration`` mode.
@@ -77,7 +78,7 @@ def viewer_levels(width_px: int, tile_px: int = 256) -> list[dict]:
 
 def viridis_lut() -> np.ndarray:
     """256 × 3 uint8 RGB of matplotlib's viridis colour map."""
-    from matplotlib import colormaps
+    from matplotlib import colormaps  # lazy: matplotlib only for the colour map table, built once
 
     return np.round(colormaps["viridis"](np.linspace(0, 1, 256))[:, :3] * 255).astype(np.uint8)
 

@@ -7,6 +7,7 @@
 
 All share the :class:`Scene` interface: ``spectral_radiance``, the fast ``band_radiance``,
 ``describe``, ``colorchecker_patches`` and equirectangular ground truth.
+:func:`build_scene` makes one by name (the command line's ``--scene`` and ``--cube``).
 """
 
 from omnispectral.capture.scenes.base import (
@@ -16,18 +17,21 @@ from omnispectral.capture.scenes.base import (
     equirect_lonlat,
     lonlat_to_direction,
 )
+from omnispectral.capture.scenes.build import DEFAULT_DATE, build_scene
 from omnispectral.capture.scenes.cube import CubeOnWallScene, load_reflectance_cube
 from omnispectral.capture.scenes.panorama import PanoramaScene, read_panorama
 from omnispectral.capture.scenes.procedural import ProceduralOutdoorScene
 from omnispectral.capture.scenes.sky import ClearSkyDaylight, SolarPosition, solar_position
 
 __all__ = [
+    "DEFAULT_DATE",
     "ClearSkyDaylight",
     "CubeOnWallScene",
     "PanoramaScene",
     "ProceduralOutdoorScene",
     "Scene",
     "SolarPosition",
+    "build_scene",
     "direction_to_lonlat",
     "equirect_directions",
     "equirect_lonlat",

@@ -229,12 +229,12 @@ class CubeOnWallScene(Scene):
             refl = np.einsum("pk,pkb->pb", w, self._texels[idx]) @ self._resample.T.astype(np.float32)
             return refl * (sun[:, None] * light[0].astype(np.float32) + sky[:, None] * light[1].astype(np.float32))
 
-        return self._render(directions, origin_m, self.base._table32, panel)
+        return self._render(directions, origin_m, self.base.material_table, panel)
 
     def band_radiance(self, directions, sensitivity, origin_m=(0.0, 0.0, 0.0)) -> np.ndarray:
         """``spectral_radiance @ sensitivity.T`` via band projections of the materials and of every texel."""
         s = self.check_sensitivity(sensitivity)
-        base_table = self.base._bands.get(s, self.base._project)
+        base_table = self.base.band_table(s)
         tex_sun, tex_sky = self._bands.get(s, self._project_texels)
 
         def panel(w, idx, sun, sky):

@@ -13,10 +13,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import cache
 
-import colour
 import numpy as np
 
 from omnispectral.errors import ConfigurationError
+from omnispectral.spectral.colour import reflectance_lab
 from omnispectral.spectral.curves import SpectralSet
 from omnispectral.spectral.library import load_reflectances
 
@@ -71,18 +71,6 @@ def _pool(name: str) -> tuple[SpectralSet, np.ndarray]:
 
 def _pool_label(name: str) -> str:
     return "vrhel-objects" if name == "natural" else name
-
-
-def reflectance_lab(wavelength_nm: np.ndarray, reflectance: np.ndarray) -> np.ndarray:
-    """CIELAB ``(k, 3)`` of reflectances ``(k, n)`` under D65 (CIE 1931 2°), summed on ``wavelength_nm``."""
-    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
-    d65 = colour.SDS_ILLUMINANTS["D65"]
-    wl = np.asarray(wavelength_nm, dtype=np.float64)
-    xyz_bar = np.stack([np.interp(wl, cmfs.wavelengths, cmfs.values[:, i]) for i in range(3)], axis=-1)
-    e = np.interp(wl, d65.wavelengths, d65.values)
-    w = xyz_bar * e[:, None]
-    xyz = np.atleast_2d(reflectance) @ w / w[:, 1].sum()
-    return colour.XYZ_to_Lab(xyz, colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"])
 
 
 def choose_materials(specs, wavelength_nm: np.ndarray, rng: np.random.Generator, k: int = 3) -> list[Material]:

@@ -25,11 +25,13 @@ import math
 from pathlib import Path
 
 import colour
+import cv2
 import numpy as np
 
 from omnispectral.capture.scenes.base import RAY_BLOCK, BandProjectionCache, Scene, as_directions, as_origin
-from omnispectral.capture.scenes.sky import K_M_LM_PER_W, cmfs_xyz
 from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.imaging.bracket import read_exr
+from omnispectral.spectral.colour import K_M_LM_PER_W, LUMINOUS_GRID_NM, cmfs_xyz
 from omnispectral.spectral.curves import DEFAULT_WAVELENGTH_NM
 
 
@@ -44,16 +46,12 @@ def read_panorama(path: str | Path) -> np.ndarray:
         raise InputFileError(path, "no such file")
     suffix = path.suffix.lower()
     if suffix == ".hdr":
-        import cv2
-
         data = np.fromfile(str(path), dtype=np.uint8)
         img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
         if img is None or img.ndim != 3 or img.shape[2] < 3:
             raise InputFileError(path, "cannot be read as a Radiance HDR RGB image")
         rgb = img[:, :, 2::-1]  # OpenCV gives BGR
     elif suffix == ".exr":
-        from omnispectral.imaging.bracket import read_exr
-
         img, names = read_exr(path)
         if all(c in names for c in "RGB"):
             rgb = img[:, :, [names.index(c) for c in "RGB"]]
@@ -100,7 +98,7 @@ def mallett2019_emission_basis(wavelength_nm) -> np.ndarray:
         raise ConfigurationError(f"the Mallett 2019 basis covers {basis.wavelengths[0]:g}-{basis.wavelengths[-1]:g} "
                                  f"nm; the wavelength grid {wl.min():g}-{wl.max():g} nm goes beyond it")
     d65 = colour.SDS_ILLUMINANTS["D65"]
-    grid = np.arange(360.0, 830.0 + 1e-9, 5.0)
+    grid = LUMINOUS_GRID_NM
     k = K_M_LM_PER_W * float(np.sum(np.interp(grid, d65.wavelengths, d65.values) * cmfs_xyz(grid)[:, 1])) * 5.0
     e = np.interp(wl, d65.wavelengths, d65.values) / k
     return np.stack([np.interp(wl, basis.wavelengths, basis.values[:, c]) * e for c in range(3)])

@@ -40,6 +40,7 @@ from omnispectral.capture.scenes.base import (
     lonlat_to_direction,
 )
 from omnispectral.capture.scenes.materials import SCENE_MATERIALS, choose_materials, colorchecker_reflectances
+from omnispectral.capture.scenes.raycast import N_PY, intersect_board, intersect_boxes, intersect_ground, sun_blocked
 from omnispectral.capture.scenes.sky import ClearSkyDaylight
 from omnispectral.errors import ConfigurationError
 from omnispectral.spectral.curves import DEFAULT_WAVELENGTH_NM
@@ -53,8 +54,6 @@ JST_UTC_OFFSET_H = 9.0
 DEFAULT_DAY_OF_YEAR = 80
 #: Radius (m) of the paved area around the rig; grass beyond.
 PAVEMENT_RADIUS_M = 8.0
-#: Ray offsets (m): hits closer than this are ignored (self-intersection of shadow rays).
-EPS_M = 1e-3
 #: Distance (m) of the wooded hills on the horizon: far enough that the cameras' 60 mm baseline moves
 #: them by 2·10⁻⁵ rad (0.004 px on the small rig, 0.04 px at full scale), i.e. they are "at infinity".
 SKYLINE_DISTANCE_M = 3000.0
@@ -62,8 +61,6 @@ SKYLINE_DISTANCE_M = 3000.0
 #: Object ids in the per-ray record.
 SKY_ID = -1
 GROUND_ID = 0
-#: Normal ids: ±X, ±Y, ±Z (axis-aligned faces), then the chart's front and back.
-N_PX, N_NX, N_PY, N_NY, N_PZ, N_NZ, N_CHART_FRONT, N_CHART_BACK = range(8)
 
 
 @dataclass(frozen=True)
@@ -320,9 +317,17 @@ class ProceduralOutdoorScene(Scene):
 
     def band_radiance(self, directions, sensitivity, origin_m=(0.0, 0.0, 0.0)) -> np.ndarray:
         """``spectral_radiance @ sensitivity.T`` ``(N, m)`` float32 via per-material band projections."""
-        s = self.check_sensitivity(sensitivity)
-        table = self._bands.get(s, self._project)
-        return self._render(directions, origin_m, table)
+        return self._render(directions, origin_m, self.band_table(sensitivity))
+
+    @property
+    def material_table(self) -> np.ndarray:
+        """``[P | Q]`` ``(K, 2n)`` float32: every material's spectral radiance per lx of sun and of sky (module
+        docstring); a ray's spectral radiance is ``sun · P[k] + sky · Q[k]`` (:func:`combine`)."""
+        return self._table32
+
+    def band_table(self, sensitivity) -> np.ndarray:
+        """:attr:`material_table` projected on ``sensitivity`` ``(m, n)``: ``(K, 2m)`` float32 (cached)."""
+        return self._bands.get(self.check_sensitivity(sensitivity), self._project)
 
     def _project(self, sensitivity: np.ndarray) -> np.ndarray:
         n = self.wavelength_nm.size
@@ -346,9 +351,10 @@ class ProceduralOutdoorScene(Scene):
         t = np.full(n, np.inf, dtype=np.float32)
         obj = np.full(n, SKY_ID, dtype=np.int16)
         nid = np.zeros(n, dtype=np.int8)
-        self._hit_ground(dy, o, t, obj, nid)
-        self._hit_boxes(d, (dx, dy, dz), o, t, obj, nid)
-        patch = self._hit_chart(d, o, t, obj, nid)
+        intersect_ground(dy, o, self.ground_y_m, GROUND_ID, t, obj, nid)
+        intersect_boxes(d, (dx, dy, dz), o, self._box_lo, self._box_hi, self._box_centre, self._box_radius, t, obj,
+                        nid)
+        patch = intersect_board(d, o, self.chart, self._chart_id, t, obj, nid)
         self._hit_skyline(d, t, obj, nid)
         return self._light(d, o, t, obj, nid, patch)
 
@@ -365,81 +371,6 @@ class ProceduralOutdoorScene(Scene):
         t[sel] = np.float32(SKYLINE_DISTANCE_M)
         obj[sel] = self._skyline_id
         nid[sel] = N_PY
-
-    def _hit_ground(self, dy, o, t, obj, nid) -> None:
-        h = np.float32(self.ground_y_m - o[1])
-        if h >= 0:
-            return
-        down = np.flatnonzero(dy < 0)
-        t[down] = h / dy[down]
-        obj[down] = GROUND_ID
-        nid[down] = N_PY
-
-    def _candidates(self, d: np.ndarray, o: np.ndarray, centres: np.ndarray, radii: np.ndarray) -> np.ndarray:
-        """``(B, N)`` mask of rays whose direction lies in the cone from ``o`` around each bounding sphere."""
-        v = centres - o
-        dist = np.linalg.norm(v, axis=1)
-        inside = dist <= radii * 1.0001
-        axis = (v / np.where(inside, 1.0, dist)[:, None]).astype(np.float32)
-        cos_lim = np.where(inside, -2.0, np.sqrt(np.maximum(0.0, 1.0 - (radii / np.maximum(dist, 1e-12)) ** 2)))
-        # a little slack for float32 rounding of the dot products
-        return (axis @ d.T) >= (cos_lim - 1e-6).astype(np.float32)[:, None]
-
-    def _hit_boxes(self, d, comps, o, t, obj, nid) -> None:
-        mask = self._candidates(d, o, self._box_centre, self._box_radius)
-        lo = (self._box_lo - o).astype(np.float32)
-        hi = (self._box_hi - o).astype(np.float32)
-        tiny = np.float32(1e-20)
-        for j in range(len(self.boxes)):
-            idx = np.flatnonzero(mask[j])
-            if idx.size == 0:
-                continue
-            near, far = [], []
-            for a in range(3):
-                c = comps[a][idx]
-                inv = np.float32(1.0) / np.where(np.abs(c) < tiny, tiny, c)
-                t0 = lo[j, a] * inv
-                t1 = hi[j, a] * inv
-                near.append(np.minimum(t0, t1))
-                far.append(np.maximum(t0, t1))
-            tn = np.maximum(np.maximum(near[0], near[1]), near[2])
-            tf = np.minimum(np.minimum(far[0], far[1]), far[2])
-            hit = (tn <= tf) & (tn > EPS_M) & (tn < t[idx])
-            if not hit.any():
-                continue
-            sel = idx[hit]
-            t[sel] = tn[hit]
-            obj[sel] = j + 1
-            axis = np.argmax(np.stack([near[a][hit] for a in range(3)]), axis=0)
-            positive = d[sel, axis] > 0
-            nid[sel] = 2 * axis + positive
-
-    def _hit_chart(self, d, o, t, obj, nid) -> tuple[np.ndarray, np.ndarray]:
-        """Intersect the chart board; returns the rays on it and their patch index (-1: frame or back)."""
-        ch = self.chart
-        mask = self._candidates(d, o, ch.centre_m[None], np.array([math.hypot(ch.half_width_m, ch.half_height_m)]))[0]
-        idx = np.flatnonzero(mask)
-        empty = (np.zeros(0, np.int64), np.zeros(0, np.int32))
-        if idx.size == 0:
-            return empty
-        nrm = ch.normal.astype(np.float32)
-        denom = d[idx] @ nrm
-        num = np.float32((ch.centre_m - o) @ ch.normal)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            tc = num / denom
-        rel = (o - ch.centre_m).astype(np.float32) + tc[:, None] * d[idx]
-        u = rel @ ch.right.astype(np.float32)
-        v = rel @ ch.up.astype(np.float32)
-        hit = (np.abs(u) <= ch.half_width_m) & (np.abs(v) <= ch.half_height_m) & (tc > EPS_M) & (tc < t[idx])
-        if not hit.any():
-            return empty
-        sel = idx[hit]
-        t[sel] = tc[hit]
-        obj[sel] = self._chart_id
-        front = denom[hit] < 0
-        nid[sel] = np.where(front, N_CHART_FRONT, N_CHART_BACK)
-        patch = np.where(front, ch.patch_index(u[hit], v[hit]), -1)
-        return sel, patch
 
     def _light(self, d, o, t, obj, nid, patch) -> Shading:
         """Material rows and the sun/sky weights of every ray."""
@@ -479,32 +410,7 @@ class ProceduralOutdoorScene(Scene):
 
     def occluded(self, points_m: np.ndarray) -> np.ndarray:
         """Whether the sun's centre is hidden from each point ``(N, 3)`` by a box or the chart board."""
-        s = self.daylight.sun_direction
-        p = np.asarray(points_m, dtype=np.float32)
-        blocked = np.zeros(p.shape[0], dtype=bool)
-        if p.shape[0] == 0:
-            return blocked
-        # a zero component gets a huge inverse: the slab then spans (-big, big) when the point is
-        # inside it and lies wholly before or behind the ray otherwise, which is what the test needs
-        inv = np.array([1.0 / c if c != 0 else 1e20 for c in s])
-        near = np.where(s >= 0, self._box_lo, self._box_hi).astype(np.float32)
-        far = np.where(s >= 0, self._box_hi, self._box_lo).astype(np.float32)
-        inv32 = inv.astype(np.float32)
-        for j in range(len(self.boxes)):
-            tn = (near[j, 0] - p[:, 0]) * inv32[0]
-            tf = (far[j, 0] - p[:, 0]) * inv32[0]
-            for a in (1, 2):
-                tn = np.maximum(tn, (near[j, a] - p[:, a]) * inv32[a])
-                tf = np.minimum(tf, (far[j, a] - p[:, a]) * inv32[a])
-            blocked |= (tn <= tf) & (tf > EPS_M)
-        ch = self.chart
-        sn = float(s @ ch.normal)
-        if abs(sn) > 1e-9:
-            tc = ((ch.centre_m - p) @ ch.normal) / sn
-            rel = p - ch.centre_m + tc[:, None] * s
-            blocked |= ((np.abs(rel @ ch.right) <= ch.half_width_m) & (np.abs(rel @ ch.up) <= ch.half_height_m)
-                        & (tc > EPS_M))
-        return blocked
+        return sun_blocked(points_m, self.daylight.sun_direction, self._box_lo, self._box_hi, self.chart)
 
     # -- what a report needs ----------------------------------------------------------------------
     def surface_irradiance(self, point_m, normal) -> np.ndarray:

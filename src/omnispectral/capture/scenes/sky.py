@@ -39,15 +39,13 @@ import re
 from dataclasses import dataclass
 from functools import cache
 
-import colour
 import numpy as np
 
 from omnispectral.capture.scenes.base import direction_to_lonlat, lonlat_to_direction
 from omnispectral.errors import ConfigurationError
+from omnispectral.spectral.colour import K_M_LM_PER_W, LUMINOUS_GRID_NM, spectrum_cct_K, ybar_5nm
 from omnispectral.spectral.library import daylight_spd
 
-#: Maximum luminous efficacy of radiation (lm/W) at 555 nm (SI definition of the candela).
-K_M_LM_PER_W = 683.0
 #: IES solar illuminance constant (lx), IESNA Lighting Handbook 9th ed.
 SOLAR_ILLUMINANCE_CONSTANT_LX = 127_500.0
 #: IES atmospheric extinction coefficient of a clear sky.
@@ -58,7 +56,6 @@ SUN_DIAMETER_DEG = 0.533
 CIE_SKY_TYPE_12 = {"a": -1.0, "b": -0.32, "c": 10.0, "d": -3.0, "e": 0.45}
 #: Quadrature of the sky hemisphere used for illuminances: zenith × azimuth midpoint samples.
 SKY_QUADRATURE = (180, 720)
-_LUMINOUS_GRID_NM = np.arange(360.0, 830.0 + 1e-9, 5.0)
 _HHMM = re.compile(r"^\s*(\d{1,2}):(\d{2})(?::(\d{2}))?\s*$")
 
 
@@ -194,20 +191,6 @@ def sky_cct_K(elevation_deg: float) -> float:
     return 6500.0 + 5500.0 * (1.0 - math.exp(-max(elevation_deg, 0.0) / 10.0))
 
 
-@cache
-def _ybar_5nm() -> np.ndarray:
-    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
-    return np.asarray(cmfs[_LUMINOUS_GRID_NM])[:, 1]
-
-
-def cmfs_xyz(wavelength_nm) -> np.ndarray:
-    """CIE 1931 2° colour-matching functions ``(n, 3)`` at ``wavelength_nm`` (zero outside 360-830 nm)."""
-    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
-    wl = np.asarray(wavelength_nm, dtype=np.float64)
-    return np.stack([np.interp(wl, cmfs.wavelengths, cmfs.values[:, i], left=0.0, right=0.0) for i in range(3)],
-                    axis=-1)
-
-
 def unit_luminance_daylight(cct_K: float, wavelength_nm) -> np.ndarray:
     """CIE D-series spectrum at ``cct_K`` scaled to unit luminous quantity, sampled at ``wavelength_nm``.
 
@@ -215,16 +198,8 @@ def unit_luminance_daylight(cct_K: float, wavelength_nm) -> np.ndarray:
     per cd/m²).  Linear interpolation between the 5-nm D-series samples.
     """
     sd = daylight_spd(float(np.clip(cct_K, 4000.0, 25000.0)))
-    k = K_M_LM_PER_W * float(np.sum(np.asarray(sd[_LUMINOUS_GRID_NM]) * _ybar_5nm())) * 5.0
+    k = K_M_LM_PER_W * float(np.sum(np.asarray(sd[LUMINOUS_GRID_NM]) * ybar_5nm())) * 5.0
     return np.interp(np.asarray(wavelength_nm, dtype=np.float64), sd.wavelengths, sd.values) / k
-
-
-def spectrum_cct_K(wavelength_nm, spectrum) -> float:
-    """CCT of a spectral power distribution (CIE 1931 2°; Ohno 2013 via CIE 1960 uv)."""
-    wl = np.asarray(wavelength_nm, dtype=np.float64)
-    xyz = np.asarray(spectrum, dtype=np.float64) @ cmfs_xyz(wl)
-    uv = colour.xy_to_UCS_uv(colour.XYZ_to_xy(xyz))
-    return float(colour.temperature.uv_to_CCT_Ohno2013(uv)[0])
 
 
 # ------------------------------------------------------------------------------------- daylight
@@ -313,14 +288,9 @@ class ClearSkyDaylight:
         n = np.asarray(normal, dtype=np.float64)
         return self.direct_normal_lx * max(0.0, float(n @ self.sun_direction) / float(np.linalg.norm(n)))
 
-    def global_horizontal_spectrum(self) -> np.ndarray:
-        """Spectral irradiance (W·m⁻²·nm⁻¹) on an unobstructed horizontal surface, on ``wavelength_nm``."""
-        up = np.array([0.0, 1.0, 0.0])
-        return self.sun_illuminance_lx(up) * self.sun_spectrum + self.sky_illuminance_lx(up) * self.sky_spectrum
-
     def daylight_cct_K(self, normal) -> float:
         """CCT of the daylight (unobstructed sun + sky) falling on a surface of unit ``normal``, on 360-830 nm."""
-        wl = _LUMINOUS_GRID_NM
+        wl = LUMINOUS_GRID_NM
         spd = (self.sun_illuminance_lx(normal) * unit_luminance_daylight(self.cct_sun_K, wl)
                + self.sky_illuminance_lx(normal) * unit_luminance_daylight(self.cct_sky_K, wl))
         return spectrum_cct_K(wl, spd)

@@ -6,20 +6,33 @@ on load, and an error names the file, the table and the key.  Lens fields of vie
 across the sensor's long side (``hfov_deg``, along ``width_px``) and short side (``vfov_deg``);
 ``orientation = "portrait"`` rolls the camera by 90° on the head, as in the paper, so the long side
 then spans tilt.
+
+The rig also knows what its description means for processing: the geometric model of each camera
+(:meth:`Rig.camera_model`, lens and mounting) and the six-band spectral system of the two cameras
+(:meth:`Rig.system`).  Capture, simulation, mosaicking and processing all take them from here.
+
+This is a base module of the package (see ``docs/architecture.md``): it builds on ``imaging`` and
+``spectral`` and is imported by ``capture``, ``mosaic`` and ``product``, none of which it imports.
 """
 
 from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import tomli_w
 
 from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.imaging.geometry import CameraModel, Mounting
+from omnispectral.io import read_text_file
+from omnispectral.spectral.library import load_camera, load_filter
+from omnispectral.spectral.noise import SensorNoiseModel
+from omnispectral.spectral.system import MultibandSystem, build_system
 
 PRESETS = ("paper-timelapse", "paper-gigapixel", "small")
 HEAD_DRIVERS = ("simulated", "rodeon", "merlin")
@@ -108,9 +121,7 @@ class CameraSpec:
     def tilt_fov_deg(self) -> float:
         return self.lens.hfov_deg if self.orientation == "portrait" else self.lens.vfov_deg
 
-    def noise_model(self):
-        from omnispectral.spectral.noise import SensorNoiseModel
-
+    def noise_model(self) -> SensorNoiseModel:
         return SensorNoiseModel(self.full_well_e, self.read_noise_e, self.bit_depth, self.model)
 
 
@@ -189,6 +200,60 @@ class Rig:
         d = asdict(self)
         d.pop("toml_text")
         return d
+
+    def camera_model(self, name: str) -> CameraModel:
+        """The geometric model of camera ``A`` or ``B`` (see :func:`camera_model`)."""
+        return camera_model(self, name)
+
+    def system(self, wavelength_nm: np.ndarray | None = None) -> MultibandSystem:
+        """The six-band spectral system of the two cameras (see :func:`rig_system`)."""
+        return rig_system(self, wavelength_nm)
+
+
+def camera_model(rig: Rig, name: str) -> CameraModel:
+    """The geometric model of camera ``A`` or ``B`` of a rig: lens (calibration or field of view) and mounting."""
+    cam = rig.cameras[name]
+    if name == "A":
+        mounting = Mounting(roll_deg=cam.roll_deg)
+    else:
+        m = rig.mounting
+        mounting = Mounting(roll_deg=cam.roll_deg, misalignment_deg=(m.yaw_deg, m.pitch_deg, m.roll_deg),
+                            baseline_mm=m.baseline_mm)
+    if cam.lens.calibration:
+        model = CameraModel.from_json(cam.lens.calibration)
+        if (model.width, model.height) != (cam.width_px, cam.height_px):
+            raise ConfigurationError(f"camera {name}: lens calibration {cam.lens.calibration} is for "
+                                     f"{model.width}x{model.height}, the sensor is {cam.width_px}x{cam.height_px}")
+        return replace(model, mounting=mounting)
+    return _model_from_fovs(cam.width_px, cam.height_px, cam.lens.hfov_deg, cam.lens.vfov_deg, cam.lens.distortion,
+                            mounting)
+
+
+def _model_from_fovs(width: int, height: int, hfov_deg: float, vfov_deg: float, dist, mounting) -> CameraModel:
+    """A camera with the rig file's two fields of view: ``fx`` from the horizontal one (solved through the
+    distortion), ``fy`` so that the vertical one holds for the pinhole part (non-square pixels when the
+    stated angles do not match the sensor's aspect, as for the paper's telephoto: 14.5° × 10.8° on
+    2048 × 1088 — square pixels would give 7.7° and leave gaps between the 60 × 21 grid's rows)."""
+    model = CameraModel.from_fov(width, height, hfov_deg, dist, mounting)
+    fx0 = 0.5 * width / math.tan(math.radians(hfov_deg) / 2)
+    fy0 = 0.5 * height / math.tan(math.radians(vfov_deg) / 2)
+    return replace(model, fy=model.fx * fy0 / fx0)
+
+
+def rig_system(rig: Rig, wavelength_nm: np.ndarray | None = None) -> MultibandSystem:
+    """The six-band system of a rig: camera A's sensitivity × filter A, then camera B's × filter B."""
+    pairs = tuple((rig.cameras[c].sensitivity, rig.cameras[c].filter) for c in ("A", "B"))
+    return two_camera_system(pairs, wavelength_nm, rig.name)
+
+
+def two_camera_system(pairs: tuple[tuple[str, str], tuple[str, str]], wavelength_nm: np.ndarray | None = None,
+                      name: str = "rig") -> MultibandSystem:
+    """Bands ``A:R … B:B`` of two cameras given as (sensitivity, filter) names or CSV files."""
+    parts = [build_system(load_camera(sens), [load_filter(filt)], wavelength_nm) for sens, filt in pairs]
+    return MultibandSystem(parts[0].wavelength_nm, np.vstack([p.sensitivity for p in parts]),
+                           tuple(f"{c}:{b}" for c in ("A", "B") for b in ("R", "G", "B")),
+                           np.array([0, 0, 0, 1, 1, 1]),
+                           f"{name}: {parts[0].description} | {parts[1].description}")
 
 
 def _camera(r: _Reader, name: str) -> CameraSpec:
@@ -291,8 +356,6 @@ def rig_from_dict(data: dict, source: str = "<rig>", toml_text: str = "") -> Rig
 
 def load_rig(path: str | Path) -> Rig:
     """Read and validate a rig TOML file; errors name the file and the key."""
-    from omnispectral.io import read_text_file
-
     path = Path(path)
     text = read_text_file(path, "rig file")
     try:
@@ -321,7 +384,6 @@ def rig_toml(rig: Rig) -> str:
     """TOML text of a rig (its original text when it was read from TOML, else a faithful rendering)."""
     if rig.toml_text:
         return rig.toml_text
-    import tomli_w
 
     def drop_none(x):
         if isinstance(x, dict):

@@ -1,0 +1,31 @@
+"""A scene by name, as the command line and the demo ask for one: ``procedural``, an HDR panorama file, a cube."""
+
+from __future__ import annotations
+
+import datetime as _dt
+
+from omnispectral.capture.scenes.cube import CubeOnWallScene
+from omnispectral.capture.scenes.panorama import PanoramaScene
+from omnispectral.capture.scenes.procedural import ProceduralOutdoorScene
+from omnispectral.errors import ConfigurationError
+
+#: Day of a simulated capture unless one is given: the summer solstice (the paper's captures are from
+#: 2016-2017 in Japan).
+DEFAULT_DATE = _dt.date(2017, 6, 21)
+
+
+def build_scene(scene: str, cube: str | None, when: _dt.datetime, wavelength_nm=None, seed: int = 0,
+                chart_distance_m: float | None = None, chart_patch_m: float | None = None):
+    """``procedural`` (sun and sky at ``when``), or an HDR equirectangular panorama file; with ``cube``, a
+    hyperspectral reflectance cube mounted on a wall of the procedural scene."""
+    kwargs = {} if wavelength_nm is None else {"wavelength_nm": wavelength_nm}
+    if scene == "procedural":
+        chart = {k: v for k, v in (("chart_distance_m", chart_distance_m), ("chart_patch_m", chart_patch_m))
+                 if v is not None}
+        base = ProceduralOutdoorScene(time_hhmm=f"{when:%H:%M}", day_of_year=when.timetuple().tm_yday,
+                                      seed=seed, **chart, **kwargs)
+    else:
+        if cube:
+            raise ConfigurationError("--cube mounts the cube on a wall of the procedural scene; use --scene procedural")
+        return PanoramaScene(scene, **kwargs)
+    return CubeOnWallScene(cube, base=base) if cube else base

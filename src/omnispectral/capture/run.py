@@ -14,6 +14,8 @@ from dataclasses import dataclass
 from omnispectral.capture.devices import Camera, Clock, DeviceError, DeviceTimeout, PanTiltHead
 from omnispectral.capture.plan import Direction
 from omnispectral.capture.session import CAMERAS, Session
+from omnispectral.io import clean_temp_files
+from omnispectral.locking import directory_lock
 
 
 @dataclass
@@ -85,7 +87,18 @@ def expose_all(cameras: dict[str, Camera], names: list[str], exposure_s: float, 
 
 def run_capture(session: Session, head: PanTiltHead, cameras: dict[str, Camera], clock: Clock,
                 policy: RetryPolicy | None = None, progress: bool = True) -> CaptureResult:
-    """Capture (or resume) every planned frame of ``session`` with the given devices."""
+    """Capture (or resume) every planned frame of ``session`` with the given devices.
+
+    Holds the session's lock (:mod:`omnispectral.locking`) for the whole run: a second run on the same
+    session is refused; temporary files a killed run left are removed first.
+    """
+    with directory_lock(session.path, "capture"):
+        clean_temp_files(session.path)
+        return _run_capture_locked(session, head, cameras, clock, policy, progress)
+
+
+def _run_capture_locked(session: Session, head: PanTiltHead, cameras: dict[str, Camera], clock: Clock,
+                        policy: RetryPolicy | None, progress: bool) -> CaptureResult:
     policy = policy or RetryPolicy()
     plan = session.plan()
     cut = session.repair_journal()

@@ -23,6 +23,8 @@ import datetime as _dt
 import hashlib
 import json
 import os
+import re
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,7 +33,9 @@ import numpy as np
 from omnispectral.capture.plan import Plan
 from omnispectral.capture.rig import Rig, rig_from_dict, rig_toml
 from omnispectral.errors import InputFileError
-from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text
+from omnispectral.fingerprint import differences
+from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text, is_temp_name
+from omnispectral.locking import LOCK_NAME, directory_lock
 
 FORMAT_VERSION = 1
 CAMERAS = ("A", "B")
@@ -40,6 +44,32 @@ CAMERAS = ("A", "B")
 def frame_relpath(direction: int, camera: str, exposure_index: int) -> str:
     """Path of a frame relative to the session directory."""
     return f"frames/d{direction:04d}/{camera}_e{exposure_index:02d}.tif"
+
+
+#: A final frame name inside ``frames/`` (temporary files never match it).
+FRAME_NAME = re.compile(r"^d(\d{4})/([AB])_e(\d{2})\.tif$")
+
+
+def half_created_leftovers(path: Path) -> list[Path] | None:
+    """The entries of a session directory a killed :meth:`Session.create` left (``None``: something else is there).
+
+    Only ``rig.toml``, ``plan.json``, an empty ``frames/``, the lock file and temporary files qualify.
+    """
+    out = []
+    for p in path.iterdir():
+        if p.name == LOCK_NAME:
+            continue
+        if p.name in ("rig.toml", "plan.json") or is_temp_name(p.name):
+            out.append(p)
+        elif p.name == "frames" and p.is_dir() and not any(p.rglob("*.tif")):
+            out.append(p)
+        else:
+            return None
+    return out
+
+
+def _jsonable(x):
+    return json.loads(json.dumps(x, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
 
 
 def sha256_of(path: Path) -> str:
@@ -107,25 +137,64 @@ class Session:
 
     # ------------------------------------------------------------------ create / open
     @classmethod
-    def create(cls, path: str | Path, rig: Rig, plan: Plan, kind: str = "capture", extra: dict | None = None):
-        """Start a new session, or return the existing one at ``path`` if it was made for the same plan."""
+    def create(cls, path: str | Path, rig: Rig, plan: Plan, kind: str = "capture", extra: dict | None = None,
+               identity: dict | None = None):
+        """Start a new session, or return the existing one at ``path`` if it was made by the same parameters.
+
+        ``identity``: parameters besides the rig and the plan that determine the frames (a simulation's
+        scene, seed, noise); recorded in ``session.json`` and compared on resume.  A resume with another
+        rig, plan or identity is refused naming the difference.  A directory left by a run killed while
+        creating the session (only our own files, no ``session.json`` yet) is created again.
+        """
+        with directory_lock(path, "create session"):
+            return cls._create_locked(Path(path), rig, plan, kind, extra, identity)
+
+    @classmethod
+    def _create_locked(cls, path: Path, rig: Rig, plan: Plan, kind: str, extra: dict | None,
+                       identity: dict | None) -> Session:
         s = cls(path)
         if (s.path / "session.json").exists():
-            existing = s.plan()
-            if existing.to_dict()["directions"] != plan.to_dict()["directions"] or \
-                    list(existing.exposures_s) != list(plan.exposures_s):
-                raise InputFileError(s.path, "holds a session with a different plan; choose another output directory")
+            s.check_same_parameters(rig, plan, identity)
             return s
-        if s.path.exists() and any(s.path.iterdir()):
-            raise InputFileError(s.path, "exists and is not an omnispectral session; choose an empty directory")
+        if s.path.exists():
+            leftovers = half_created_leftovers(s.path)
+            if leftovers is None:
+                raise InputFileError(s.path, "exists and is not an omnispectral session; choose an empty directory")
+            for p in leftovers:  # a creation killed before session.json: start it again
+                shutil.rmtree(p) if p.is_dir() else p.unlink()
         (s.path / "frames").mkdir(parents=True, exist_ok=True)
         atomic_write_text(s.path / "rig.toml", rig_toml(rig))
         atomic_write_json(s.path / "plan.json", plan.to_dict())
         meta = {"format": "omnispectral-session", "format_version": FORMAT_VERSION, "kind": kind, "rig": rig.name,
                 "created_utc": utc_now_iso(), "n_frames_planned": s.n_planned(plan)}
+        if identity is not None:
+            meta["identity"] = _jsonable(identity)
         meta.update(extra or {})
         atomic_write_json(s.path / "session.json", meta)  # written last: its presence marks a session
         return s
+
+    def check_same_parameters(self, rig: Rig, plan: Plan, identity: dict | None = None) -> None:
+        """Refuse to resume this session with another plan, rig or identity; the error names the differences."""
+        import tomllib
+
+        existing = self.plan()
+        if existing.to_dict()["directions"] != plan.to_dict()["directions"] or \
+                list(existing.exposures_s) != list(plan.exposures_s):
+            raise InputFileError(self.path, "holds a session with a different plan; choose another output directory")
+        diffs = []
+        try:
+            old_rig = tomllib.loads((self.path / "rig.toml").read_text(encoding="utf-8"))
+        except (OSError, tomllib.TOMLDecodeError) as exc:
+            raise InputFileError(self.path / "rig.toml", f"cannot read the rig snapshot ({exc})") from None
+        new_rig = tomllib.loads(rig_toml(rig))
+        diffs += [f"rig {d}" for d in differences(old_rig, new_rig)]
+        recorded = self.metadata().get("identity")
+        if identity is not None and recorded is not None:
+            diffs += differences(recorded, _jsonable(identity))
+        if diffs:
+            raise InputFileError(self.path, "was captured with other parameters, resuming would mix frames: "
+                                            + "; ".join(diffs[:4]) + (" …" if len(diffs) > 4 else "")
+                                            + ". Use the original parameters or another output directory")
 
     @classmethod
     def open(cls, path: str | Path) -> Session:

@@ -28,7 +28,10 @@ import time
 from pathlib import Path
 
 from omnispectral.errors import InputFileError
-from omnispectral.io import atomic_write_json
+from omnispectral.fingerprint import check_merged, product_fingerprint
+from omnispectral.io import atomic_write_json, clean_temp_files
+from omnispectral.limits import guard_product_output
+from omnispectral.locking import directory_lock
 
 PRODUCT_FORMAT = "omnispectral-product"
 PANORAMA = "panorama.zarr"
@@ -54,11 +57,16 @@ def bad_directions(report: dict) -> dict[int, list[str]]:
 def _check_session(session_path: Path, skip_bad: bool, verify_checksums: bool) -> tuple[dict, dict[int, list[str]]]:
     from omnispectral.capture.session import verify_session
 
-    report = verify_session(session_path, check_pixels=False, checksums=verify_checksums)
+    # by default every frame's SHA-256 is checked and its TIFF decoded (docs/reliability.md: a few % of
+    # the processing time), so a same-size corrupted or undecodable frame counts as damaged (skippable)
+    report = verify_session(session_path, check_pixels=verify_checksums, checksums=verify_checksums)
     bad = bad_directions(report)
-    if report["journal_bad_lines"]:
+    if report["journal_bad_lines"] and not skip_bad:
         first = report["journal_bad_lines"][0]
-        raise InputFileError(session_path / "journal.jsonl", f"line {first['line']}: {first['problem']}")
+        raise InputFileError(session_path / "journal.jsonl",
+                             f"line {first['line']}: {first['problem']} ({len(report['journal_bad_lines'])} bad "
+                             f"lines; 'omnispectral session repair {session_path}' rebuilds the journal from the "
+                             f"frames, --skip-bad processes the frames it still lists)")
     if bad and not skip_bad:
         first = next(iter(bad.values()))[0]
         raise InputFileError(session_path / first.split(":")[0],
@@ -188,20 +196,15 @@ def register_parallax(merged, calibration=None, progress=None, timings: dict | N
 def process(session: str | Path, output: str | Path, *, width: int | None = None, tile: int | None = None,
             interp: str | None = None, scheduler=None, workers: int | None = None, skip_bad: bool = False,
             min_confidence: float | None = None, hdr_weight: str = "noise", report: bool = True,
-            progress: bool = True, verify_checksums: bool = False, registration: str = "parallax",
-            rig_calibration: str | Path | None = None) -> dict:
+            progress: bool = True, verify_checksums: bool = True, registration: str = "parallax",
+            rig_calibration: str | Path | None = None, overwrite: bool = False) -> dict:
     """Run stages 1-4 (module docstring) and write ``product.json`` and, by default, the report.
 
     ``hdr_weight`` defaults to the inverse-variance weight: the paper's triangle weight lets 1-DN
     values of the shortest exposures bias dark regions upwards (+36 % at 360 DN in the longest
     exposure on the simulated rig; docs/benchmarks.md), which would show in the spectra.
     """
-    from omnispectral.capture.session import Session
     from omnispectral.errors import ConfigurationError
-    from omnispectral.imaging.registration import DEFAULT_MIN_CONFIDENCE
-    from omnispectral.mosaic import engine
-    from omnispectral.mosaic.store import PanoramaStore
-    from omnispectral.product.estimator import rig_estimator
     from omnispectral.product.rigcal import RigCalibration
 
     if registration not in REGISTRATIONS:
@@ -209,13 +212,37 @@ def process(session: str | Path, output: str | Path, *, width: int | None = None
     calibration = RigCalibration.load(rig_calibration) if rig_calibration is not None else None
     session_path = Path(session)
     paths = product_paths(output)
-    paths["root"].mkdir(parents=True, exist_ok=True)
+    guard_product_output(session_path, paths["root"], width)
+    with directory_lock(paths["root"], "process"):
+        return _process_locked(session_path, paths, calibration, width=width, tile=tile, interp=interp,
+                               scheduler=scheduler, workers=workers, skip_bad=skip_bad,
+                               min_confidence=min_confidence, hdr_weight=hdr_weight, report=report,
+                               progress=progress, verify_checksums=verify_checksums, registration=registration,
+                               rig_calibration=rig_calibration, overwrite=overwrite)
+
+
+def _process_locked(session_path: Path, paths: dict, calibration, *, width, tile, interp, scheduler, workers,
+                    skip_bad, min_confidence, hdr_weight, report, progress, verify_checksums, registration,
+                    rig_calibration, overwrite) -> dict:
+    """:func:`process` while holding the product's lock."""
+    from omnispectral.capture.session import Session
+    from omnispectral.imaging.registration import DEFAULT_MIN_CONFIDENCE
+    from omnispectral.mosaic import engine
+    from omnispectral.mosaic.store import PanoramaStore
+    from omnispectral.product.estimator import rig_estimator
+
+    clean_temp_files(paths["root"])
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     check, bad = _check_session(session_path, skip_bad, verify_checksums)
     timings["check"] = time.perf_counter() - t0
     s = Session.open(session_path)
     rig = s.rig()
+    fingerprint = product_fingerprint(session_path, hdr_weight=hdr_weight, registration=registration,
+                                      min_confidence=min_confidence, rig_calibration=rig_calibration,
+                                      skipped_directions=bad)
+    state = check_merged(paths["merged"], fingerprint, overwrite,
+                         dependents=(paths["panorama"], paths["rig_calibration"], paths["index"]))
     bar = _Progress(progress)
     parallax_stats = None
     try:
@@ -233,7 +260,7 @@ def process(session: str | Path, output: str | Path, *, width: int | None = None
         kwargs = {k: v for k, v in (("width", width), ("tile", tile)) if v is not None}
         kwargs["interp"] = interp or "linear"
         summary = engine.mosaic(merged, paths["panorama"], scheduler=scheduler, workers=workers,
-                                progress=bar.stage_callback(), **kwargs)
+                                progress=bar.stage_callback(), overwrite=overwrite or state == "overwritten", **kwargs)
         timings["mosaic"] = time.perf_counter() - t1
     finally:
         bar.stop()
@@ -258,7 +285,7 @@ def process(session: str | Path, output: str | Path, *, width: int | None = None
              "skipped_directions": [{"direction": d, "problems": p} for d, p in sorted(bad.items())],
              "session_check": {k: check[k] for k in ("n_planned", "n_ok", "n_missing", "n_damaged")},
              "mosaic": {k: v for k, v in summary.items() if k not in ("output",)},
-             "timings_s": timings}
+             "timings_s": timings, "fingerprint": fingerprint}
     atomic_write_json(paths["index"], index)
     if report:
         from omnispectral.product.report import write_report

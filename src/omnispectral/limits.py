@@ -25,6 +25,7 @@ MAX_EXPOSURE_S = 3600.0
 MAX_IMAGE_SIDE_PX = 32768
 MAX_IMAGE_PIXELS = 1 << 28  # 268 Mpx: a 16-bit RGB frame of this size is 1.5 GiB
 MAX_DIRECTIONS = 100_000
+MIN_FOV_DEG = 0.1  # a 0.1° lens needs 1.3 million directions for the sphere
 MAX_PANORAMA_WIDTH_PX = 131_072
 PANORAMA_BYTES_PER_PX = 6 * 4 * 4 / 3  # six float32 bands, pyramid levels add a third
 

@@ -35,6 +35,7 @@ from omnispectral.capture.rig import Rig, rig_from_dict, rig_toml
 from omnispectral.errors import InputFileError
 from omnispectral.fingerprint import differences
 from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text, is_temp_name
+from omnispectral.limits import check_image_shape
 from omnispectral.locking import LOCK_NAME, directory_lock
 
 FORMAT_VERSION = 1
@@ -313,10 +314,16 @@ class Session:
                                     f"exposure {exposure_index})")
         try:
             with tifffile.TiffFile(p) as tf:
-                data = tf.pages[0].asarray()
-                meta = json.loads(tf.pages[0].description)
+                page = tf.pages[0]
+                check_image_shape(p, page.shape)  # before decoding: a hostile header cannot allocate GiB
+                data = page.asarray()
+                meta = json.loads(page.description)
+        except InputFileError:
+            raise
         except Exception as exc:  # tifffile raises several types for truncated files
             raise InputFileError(p, f"damaged frame ({type(exc).__name__}: {exc})") from None
+        if not isinstance(meta, dict):
+            raise InputFileError(p, "damaged frame (no frame record in the TIFF description)")
         return data, meta
 
 

@@ -323,10 +323,9 @@ def simulate_session(output: str | Path, rig: Rig, scene, *, start: _dt.datetime
     """
     from omnispectral.capture.devices import FakeClock, SimulatedCamera, SimulatedHead
     from omnispectral.capture.plan import make_plan
+    from omnispectral.capture.resume import resume_simulated_devices
     from omnispectral.capture.run import RetryPolicy, run_capture
     from omnispectral.capture.session import Session
-
-    from omnispectral.capture.resume import resume_simulated_devices
     from omnispectral.locking import directory_lock
 
     plan = make_plan(rig, overlap=overlap)

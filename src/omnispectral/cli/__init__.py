@@ -10,10 +10,10 @@ from __future__ import annotations
 import argparse
 import importlib
 
-from omnispectral import __version__
-from omnispectral.cli._common import err_console
 from rich.markup import escape
 
+from omnispectral import __version__
+from omnispectral.cli._common import err_console
 from omnispectral.errors import OmnispectralError, describe_os_error
 
 #: Modules of ``omnispectral.cli`` that register sub-commands, in the order ``--help`` lists them.

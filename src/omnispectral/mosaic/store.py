@@ -110,8 +110,8 @@ class PanoramaStore:
                                                "overwrite it") from None
             if existing is not None and not overwrite:
                 if existing.attrs().get("fingerprint") != _jsonable(fingerprint):
-                    raise InputFileError(path, "holds a panorama made with other inputs or parameters; rerun with --overwrite"
-                                               " or choose another output")
+                    raise InputFileError(path, "holds a panorama made with other inputs or parameters; rerun with "
+                                               "--overwrite or choose another output")
                 return existing
             shutil.rmtree(path)
         # built under a temporary name and renamed into place: a run killed while creating the store

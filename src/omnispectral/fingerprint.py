@@ -99,9 +99,11 @@ def _short(v) -> str:
 
 
 def differences(recorded: dict, wanted: dict) -> list[str]:
-    """What differs between two fingerprints (or two parameter sets), one ``key: old → new`` each."""
+    """What differs between two fingerprints (or two parameter sets), one ``key: old → new`` each; top-level
+    keys first (the parameter a user changed before the quantities derived from it)."""
     a, b = flatten(recorded), flatten(wanted)
-    return [f"{k}: {_short(a.get(k))} → {_short(b.get(k))}" for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
+    keys = sorted(set(a) | set(b), key=lambda k: (k.count("."), k))
+    return [f"{k}: {_short(a.get(k))} → {_short(b.get(k))}" for k in keys if a.get(k) != b.get(k)]
 
 
 def read_fingerprint(directory: str | Path) -> dict | None:

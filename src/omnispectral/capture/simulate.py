@@ -331,8 +331,10 @@ def simulate_session(output: str | Path, rig: Rig, scene, *, start: _dt.datetime
     plan = make_plan(rig, overlap=overlap)
     renderer = RigRenderer(rig, scene, noise=noise,
                            b_mounting_error_deg=true_mounting_error_deg(seed, mounting_error_deg))
-    identity = {"scene": _jsonable(scene.describe()), "noise": noise, "seed": seed,
-                "mounting_error_deg": float(mounting_error_deg)}
+    described = _jsonable(scene.describe())
+    # the scene's own parameters first, so that a refused resume names them before what they determine
+    identity = {"scene_parameters": described.get("parameters") if isinstance(described, dict) else None,
+                "scene": described, "noise": noise, "seed": seed, "mounting_error_deg": float(mounting_error_deg)}
     with directory_lock(output, "simulate"):
         session = Session.create(output, rig, plan, kind="simulation", identity=identity,
                                  extra={"simulation": {"scene": _jsonable(scene.describe()), "noise": noise,

@@ -138,6 +138,7 @@ class SimulatedHead:
         self._pos = (0.0, 0.0)
         self._target = (0.0, 0.0)
         self._arrive_at = 0.0
+        self._placed = False
         self.moves = 0
 
     def _answer(self) -> None:
@@ -152,6 +153,10 @@ class SimulatedHead:
             raise DeviceError(f"head cannot go to pan {pan_deg} deg, tilt {tilt_deg} deg")
         self.moves += 1
         self._answer()
+        resumed_here, self._placed = self._placed and (float(pan_deg), float(tilt_deg)) == self._pos, False
+        if resumed_here:  # already at rest there (a resumed run continuing a direction): nothing moves
+            self._arrive_at = self.clock.monotonic()
+            return
         travel = max(abs(pan_deg - self._pos[0]) / self.pan_speed, abs(tilt_deg - self._pos[1]) / self.tilt_speed)
         self._target = (float(pan_deg), float(tilt_deg))
         self._arrive_at = self.clock.monotonic() + travel + self.settle_s
@@ -175,6 +180,7 @@ class SimulatedHead:
         """Put the head at rest at a position (a resumed simulation continues where the last run stopped)."""
         self._pos = self._target = (float(pan_deg), float(tilt_deg))
         self._arrive_at = self.clock.monotonic()
+        self._placed = True
 
     @property
     def true_position(self) -> tuple[float, float]:

@@ -57,10 +57,14 @@ def check_bit_depth(bit_depth: int, where: str = "bit depth") -> int:
 def check_image_shape(path: str | Path, shape: tuple[int, ...], expected_hw: tuple[int, int] | None = None,
                       bytes_per_sample: int = 2) -> None:
     """Refuse an image whose header claims an absurd size (or not the rig's sensor size) before decoding."""
-    if len(shape) < 2:
-        raise InputFileError(path, f"not an image (shape {tuple(shape)})")
-    h, w = int(shape[0]), int(shape[1])
-    n = math.prod(int(x) for x in shape)
+    try:
+        dims = [int(x) for x in shape]
+    except (TypeError, ValueError):
+        raise InputFileError(path, f"damaged image header (shape {shape!r})") from None
+    if len(dims) < 2 or min(dims) < 1:
+        raise InputFileError(path, f"not an image (shape {tuple(dims)})")
+    h, w = dims[0], dims[1]
+    n = math.prod(dims)
     if expected_hw is not None and (h, w) != tuple(expected_hw):
         raise InputFileError(path, f"{w}x{h} px, the rig's sensor is {expected_hw[1]}x{expected_hw[0]}")
     if h > MAX_IMAGE_SIDE_PX or w > MAX_IMAGE_SIDE_PX or h * w > MAX_IMAGE_PIXELS:
@@ -78,7 +82,7 @@ def check_image_header(path: str | Path, expected_hw: tuple[int, int] | None = N
     try:
         with tifffile.TiffFile(path) as tf:
             page = tf.pages[0]
-            shape, itemsize = page.shape, page.dtype.itemsize if page.dtype is not None else 2
+            shape, itemsize = page.shape, int(page.dtype.itemsize) if page.dtype is not None else 2
     except Exception as exc:  # tifffile raises several types for damaged headers
         raise InputFileError(path, f"damaged TIFF ({type(exc).__name__}: {exc})") from None
     check_image_shape(path, shape, expected_hw, itemsize)

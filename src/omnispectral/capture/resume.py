@@ -19,7 +19,7 @@ import json
 import shutil
 from pathlib import Path
 
-from omnispectral.capture.session import CAMERAS, FRAME_NAME, Session, read_journal, sha256_of
+from omnispectral.capture.session import CAMERAS, FRAME_NAME, Session, read_journal, record_key, sha256_of
 from omnispectral.errors import InputFileError
 from omnispectral.io import atomic_write_text, clean_temp_files
 from omnispectral.locking import directory_lock
@@ -70,7 +70,7 @@ def frame_record_from_file(session: Session, rel: str) -> dict:
     if not isinstance(meta, dict):
         raise InputFileError(session.path / rel, "no frame record in the TIFF description")
     try:
-        embedded = (int(meta["direction"]), str(meta["camera"]), int(meta["exposure_index"]))
+        embedded = record_key(meta)
     except (KeyError, TypeError, ValueError):
         raise InputFileError(session.path / rel, "the embedded frame record lacks its key") from None
     if embedded != key:

@@ -95,6 +95,17 @@ class JournalReadout:
     valid_bytes: int
 
 
+def record_key(rec) -> tuple[int, str, int]:
+    """``(direction, camera, exposure index)`` of a frame record; ``ValueError`` unless exactly that."""
+    if not isinstance(rec, dict):
+        raise ValueError("not an object")
+    d, c, k = rec["direction"], rec["camera"], rec["exposure_index"]
+    if any(isinstance(v, bool) or not isinstance(v, int) for v in (d, k)) or c not in CAMERAS \
+            or not 0 <= d < 1 << 31 or not 0 <= k < 1 << 16:
+        raise ValueError("not a frame key")
+    return d, c, k
+
+
 def read_journal(path: Path) -> JournalReadout:
     """Parse ``journal.jsonl``; a last line without newline or unparsable is a cut write (``partial_tail``)."""
     records: dict[tuple[int, str, int], dict] = {}
@@ -113,7 +124,7 @@ def read_journal(path: Path) -> JournalReadout:
         end = offset + len(raw) + (0 if is_last else 1)
         try:
             rec = json.loads(raw.decode("utf-8"))
-            key = (int(rec["direction"]), str(rec["camera"]), int(rec["exposure_index"]))
+            key = record_key(rec)
         except (ValueError, KeyError, TypeError, UnicodeDecodeError):
             if is_last:
                 partial = True

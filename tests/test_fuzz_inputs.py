@@ -23,9 +23,11 @@ from omnispectral.capture.rig import load_preset, load_rig, rig_from_dict
 from omnispectral.capture.session import Session, read_journal, verify_session
 from omnispectral.errors import OmnispectralError
 
-#: CI budget; a longer local search: OMNISPECTRAL_FUZZ_EXAMPLES=2000 OMNISPECTRAL_FUZZ_RANDOM=1 pytest tests/test_fuzz_inputs.py
+#: CI budget; a longer, random search:
+#: OMNISPECTRAL_FUZZ_EXAMPLES=2000 OMNISPECTRAL_FUZZ_RANDOM=1 pytest tests/test_fuzz_inputs.py
 FUZZ = settings(max_examples=int(os.environ.get("OMNISPECTRAL_FUZZ_EXAMPLES", "150")), deadline=None,
-                suppress_health_check=[HealthCheck.too_slow], derandomize=not os.environ.get("OMNISPECTRAL_FUZZ_RANDOM"))
+                suppress_health_check=[HealthCheck.too_slow],
+                derandomize=not os.environ.get("OMNISPECTRAL_FUZZ_RANDOM"))
 WORK = Path(tempfile.mkdtemp(prefix="omnispectral-fuzz-"))
 
 

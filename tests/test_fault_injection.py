@@ -598,3 +598,16 @@ def test_case14_process_refuses_to_write_into_its_session(session, capsys):
 
 def test_errors_are_omnispectral_errors():
     assert issubclass(LockedError, OmnispectralError)
+
+
+def test_case13_frame_of_another_size_than_recorded_is_damaged(session, tmp_path):
+    s = tmp_path / "s"
+    shutil.copytree(session, s)
+    frame, meta = Session.open(s).read_frame(5, "A", 3)
+    victim = s / "frames/d0005/A_e03.tif"
+    size = victim.stat().st_size
+    tifffile.imwrite(victim, frame.reshape(104, 48, 3), photometric="rgb", description=json.dumps(meta),
+                     metadata=None)  # same bytes, same size, another shape
+    assert victim.stat().st_size == size
+    report = verify_session(s, checksums=False, check_pixels=True)
+    assert report["damaged"][0]["problem"] == "shape [104, 48, 3], the journal recorded [52, 96, 3]"

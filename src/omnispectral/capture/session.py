@@ -368,7 +368,9 @@ def verify_session(path: str | Path, check_pixels: bool = False, checksums: bool
             problem = "checksum mismatch (file changed or truncated)"
         elif check_pixels:
             try:
-                s.read_frame(*key)
+                data, _ = s.read_frame(*key)
+                if "shape" in rec and list(data.shape) != list(rec["shape"]):
+                    problem = f"shape {list(data.shape)}, the journal recorded {rec['shape']}"
             except InputFileError as exc:
                 problem = exc.problem
         if problem:

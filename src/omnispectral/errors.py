@@ -6,6 +6,7 @@ so the CLI can print a one-line message instead of a traceback.
 
 from __future__ import annotations
 
+import errno
 from pathlib import Path
 
 
@@ -36,3 +37,18 @@ class InputFileError(OmnispectralError, ValueError):
 
 class ConfigurationError(OmnispectralError, ValueError):
     """A parameter or a combination of parameters makes no sense."""
+
+
+_OS_PROBLEMS = {errno.ENOSPC: "disk full", errno.EDQUOT: "disk quota exceeded", errno.EACCES: "permission denied",
+                errno.EPERM: "permission denied", errno.EROFS: "read-only file system",
+                errno.ENOENT: "no such file or directory", errno.EISDIR: "is a directory",
+                errno.ENOTDIR: "not a directory"}
+
+
+def describe_os_error(exc: OSError) -> str:
+    """One line for an operating-system error: the path concerned and the problem in plain words
+    (``disk full``, ``permission denied``, ``read-only file system``…)."""
+    problem = _OS_PROBLEMS.get(exc.errno or -1, exc.strerror or type(exc).__name__)
+    path = exc.filename if exc.filename is not None else "(no file name)"
+    extra = f" → {exc.filename2}" if getattr(exc, "filename2", None) else ""
+    return f"{path}{extra}: {problem}"

@@ -12,6 +12,35 @@ from typing import Any
 
 from omnispectral.errors import InputFileError
 
+#: Every temporary file of :func:`atomic_path` is named ``.NAME.omnitmp-XXXXXXXX[.suffix]``: it starts with
+#: a dot (final names never do) and carries this mark, so that readers never take it for a finished
+#: file and :func:`clean_temp_files` can remove the leftovers of a killed process.
+TEMP_MARK = ".omnitmp-"
+
+
+def is_temp_name(name: str) -> bool:
+    """Whether ``name`` is a temporary file of :func:`atomic_path` (never a finished file)."""
+    return name.startswith(".") and TEMP_MARK in name
+
+
+def clean_temp_files(directory: str | Path, recursive: bool = True) -> list[Path]:
+    """Remove the temporary files a killed writer left in ``directory``; returns what was removed.
+
+    Call it only while holding the directory's lock (:mod:`omnispectral.locking`): a temporary file of
+    a running writer would otherwise be removed under its feet.
+    """
+    directory = Path(directory)
+    if not directory.is_dir():
+        return []
+    removed = []
+    pattern = f".*{TEMP_MARK}*"
+    for p in (directory.rglob(pattern) if recursive else directory.glob(pattern)):
+        if is_temp_name(p.name) and p.is_file():
+            with contextlib.suppress(FileNotFoundError):
+                p.unlink()
+                removed.append(p)
+    return removed
+
 
 @contextlib.contextmanager
 def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
@@ -23,7 +52,7 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix if suffix is not None else path.suffix,
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}{TEMP_MARK}", suffix=suffix if suffix is not None else path.suffix,
                                dir=path.parent)
     os.close(fd)
     tmp_path = Path(tmp)

@@ -30,6 +30,14 @@ import tomli_w
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.imaging.geometry import CameraModel, Mounting
 from omnispectral.io import read_text_file
+from omnispectral.limits import (
+    MAX_DIRECTIONS,
+    MAX_EXPOSURE_S,
+    MAX_IMAGE_SIDE_PX,
+    MIN_EXPOSURE_S,
+    MIN_FOV_DEG,
+    check_exposure_times,
+)
 from omnispectral.spectral.library import load_camera, load_filter
 from omnispectral.spectral.noise import SensorNoiseModel
 from omnispectral.spectral.system import MultibandSystem, build_system
@@ -264,8 +272,12 @@ def _camera(r: _Reader, name: str) -> CameraSpec:
     hfov, vfov = lens.get("hfov_deg", float, positive=True), lens.get("vfov_deg", float, positive=True)
     if hfov >= 180 or vfov >= 180:
         lens.fail("hfov_deg", f"fields of view must be below 180 deg, got {hfov} x {vfov}")
+    if hfov < MIN_FOV_DEG or vfov < MIN_FOV_DEG:
+        lens.fail("hfov_deg", f"fields of view must be at least {MIN_FOV_DEG} deg (a whole-sphere grid would need "
+                              f"millions of directions), got {hfov} x {vfov}")
     dist = lens.get("distortion", list, [])
-    if len(dist) not in (0, 4, 5, 8, 12, 14) or not all(isinstance(v, int | float) for v in dist):
+    if len(dist) not in (0, 4, 5, 8, 12, 14) or not all(isinstance(v, int | float) and not isinstance(v, bool)
+                                                        and math.isfinite(v) for v in dist):
         lens.fail("distortion", f"expected 4, 5, 8, 12 or 14 numbers (OpenCV order), got {dist!r}")
     calib = lens.get("calibration", str, None)
     if calib is not None and not Path(calib).is_absolute() and r.source and Path(r.source).exists():
@@ -279,8 +291,8 @@ def _camera(r: _Reader, name: str) -> CameraSpec:
     if not 8 <= bit_depth <= 16:
         r.fail("bit_depth", f"must be 8-16, got {bit_depth}")
     return CameraSpec(
-        name=name, model=r.get("model", str, "camera"), width_px=r.get("width_px", int, positive=True),
-        height_px=r.get("height_px", int, positive=True), bit_depth=bit_depth,
+        name=name, model=r.get("model", str, "camera"), width_px=_side(r, "width_px"),
+        height_px=_side(r, "height_px"), bit_depth=bit_depth,
         pixel_pitch_um=r.get("pixel_pitch_um", float, 5.5, positive=True),
         readout_s=r.get("readout_s", float, 0.01, minimum=0.0), orientation=orientation,
         roll_deg=ORIENTATIONS[orientation], sensitivity=r.get("sensitivity", str, "Nikon 5100 (NPL)"),
@@ -290,17 +302,33 @@ def _camera(r: _Reader, name: str) -> CameraSpec:
         read_noise_e=noise.get("read_noise_e", float, 13.0, minimum=0.0), device=dict(device.data))
 
 
+def _side(r: _Reader, key: str) -> int:
+    v = r.get(key, int, positive=True)
+    if v > MAX_IMAGE_SIDE_PX:
+        r.fail(key, f"{v} px is above the limit of {MAX_IMAGE_SIDE_PX} px")
+    return v
+
+
 def _bracket(r: _Reader) -> BracketSpec:
     if "exposures_s" in r.data:
         times = r.get("exposures_s", list)
         if len(times) < 1 or not all(isinstance(t, int | float) and not isinstance(t, bool) and t > 0 for t in times):
             r.fail("exposures_s", f"expected a list of positive seconds, got {times!r}")
+        try:
+            check_exposure_times(times, "exposures_s")
+        except ConfigurationError as exc:
+            r.fail("exposures_s", str(exc).removeprefix("exposures_s: "))
         return BracketSpec(tuple(sorted((float(t) for t in times), reverse=True)))
     longest = r.get("longest_s", float, positive=True)
     shortest = r.get("shortest_s", float, positive=True)
     count = r.get("count", int, positive=True)
     if shortest > longest:
         r.fail("shortest_s", f"{shortest} s is longer than longest_s {longest} s")
+    for key, t in (("longest_s", longest), ("shortest_s", shortest)):
+        if not MIN_EXPOSURE_S <= t <= MAX_EXPOSURE_S:
+            r.fail(key, f"{t!r} s is outside {MIN_EXPOSURE_S:g}-{MAX_EXPOSURE_S:g} s")
+    if count > 64:
+        r.fail("count", f"{count} exposures per bracket is above the limit of 64")
     if count == 1:
         return BracketSpec((longest,))
     return BracketSpec(tuple(float(t) for t in np.geomspace(longest, shortest, count)))
@@ -320,7 +348,8 @@ def rig_from_dict(data: dict, source: str = "<rig>", toml_text: str = "") -> Rig
                                  f"{a.width_px}x{a.height_px} and {b.width_px}x{b.height_px}")
     m = top.table("mounting", {})
     baseline = m.get("baseline_mm", list, [60.0, 0.0, 0.0])
-    if len(baseline) != 3 or not all(isinstance(v, int | float) for v in baseline):
+    if len(baseline) != 3 or not all(isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+                                     and abs(v) <= 10_000 for v in baseline):
         m.fail("baseline_mm", f"expected [x, y, z] in mm, got {baseline!r}")
     mounting = MountingSpec(tuple(float(v) for v in baseline), m.get("yaw_deg", float, 0.0),
                             m.get("pitch_deg", float, 0.0), m.get("roll_deg", float, 0.0))
@@ -350,6 +379,8 @@ def rig_from_dict(data: dict, source: str = "<rig>", toml_text: str = "") -> Rig
         g.fail("overlap", f"must be below 0.5 (a fraction of the frame per side), got {grid.overlap}")
     if grid.overlap is None and (grid.n_pan is None or grid.n_tilt is None):
         g.fail("n_pan", "give n_pan and n_tilt, or overlap")
+    if grid.n_pan is not None and grid.n_tilt is not None and grid.n_pan * grid.n_tilt > MAX_DIRECTIONS:
+        g.fail("n_pan", f"{grid.n_pan} x {grid.n_tilt} directions is above the limit of {MAX_DIRECTIONS}")
     return Rig(top.get("name", str, Path(source).stem), top.get("description", str, ""), cameras, mounting, head,
                _bracket(top.table("bracket")), grid, source, toml_text)
 

@@ -79,6 +79,10 @@ class FakeClock:
         if seconds > 0:
             self._elapsed += float(seconds)
 
+    def set_elapsed(self, seconds: float) -> None:
+        """Set the simulated time since the start exactly (a resumed simulation's clock)."""
+        self._elapsed = float(seconds)
+
 
 @runtime_checkable
 class PanTiltHead(Protocol):
@@ -134,6 +138,7 @@ class SimulatedHead:
         self._pos = (0.0, 0.0)
         self._target = (0.0, 0.0)
         self._arrive_at = 0.0
+        self._placed = False
         self.moves = 0
 
     def _answer(self) -> None:
@@ -148,6 +153,10 @@ class SimulatedHead:
             raise DeviceError(f"head cannot go to pan {pan_deg} deg, tilt {tilt_deg} deg")
         self.moves += 1
         self._answer()
+        resumed_here, self._placed = self._placed and (float(pan_deg), float(tilt_deg)) == self._pos, False
+        if resumed_here:  # already at rest there (a resumed run continuing a direction): nothing moves
+            self._arrive_at = self.clock.monotonic()
+            return
         travel = max(abs(pan_deg - self._pos[0]) / self.pan_speed, abs(tilt_deg - self._pos[1]) / self.tilt_speed)
         self._target = (float(pan_deg), float(tilt_deg))
         self._arrive_at = self.clock.monotonic() + travel + self.settle_s
@@ -167,6 +176,12 @@ class SimulatedHead:
         self.clock.sleep(wait)
         return self.position()
 
+    def place_at(self, pan_deg: float, tilt_deg: float) -> None:
+        """Put the head at rest at a position (a resumed simulation continues where the last run stopped)."""
+        self._pos = self._target = (float(pan_deg), float(tilt_deg))
+        self._arrive_at = self.clock.monotonic()
+        self._placed = True
+
     @property
     def true_position(self) -> tuple[float, float]:
         """Where the simulated head really points (what the renderer uses)."""
@@ -174,6 +189,15 @@ class SimulatedHead:
 
     def close(self) -> None:
         pass
+
+
+def frame_rng(seed: int, camera: str, pan_deg: float, tilt_deg: float, exposure_s: float) -> np.random.Generator:
+    """The noise stream of one simulated frame, spawned from the seed, the camera, the direction (its
+    exact pan/tilt) and the exposure (``numpy.random.SeedSequence``): a frame's noise does not depend
+    on what was rendered before it, so a resumed or retried simulation gives the same frames."""
+    words = np.array([pan_deg, tilt_deg, exposure_s], np.float64).view(np.uint32)
+    entropy = [int(seed) % (1 << 63), *camera.encode("utf-8")[:8], *(int(w) for w in words)]
+    return np.random.default_rng(np.random.SeedSequence(entropy))
 
 
 #: ``render(camera_name, pan_deg, tilt_deg, exposure_s, rng) -> uint16 frame`` of a simulated camera.
@@ -196,8 +220,6 @@ class SimulatedCamera:
     frames_read: int = 0
     _pending: tuple | None = None
 
-    def __post_init__(self):
-        self._rng = np.random.default_rng(self.seed)
 
     def set_exposure(self, exposure_s: float) -> float:
         if not (np.isfinite(exposure_s) and exposure_s > 0):
@@ -221,10 +243,12 @@ class SimulatedCamera:
         pan, tilt, exposure, t0, t0_mono = self._pending
         # the frame exists after exposure + read-out (cameras triggered together overlap in time)
         self.clock.sleep(t0_mono + exposure + self.readout_s - self.clock.monotonic())
-        frame = self.render(self.name, pan, tilt, exposure, self._rng)
+        frame = self.render(self.name, pan, tilt, exposure, frame_rng(self.seed, self.name, pan, tilt, exposure))
         self._pending = None
         self.frames_read += 1
-        return frame, {"camera_time": t0.isoformat(timespec="milliseconds"), "exposure_s": exposure}
+        # the simulated clock's exact state (float seconds) lets a resumed simulation continue bit-identically
+        return frame, {"camera_time": t0.isoformat(timespec="milliseconds"), "exposure_s": exposure,
+                       "sim_clock_trigger_s": t0_mono, "sim_clock_read_s": self.clock.monotonic()}
 
     def close(self) -> None:
         pass

@@ -24,6 +24,7 @@ import numpy as np
 
 from omnispectral.errors import ConfigurationError
 from omnispectral.io import atomic_path
+from omnispectral.limits import check_directions
 from omnispectral.rig import Rig
 
 
@@ -149,6 +150,7 @@ def make_plan(rig: Rig, overlap: float | None = None, exposures_s: tuple[float, 
     else:
         n_pan, n_tilt = grid_counts(cam.pan_fov_deg, cam.tilt_fov_deg,
                                     overlap if overlap is not None else rig.grid.overlap)
+    check_directions(n_pan, n_tilt, f"{rig.source or rig.name}: grid")
     o_pan = overlap_of(cam.pan_fov_deg, n_pan, 360.0)
     o_tilt = overlap_of(cam.tilt_fov_deg, n_tilt, 180.0)
     if o_pan < 0 or o_tilt < 0:

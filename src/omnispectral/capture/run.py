@@ -15,6 +15,8 @@ from dataclasses import dataclass
 from omnispectral.capture.devices import Camera, Clock, DeviceError, DeviceTimeout, PanTiltHead
 from omnispectral.capture.plan import Direction
 from omnispectral.capture.session import CAMERAS, Session
+from omnispectral.io import clean_temp_files
+from omnispectral.locking import directory_lock
 
 
 @dataclass
@@ -88,7 +90,19 @@ def run_capture(session: Session, head: PanTiltHead, cameras: dict[str, Camera],
                 policy: RetryPolicy | None = None,
                 progress: Callable[[str, int, int], None] | None = None) -> CaptureResult:
     """Capture (or resume) every planned frame of ``session`` with the given devices; ``progress(stage, done,
-    total)`` is called after every frame written."""
+    total)`` is called after every frame written.
+
+    Holds the session's lock (:mod:`omnispectral.locking`) for the whole run: a second run on the same
+    session is refused; temporary files a killed run left are removed first.
+    """
+    with directory_lock(session.path, "capture"):
+        clean_temp_files(session.path)
+        return _run_capture_locked(session, head, cameras, clock, policy, progress)
+
+
+def _run_capture_locked(session: Session, head: PanTiltHead, cameras: dict[str, Camera], clock: Clock,
+                        policy: RetryPolicy | None,
+                        progress: Callable[[str, int, int], None] | None) -> CaptureResult:
     policy = policy or RetryPolicy()
     plan = session.plan()
     cut = session.repair_journal()

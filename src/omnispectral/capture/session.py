@@ -23,6 +23,8 @@ import datetime as _dt
 import hashlib
 import json
 import os
+import re
+import shutil
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,7 +34,10 @@ import tifffile
 
 from omnispectral.capture.plan import Plan
 from omnispectral.errors import InputFileError
-from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text
+from omnispectral.fingerprint import differences
+from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text, is_temp_name
+from omnispectral.limits import check_image_shape
+from omnispectral.locking import LOCK_NAME, directory_lock
 from omnispectral.rig import Rig, rig_from_dict, rig_toml
 
 FORMAT_VERSION = 1
@@ -42,6 +47,32 @@ CAMERAS = ("A", "B")
 def frame_relpath(direction: int, camera: str, exposure_index: int) -> str:
     """Path of a frame relative to the session directory."""
     return f"frames/d{direction:04d}/{camera}_e{exposure_index:02d}.tif"
+
+
+#: A final frame name inside ``frames/`` (temporary files never match it).
+FRAME_NAME = re.compile(r"^d(\d{4})/([AB])_e(\d{2})\.tif$")
+
+
+def half_created_leftovers(path: Path) -> list[Path] | None:
+    """The entries of a session directory a killed :meth:`Session.create` left (``None``: something else is there).
+
+    Only ``rig.toml``, ``plan.json``, an empty ``frames/``, the lock file and temporary files qualify.
+    """
+    out = []
+    for p in path.iterdir():
+        if p.name == LOCK_NAME:
+            continue
+        if p.name in ("rig.toml", "plan.json") or is_temp_name(p.name):
+            out.append(p)
+        elif p.name == "frames" and p.is_dir() and not any(p.rglob("*.tif")):
+            out.append(p)
+        else:
+            return None
+    return out
+
+
+def _jsonable(x):
+    return json.loads(json.dumps(x, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
 
 
 def sha256_of(path: Path) -> str:
@@ -66,6 +97,17 @@ class JournalReadout:
     valid_bytes: int
 
 
+def record_key(rec) -> tuple[int, str, int]:
+    """``(direction, camera, exposure index)`` of a frame record; ``ValueError`` unless exactly that."""
+    if not isinstance(rec, dict):
+        raise ValueError("not an object")
+    d, c, k = rec["direction"], rec["camera"], rec["exposure_index"]
+    if any(isinstance(v, bool) or not isinstance(v, int) for v in (d, k)) or c not in CAMERAS \
+            or not 0 <= d < 1 << 31 or not 0 <= k < 1 << 16:
+        raise ValueError("not a frame key")
+    return d, c, k
+
+
 def read_journal(path: Path) -> JournalReadout:
     """Parse ``journal.jsonl``; a last line without newline or unparsable is a cut write (``partial_tail``)."""
     records: dict[tuple[int, str, int], dict] = {}
@@ -84,7 +126,7 @@ def read_journal(path: Path) -> JournalReadout:
         end = offset + len(raw) + (0 if is_last else 1)
         try:
             rec = json.loads(raw.decode("utf-8"))
-            key = (int(rec["direction"]), str(rec["camera"]), int(rec["exposure_index"]))
+            key = record_key(rec)
         except (ValueError, KeyError, TypeError, UnicodeDecodeError):
             if is_last:
                 partial = True
@@ -109,25 +151,64 @@ class Session:
 
     # ------------------------------------------------------------------ create / open
     @classmethod
-    def create(cls, path: str | Path, rig: Rig, plan: Plan, kind: str = "capture", extra: dict | None = None):
-        """Start a new session, or return the existing one at ``path`` if it was made for the same plan."""
+    def create(cls, path: str | Path, rig: Rig, plan: Plan, kind: str = "capture", extra: dict | None = None,
+               identity: dict | None = None):
+        """Start a new session, or return the existing one at ``path`` if it was made by the same parameters.
+
+        ``identity``: parameters besides the rig and the plan that determine the frames (a simulation's
+        scene, seed, noise); recorded in ``session.json`` and compared on resume.  A resume with another
+        rig, plan or identity is refused naming the difference.  A directory left by a run killed while
+        creating the session (only our own files, no ``session.json`` yet) is created again.
+        """
+        with directory_lock(path, "create session"):
+            return cls._create_locked(Path(path), rig, plan, kind, extra, identity)
+
+    @classmethod
+    def _create_locked(cls, path: Path, rig: Rig, plan: Plan, kind: str, extra: dict | None,
+                       identity: dict | None) -> Session:
         s = cls(path)
         if (s.path / "session.json").exists():
-            existing = s.plan()
-            if existing.to_dict()["directions"] != plan.to_dict()["directions"] or \
-                    list(existing.exposures_s) != list(plan.exposures_s):
-                raise InputFileError(s.path, "holds a session with a different plan; choose another output directory")
+            s.check_same_parameters(rig, plan, identity)
             return s
-        if s.path.exists() and any(s.path.iterdir()):
-            raise InputFileError(s.path, "exists and is not an omnispectral session; choose an empty directory")
+        if s.path.exists():
+            leftovers = half_created_leftovers(s.path)
+            if leftovers is None:
+                raise InputFileError(s.path, "exists and is not an omnispectral session; choose an empty directory")
+            for p in leftovers:  # a creation killed before session.json: start it again
+                shutil.rmtree(p) if p.is_dir() else p.unlink()
         (s.path / "frames").mkdir(parents=True, exist_ok=True)
         atomic_write_text(s.path / "rig.toml", rig_toml(rig))
         atomic_write_json(s.path / "plan.json", plan.to_dict())
         meta = {"format": "omnispectral-session", "format_version": FORMAT_VERSION, "kind": kind, "rig": rig.name,
                 "created_utc": utc_now_iso(), "n_frames_planned": s.n_planned(plan)}
+        if identity is not None:
+            meta["identity"] = _jsonable(identity)
         meta.update(extra or {})
         atomic_write_json(s.path / "session.json", meta)  # written last: its presence marks a session
         return s
+
+    def check_same_parameters(self, rig: Rig, plan: Plan, identity: dict | None = None) -> None:
+        """Refuse to resume this session with another plan, rig or identity; the error names the differences."""
+        import tomllib
+
+        existing = self.plan()
+        if existing.to_dict()["directions"] != plan.to_dict()["directions"] or \
+                list(existing.exposures_s) != list(plan.exposures_s):
+            raise InputFileError(self.path, "holds a session with a different plan; choose another output directory")
+        diffs = []
+        try:
+            old_rig = tomllib.loads((self.path / "rig.toml").read_text(encoding="utf-8"))
+        except (OSError, tomllib.TOMLDecodeError) as exc:
+            raise InputFileError(self.path / "rig.toml", f"cannot read the rig snapshot ({exc})") from None
+        new_rig = tomllib.loads(rig_toml(rig))
+        diffs += [f"rig {d}" for d in differences(old_rig, new_rig)]
+        recorded = self.metadata().get("identity")
+        if identity is not None and recorded is not None:
+            diffs += differences(recorded, _jsonable(identity))
+        if diffs:
+            raise InputFileError(self.path, "was captured with other parameters, resuming would mix frames: "
+                                            + "; ".join(diffs[:4]) + (" …" if len(diffs) > 4 else "")
+                                            + ". Use the original parameters or another output directory")
 
     @classmethod
     def open(cls, path: str | Path) -> Session:
@@ -242,10 +323,16 @@ class Session:
                                     f"exposure {exposure_index})")
         try:
             with tifffile.TiffFile(p) as tf:
-                data = tf.pages[0].asarray()
-                meta = json.loads(tf.pages[0].description)
+                page = tf.pages[0]
+                check_image_shape(p, page.shape)  # before decoding: a hostile header cannot allocate GiB
+                data = page.asarray()
+                meta = json.loads(page.description)
+        except InputFileError:
+            raise
         except Exception as exc:  # tifffile raises several types for truncated files
             raise InputFileError(p, f"damaged frame ({type(exc).__name__}: {exc})") from None
+        if not isinstance(meta, dict):
+            raise InputFileError(p, "damaged frame (no frame record in the TIFF description)")
         return data, meta
 
 
@@ -279,7 +366,9 @@ def verify_session(path: str | Path, check_pixels: bool = False, checksums: bool
             problem = "checksum mismatch (file changed or truncated)"
         elif check_pixels:
             try:
-                s.read_frame(*key)
+                data, _ = s.read_frame(*key)
+                if "shape" in rec and list(data.shape) != list(rec["shape"]):
+                    problem = f"shape {list(data.shape)}, the journal recorded {rec['shape']}"
             except InputFileError as exc:
                 problem = exc.problem
         if problem:

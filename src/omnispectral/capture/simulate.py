@@ -27,11 +27,13 @@ import numpy as np
 
 from omnispectral.capture.devices import FakeClock, SimulatedCamera, SimulatedHead
 from omnispectral.capture.plan import make_plan
+from omnispectral.capture.resume import resume_simulated_devices
 from omnispectral.capture.run import RetryPolicy, run_capture
 from omnispectral.capture.session import Session
 from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.geometry import CameraModel, equirect_pixel_to_lonlat, lonlat_to_ray
 from omnispectral.io import atomic_path, atomic_write_json
+from omnispectral.locking import directory_lock
 from omnispectral.rig import Rig
 from omnispectral.spectral.noise import SensorNoiseModel
 from omnispectral.spectral.system import MultibandSystem
@@ -272,17 +274,24 @@ def simulate_session(output: str | Path, rig: Rig, scene, *, start: _dt.datetime
     plan = make_plan(rig, overlap=overlap)
     renderer = RigRenderer(rig, scene, noise=noise,
                            b_mounting_error_deg=true_mounting_error_deg(seed, mounting_error_deg))
-    session = Session.create(output, rig, plan, kind="simulation",
-                             extra={"simulation": {"scene": _jsonable(scene.describe()), "noise": noise, "seed": seed,
-                                                   "start": start.isoformat(),
-                                                   "electrons_per_unit": renderer.electrons_per_unit}})
-    clock = FakeClock(start)
-    head = SimulatedHead(clock, rig.head.pan_speed_deg_s, rig.head.tilt_speed_deg_s, rig.head.settle_s)
-    cams = {c: SimulatedCamera(c, head, renderer, clock, rig.cameras[c].bit_depth, rig.cameras[c].readout_s,
-                               seed=seed * 2 + i) for i, c in enumerate(("A", "B"))}
-    result = run_capture(session, head, cams, clock,
-                         RetryPolicy(rig.head.retries, rig.head.timeout_s, rig.head.position_tolerance_deg), progress)
-    gt_dir = session.path / "ground_truth"
-    if not (gt_dir / "ground_truth.json").exists():
-        write_ground_truth(gt_dir, renderer, ground_truth_width or default_ground_truth_width(rig))
+    described = _jsonable(scene.describe())
+    # the scene's own parameters first, so that a refused resume names them before what they determine
+    identity = {"scene_parameters": described.get("parameters") if isinstance(described, dict) else None,
+                "scene": described, "noise": noise, "seed": seed, "mounting_error_deg": float(mounting_error_deg)}
+    with directory_lock(output, "simulate"):
+        session = Session.create(output, rig, plan, kind="simulation", identity=identity,
+                                 extra={"simulation": {"scene": _jsonable(scene.describe()), "noise": noise,
+                                                       "seed": seed, "start": start.isoformat(),
+                                                       "electrons_per_unit": renderer.electrons_per_unit}})
+        clock = FakeClock(start)
+        head = SimulatedHead(clock, rig.head.pan_speed_deg_s, rig.head.tilt_speed_deg_s, rig.head.settle_s)
+        cams = {c: SimulatedCamera(c, head, renderer, clock, rig.cameras[c].bit_depth, rig.cameras[c].readout_s,
+                                   seed=seed * 2 + i) for i, c in enumerate(("A", "B"))}
+        resume_simulated_devices(session, clock, head)
+        result = run_capture(session, head, cams, clock,
+                             RetryPolicy(rig.head.retries, rig.head.timeout_s, rig.head.position_tolerance_deg),
+                             progress)
+        gt_dir = session.path / "ground_truth"
+        if not (gt_dir / "ground_truth.json").exists():
+            write_ground_truth(gt_dir, renderer, ground_truth_width or default_ground_truth_width(rig))
     return {**result.to_dict(), "ground_truth": str(gt_dir), "electrons_per_unit": renderer.electrons_per_unit}

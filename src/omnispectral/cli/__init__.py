@@ -10,9 +10,11 @@ from __future__ import annotations
 import argparse
 import importlib
 
+from rich.markup import escape
+
 from omnispectral import __version__
 from omnispectral.cli._common import err_console
-from omnispectral.errors import OmnispectralError
+from omnispectral.errors import OmnispectralError, describe_os_error
 
 #: Modules of ``omnispectral.cli`` that register sub-commands, in the order ``--help`` lists them.
 COMMAND_MODULES = ("spectral", "hdr", "lens", "capture", "register", "simulate", "devices", "mosaic", "product",
@@ -38,8 +40,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return args.func(args)
     except OmnispectralError as exc:
-        err_console.print(f"[bold red]error:[/bold red] {exc}")
+        err_console.print(f"[bold red]error:[/bold red] {escape(str(exc))}")  # user text is not markup
         return 2
+    except OSError as exc:  # disk full, read-only or unwritable output, vanished input: one line, no traceback
+        err_console.print(f"[bold red]error:[/bold red] {escape(describe_os_error(exc))}")
+        return 1
     except KeyboardInterrupt:
         err_console.print("interrupted")
         return 130

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from rich.markup import escape
 from rich.table import Table
 
 from omnispectral.capture.plan import format_duration, make_plan, plot_tradeoff, tradeoff
@@ -38,7 +39,7 @@ def cmd_plan(args) -> int:
         print_json(out)
         return 0
     t = out["timing_s"]
-    console.print(f"[bold]{rig.name}[/bold]: {plan.n_pan} x {plan.n_tilt} = {plan.n_directions} directions, "
+    console.print(f"[bold]{escape(rig.name)}[/bold]: {plan.n_pan} x {plan.n_tilt} = {plan.n_directions} directions, "
                   f"overlap {100 * plan.overlap_pan:.1f} % (pan) / {100 * plan.overlap_tilt:.1f} % (tilt) per side, "
                   f"{len(plan.exposures_s)} exposures {max(plan.exposures_s) * 1e3:.4g} ms -> "
                   f"{min(plan.exposures_s) * 1e3:.4g} ms")
@@ -59,16 +60,43 @@ def cmd_session_verify(args) -> int:
         print_json(report)
     else:
         state = "[green]complete[/green]" if report["complete"] else "[red]incomplete[/red]"
-        console.print(f"{report['session']}: {state}, {report['n_ok']} of {report['n_planned']} frames good, "
+        console.print(f"{escape(report['session'])}: {state}, {report['n_ok']} of {report['n_planned']} frames good, "
                       f"{report['n_missing']} missing, {report['n_damaged']} damaged"
                       + (", journal cut mid-line (repaired on resume)" if report["journal_partial_last_line"] else ""))
         for item in report["damaged"] + report["missing"][:50]:
-            console.print(f"  {item['file']}: {item['problem']}")
+            console.print(escape(f"  {item['file']}: {item['problem']}"))
         if report["n_missing"] > 50:
             console.print(f"  … and {report['n_missing'] - 50} more missing")
         for bad in report["journal_bad_lines"]:
-            console.print(f"  journal.jsonl line {bad['line']}: {bad['problem']}")
+            console.print(f"  journal.jsonl line {bad['line']}: {escape(bad['problem'])}")
+        if report["journal_bad_lines"]:
+            console.print(f"  (omnispectral session repair {escape(report['session'])} rebuilds the journal from "
+                          f"the frames)")
     return 0 if report["complete"] else 1
+
+
+def cmd_session_repair(args) -> int:
+    from omnispectral.capture.resume import repair_session
+
+    out = repair_session(args.session, apply=args.apply)
+    if args.json:
+        print_json(out)
+        return 0
+    s = escape(out["session"])
+    console.print(f"{s}: {out['n_frames']} frames decode with their records; the journal lists "
+                  f"{out['n_journal_records']} ({len(out['journal_bad_lines'])} bad lines"
+                  + (", cut last line" if out["journal_partial_last_line"] else "") + f"); "
+                  f"{out['n_recovered']} frames would be added, {out['n_dropped']} records dropped, "
+                  f"{out['n_changed']} changed")
+    for d in out["damaged_frames"][:20]:
+        console.print(escape(f"  {d['file']}: {d['problem']} (captured again on resume)"))
+    if not out["needed"]:
+        console.print("The journal already matches the frames; nothing to do.")
+    elif out["applied"]:
+        console.print(f"Journal rebuilt (old one kept as {escape(out.get('backup', '-'))}).")
+    else:
+        console.print(f"Dry run: nothing changed. Apply with: omnispectral session repair {s} --apply")
+    return 0
 
 
 def add_commands(sub) -> None:
@@ -93,3 +121,11 @@ def add_commands(sub) -> None:
     v.add_argument("--pixels", action="store_true", help="also decode every frame")
     v.add_argument("--json", action="store_true", help="print the report as JSON")
     v.set_defaults(func=cmd_session_verify)
+    r = ssub.add_parser("repair", help="rebuild a session's journal from its frames (dry run by default)",
+                        description="Every raw frame embeds its journal record: rebuild journal.jsonl from the frames "
+                                    "that decode (garbage lines, lost or cut lines). Reports what would change; "
+                                    "--apply writes it (the old journal is kept as journal.jsonl.bak-TIME).")
+    r.add_argument("session", metavar="SESSION")
+    r.add_argument("--apply", action="store_true", help="write the rebuilt journal (default: dry run)")
+    r.add_argument("--json", action="store_true", help="print the report as JSON")
+    r.set_defaults(func=cmd_session_repair)

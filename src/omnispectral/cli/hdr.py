@@ -10,10 +10,14 @@ import numpy as np
 from omnispectral.cli._common import console, print_json
 from omnispectral.imaging.bracket import auto_weight, load_bracket, merge_bracket, write_float_image
 from omnispectral.imaging.response import CameraResponse
+from omnispectral.limits import refuse_overwriting_inputs
 
 
 def cmd_hdr_merge(args) -> int:
     t0 = time.perf_counter()
+    refuse_overwriting_inputs(args.output, [*args.files, *([args.times_list] if args.times_list else [])])
+    if args.save_response:
+        refuse_overwriting_inputs(args.save_response, [*args.files, args.output])
     bracket = load_bracket(args.files, times=args.times, times_list=args.times_list)
     response = args.response
     if response not in ("auto", "linear", "debevec"):

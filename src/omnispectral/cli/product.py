@@ -22,8 +22,9 @@ def cmd_process(args) -> int:
     with ProgressBars(enabled=not args.json) as bars:
         index = process(args.session, args.output, width=args.width, tile=args.tile, interp=args.interp,
                         scheduler=args.scheduler, skip_bad=args.skip_bad, min_confidence=args.min_confidence,
-                        hdr_weight=args.hdr_weight, progress=bars, verify_checksums=args.verify_checksums,
-                        registration=args.registration, rig_calibration=args.rig_calibration)
+                        hdr_weight=args.hdr_weight, progress=bars, verify_checksums=not args.sizes_only,
+                        registration=args.registration, rig_calibration=args.rig_calibration,
+                        overwrite=args.overwrite)
     if args.json:
         print_json(index)
         return 0
@@ -199,7 +200,11 @@ def add_commands(sub) -> None:
     p.add_argument("--skip-bad", action="store_true",
                    help="leave out directions with missing or damaged frames instead of stopping")
     p.add_argument("--verify-checksums", action="store_true",
-                   help="check every frame's SHA-256 first (default: sizes against the journal)")
+                   help="check every frame's SHA-256 and decode it first (the default; kept for old scripts)")
+    p.add_argument("--sizes-only", action="store_true",
+                   help="check frame sizes against the journal only (faster; a same-size corrupted frame is missed)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="rebuild a product whose intermediates were made from other inputs or settings")
     p.add_argument("--json", action="store_true", help="print the product index as JSON")
     p.set_defaults(func=cmd_process)
 

@@ -28,6 +28,7 @@ from omnispectral.imaging.hdr import merge_exposures
 from omnispectral.imaging.imageio import decode_with_opencv, read_exr  # noqa: F401  (read_exr: re-exported)
 from omnispectral.imaging.response import CameraResponse, recover_response
 from omnispectral.io import atomic_path
+from omnispectral.limits import check_bit_depth, check_exposure_times, check_image_header
 
 #: EXIF tag numbers (EXIF 2.32, CIPA DC-008): the Exif sub-IFD pointer and ExposureTime in it.
 EXIF_IFD_POINTER = 0x8769
@@ -59,7 +60,7 @@ def parse_exposure_s(text: str) -> float:
         raise ConfigurationError(f"exposure time {text!r} is not a number of seconds (e.g. 0.004 or 1/250)") from None
     if not np.isfinite(value) or value <= 0:
         raise ConfigurationError(f"exposure time {text!r} is not positive")
-    return value
+    return check_exposure_times([value], f"exposure time {text!r}")[0]
 
 
 def read_frame(path: str | Path) -> np.ndarray:
@@ -69,6 +70,7 @@ def read_frame(path: str | Path) -> np.ndarray:
         raise InputFileError(path, "file not found")
     suffix = path.suffix.lower()
     if suffix in (".tif", ".tiff"):
+        check_image_header(path)  # a hostile header claiming gigapixels is refused before any allocation
         try:
             img = tifffile.imread(path)
         except Exception as exc:  # tifffile raises many types for damaged files
@@ -161,6 +163,8 @@ def exposure_times_for(paths: Sequence[Path], times: Sequence[str | float] | Non
         raise ConfigurationError(f"no exposure time for {', '.join(missing)}: no EXIF ExposureTime"
                                  + ("" if times_list is None else " and not in the list file")
                                  + "; pass --times or --times-list")
+    for p, t, src in zip(paths, values, sources, strict=True):
+        check_exposure_times([t], f"{p}: exposure time ({src})")
     return np.array(values, dtype=np.float64), tuple(sources)
 
 
@@ -256,7 +260,7 @@ def merge_bracket(bracket: Bracket, bit_depth: int | None = None, weight: str = 
     ``"linear"``, ``"debevec"`` or a :class:`CameraResponse`.  Returns ``(HDRResult, response, bit_depth)``.
     """
 
-    depth = bit_depth or guess_bit_depth(bracket.frames)
+    depth = check_bit_depth(bit_depth, "--bit-depth") if bit_depth is not None else guess_bit_depth(bracket.frames)
     top = (1 << depth) - 1
     for p, f in zip(bracket.paths, bracket.frames, strict=True):
         if int(f.max()) > top:

@@ -44,6 +44,7 @@ from scipy import ndimage
 
 from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.response import CameraResponse
+from omnispectral.limits import check_exposure_times
 from omnispectral.spectral.noise import CMV2000, SensorNoiseModel
 from omnispectral.threads import kernel_threads
 
@@ -82,6 +83,7 @@ def _check_inputs(frames: Sequence[np.ndarray], exposure_s: Sequence[float], bit
     if np.any(~np.isfinite(times)) or np.any(times <= 0):
         k = int(np.flatnonzero(~np.isfinite(times) | (times <= 0))[0])
         raise ConfigurationError(f"exposure {k}: exposure time {times[k]!r} s is not positive")
+    check_exposure_times(times, "exposure times")  # 1e-300 s would make every radiance infinite
     if not 1 <= bit_depth <= 16:
         raise ConfigurationError(f"bit depth {bit_depth} is outside 1-16")
     shape = np.shape(frames[0])

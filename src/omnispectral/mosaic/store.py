@@ -22,18 +22,21 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 import shutil
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from omnispectral.errors import InputFileError
-from omnispectral.io import atomic_write_json
+from omnispectral.io import TEMP_MARK, atomic_write_json
 
 FORMAT = "omnispectral-panorama"
 FORMAT_VERSION = 1
 DONE_DIR = ".done"
+MARKER_NAME = re.compile(r"^(\d+)_(\d+)\.json$")
 
 
 def pyramid_shapes(height: int, width: int, tile: int) -> list[tuple[int, int]]:
@@ -107,10 +110,16 @@ class PanoramaStore:
                                                "overwrite it") from None
             if existing is not None and not overwrite:
                 if existing.attrs().get("fingerprint") != _jsonable(fingerprint):
-                    raise InputFileError(path, "holds a panorama made with other inputs or parameters; "
-                                               "overwrite it or choose another output")
+                    raise InputFileError(path, "holds a panorama made with other inputs or parameters; rerun with "
+                                               "--overwrite or choose another output")
                 return existing
             shutil.rmtree(path)
+        # built under a temporary name and renamed into place: a run killed while creating the store
+        # leaves only a ".NAME.omnitmp-…" directory (removed here next time), never a half-made store
+        for stale in path.parent.glob(f".{path.name}{TEMP_MARK}*"):
+            shutil.rmtree(stale, ignore_errors=True)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        final, path = path, Path(tempfile.mkdtemp(prefix=f".{path.name}{TEMP_MARK}", dir=path.parent))
         shapes = pyramid_shapes(height, width, tile)
         group = zarr.open_group(str(path), mode="w", zarr_format=3)
         for k, (h, w) in enumerate(shapes):
@@ -127,9 +136,10 @@ class PanoramaStore:
                                           "hidden by a nearer surface in every direction that sees it"}}
         meta = {"omnispectral": {**attrs, "format": FORMAT, "format_version": FORMAT_VERSION, "tile": tile,
                                  "levels": [list(s) for s in shapes], "compression": compression},
-                "multiscales": multiscales_attr(shapes, path.name), "fingerprint": fingerprint}
+                "multiscales": multiscales_attr(shapes, final.name), "fingerprint": fingerprint}
         group.attrs.update(_jsonable(meta))
-        return cls(path, tile, shapes, n_bands)
+        os.replace(path, final)
+        return cls(final, tile, shapes, n_bands)
 
     @classmethod
     def open(cls, path: str | Path) -> PanoramaStore:
@@ -189,8 +199,11 @@ class PanoramaStore:
         d = self.path / str(level) / DONE_DIR
         if not d.is_dir():
             return out
-        for p in d.glob("*.json"):
-            ty, tx = (int(x) for x in p.stem.split("_"))
+        for p in d.iterdir():
+            m = MARKER_NAME.match(p.name)  # temporary files (".NAME.omnitmp-…") never match
+            if m is None:
+                continue
+            ty, tx = int(m.group(1)), int(m.group(2))
             try:
                 out[(ty, tx)] = json.loads(p.read_text(encoding="utf-8"))
             except ValueError:

@@ -141,6 +141,30 @@ def write_radiance_hdr(path: str | Path, rgb_linear: np.ndarray) -> Path:
 FORMATS = ("spectral-exr", "envi", "rgb-exr", "hdr", "png", "jpg", "uncertainty")
 
 
+def check_export_output(fmt: str, output: str | Path, product: str | Path) -> None:
+    """Refuse, before any work, an output that is a directory, has the wrong extension for ``fmt``, or
+    lies inside the product (an export never overwrites a product's own files)."""
+    from omnispectral.imaging.bracket import FLOAT_IMAGE_SUFFIXES
+
+    out = Path(output)
+    if out.is_dir():
+        raise ConfigurationError(f"{out}: is a directory; give the export's file name (e.g. {out / 'pano'}"
+                                 f"{EXPORT_SUFFIXES.get(fmt, ('.exr',))[0]})")
+    allowed = EXPORT_SUFFIXES.get(fmt, tuple(FLOAT_IMAGE_SUFFIXES))
+    if out.suffix.lower() not in allowed:
+        raise ConfigurationError(f"{out}: a {fmt} export is written as {' or '.join(allowed)}, not "
+                                 f"{out.suffix or 'a file without extension'}")
+    root = Path(product).resolve()
+    if root in out.resolve().parents or out.resolve() == root:
+        raise ConfigurationError(f"{out}: is inside the product {product}; exports go outside it so that they "
+                                 f"never overwrite the product's own files")
+
+
+#: File extensions of each export format (``uncertainty``: any float image format).
+EXPORT_SUFFIXES = {"png": (".png",), "jpg": (".jpg", ".jpeg"), "rgb-exr": (".exr",), "spectral-exr": (".exr",),
+                   "hdr": (".hdr",), "envi": (".hdr",)}
+
+
 def export_product(product: str | Path, fmt: str, output: str | Path, region: tuple[int, int, int, int] | None = None,
                    level: int = 0, max_bytes: int | None = None) -> dict:
     """Write one standard file from a processed product (a region and/or a pyramid level of it).
@@ -153,6 +177,7 @@ def export_product(product: str | Path, fmt: str, output: str | Path, region: tu
 
     if fmt not in FORMATS:
         raise ConfigurationError(f"unknown format {fmt!r}; expected one of {', '.join(FORMATS)}")
+    check_export_output(fmt, output, product)
     index, store, estimator = open_product(product)
     if not 0 <= level < len(store.shapes):
         raise ConfigurationError(f"level {level} does not exist; the product has levels 0-{len(store.shapes) - 1} "

@@ -33,9 +33,12 @@ import numpy as np
 
 from omnispectral.capture.session import Session, verify_session
 from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.fingerprint import check_merged, product_fingerprint
 from omnispectral.imaging.geometry import CameraModel
 from omnispectral.imaging.registration import DEFAULT_MIN_CONFIDENCE
-from omnispectral.io import atomic_write_json
+from omnispectral.io import atomic_write_json, clean_temp_files
+from omnispectral.limits import guard_product_output
+from omnispectral.locking import directory_lock
 from omnispectral.mosaic import engine
 from omnispectral.mosaic.sources import MergedDirections, MergedDirectionsWriter
 from omnispectral.mosaic.store import PanoramaStore
@@ -65,11 +68,16 @@ def bad_directions(report: dict) -> dict[int, list[str]]:
 
 
 def _check_session(session_path: Path, skip_bad: bool, verify_checksums: bool) -> tuple[dict, dict[int, list[str]]]:
-    report = verify_session(session_path, check_pixels=False, checksums=verify_checksums)
+    # by default every frame's SHA-256 is checked and its TIFF decoded (docs/reliability.md: a few % of
+    # the processing time), so a same-size corrupted or undecodable frame counts as damaged (skippable)
+    report = verify_session(session_path, check_pixels=verify_checksums, checksums=verify_checksums)
     bad = bad_directions(report)
-    if report["journal_bad_lines"]:
+    if report["journal_bad_lines"] and not skip_bad:
         first = report["journal_bad_lines"][0]
-        raise InputFileError(session_path / "journal.jsonl", f"line {first['line']}: {first['problem']}")
+        raise InputFileError(session_path / "journal.jsonl",
+                             f"line {first['line']}: {first['problem']} ({len(report['journal_bad_lines'])} bad "
+                             f"lines; 'omnispectral session repair {session_path}' rebuilds the journal from the "
+                             f"frames, --skip-bad processes the frames it still lists)")
     if bad and not skip_bad:
         first = next(iter(bad.values()))[0]
         raise InputFileError(session_path / first.split(":")[0],
@@ -187,8 +195,8 @@ def register_parallax(merged, calibration=None, progress=None, timings: dict | N
 def process(session: str | Path, output: str | Path, *, width: int | None = None, tile: int | None = None,
             interp: str | None = None, scheduler=None, workers: int | None = None, skip_bad: bool = False,
             min_confidence: float | None = None, hdr_weight: str = "noise", report: bool = True,
-            progress: ProgressCallback | None = None, verify_checksums: bool = False, registration: str = "parallax",
-            rig_calibration: str | Path | None = None) -> dict:
+            progress: ProgressCallback | None = None, verify_checksums: bool = True, registration: str = "parallax",
+            rig_calibration: str | Path | None = None, overwrite: bool = False) -> dict:
     """Run stages 1-4 (module docstring) and write ``product.json`` and, by default, the report.
 
     ``hdr_weight`` defaults to the inverse-variance weight: the paper's triangle weight lets 1-DN
@@ -204,7 +212,20 @@ def process(session: str | Path, output: str | Path, *, width: int | None = None
     calibration = RigCalibration.load(rig_calibration) if rig_calibration is not None else None
     session_path = Path(session)
     paths = product_paths(output)
-    paths["root"].mkdir(parents=True, exist_ok=True)
+    guard_product_output(session_path, paths["root"], width)
+    with directory_lock(paths["root"], "process"):
+        return _process_locked(session_path, paths, calibration, width=width, tile=tile, interp=interp,
+                               scheduler=scheduler, workers=workers, skip_bad=skip_bad,
+                               min_confidence=min_confidence, hdr_weight=hdr_weight, report=report,
+                               progress=progress, verify_checksums=verify_checksums, registration=registration,
+                               rig_calibration=rig_calibration, overwrite=overwrite)
+
+
+def _process_locked(session_path: Path, paths: dict, calibration, *, width, tile, interp, scheduler, workers,
+                    skip_bad, min_confidence, hdr_weight, report, progress, verify_checksums, registration,
+                    rig_calibration, overwrite) -> dict:
+    """:func:`process` while holding the product's lock."""
+    clean_temp_files(paths["root"])
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     check, bad = _check_session(session_path, skip_bad, verify_checksums)
@@ -213,6 +234,11 @@ def process(session: str | Path, output: str | Path, *, width: int | None = None
     rig = s.rig()
     models = {c: rig.camera_model(c) for c in ("A", "B")}
     progress = progress or None  # False (no progress) is accepted too
+    fingerprint = product_fingerprint(session_path, hdr_weight=hdr_weight, registration=registration,
+                                      min_confidence=min_confidence, rig_calibration=rig_calibration,
+                                      skipped_directions=bad)
+    state = check_merged(paths["merged"], fingerprint, overwrite,
+                         dependents=(paths["panorama"], paths["rig_calibration"], paths["index"]))
     parallax_stats = None
     if registration == "paper":
         merged, alignments = merge_and_register(s, paths["merged"], set(bad),
@@ -229,7 +255,8 @@ def process(session: str | Path, output: str | Path, *, width: int | None = None
     kwargs["interp"] = interp or "linear"
     summary = engine.mosaic(merged, paths["panorama"], scheduler=scheduler, workers=workers,
                             progress=None if progress is None else
-                            (lambda stage, _result, done, total: progress(stage, done, total)), **kwargs)
+                            (lambda stage, _result, done, total: progress(stage, done, total)),
+                            overwrite=overwrite or state == "overwritten", **kwargs)
     timings["mosaic"] = time.perf_counter() - t1
     t2 = time.perf_counter()
     est, est_info = rig_estimator(rig)
@@ -252,7 +279,7 @@ def process(session: str | Path, output: str | Path, *, width: int | None = None
              "skipped_directions": [{"direction": d, "problems": p} for d, p in sorted(bad.items())],
              "session_check": {k: check[k] for k in ("n_planned", "n_ok", "n_missing", "n_damaged")},
              "mosaic": {k: v for k, v in summary.items() if k not in ("output",)},
-             "timings_s": timings}
+             "timings_s": timings, "fingerprint": fingerprint}
     atomic_write_json(paths["index"], index)
     if report:
         t3 = time.perf_counter()

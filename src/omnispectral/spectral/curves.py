@@ -15,6 +15,7 @@ from __future__ import annotations
 import csv
 import io
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -181,6 +182,15 @@ def _parse_float(text: str, path: Path, line: int, column: str) -> float:
     return value
 
 
+_UNIT_RE = re.compile(r"^\s*#\s*units?\s*[:=]\s*(percent|%|fraction)\b", re.IGNORECASE | re.MULTILINE)
+
+
+def _stated_unit(text: str) -> bool | None:
+    """``True`` (percent) / ``False`` (fraction) from a ``# units: percent|fraction`` comment, else ``None``."""
+    m = _UNIT_RE.search(text)
+    return None if m is None else m.group(1).lower() in ("percent", "%")
+
+
 def read_spectral_csv(path: str | Path, kind: str, percent: bool | None = None) -> SpectralSet:
     """Read curves from a CSV file ``wavelength_nm,<name>,<name>...``.
 
@@ -192,7 +202,8 @@ def read_spectral_csv(path: str | Path, kind: str, percent: bool | None = None) 
         One of :data:`KINDS`; transmittances and reflectances may be given in percent.
     percent
         ``True``/``False`` to state the unit of a transmittance or reflectance table;
-        ``None`` detects it (a maximum above 1.5 means percent) and says so in ``notes``.
+        ``None`` reads a ``# units: percent|fraction`` comment, else detects it (a maximum above 1.5
+        means percent, at most 1 a fraction; in between is refused as ambiguous) and says so in ``notes``.
 
     Raises
     ------
@@ -256,6 +267,13 @@ def read_spectral_csv(path: str | Path, kind: str, percent: bool | None = None) 
 
     if kind in _FRACTION_KINDS:
         peak = float(values.max())
+        if percent is None:
+            percent = _stated_unit(text)
+        if percent is None and 1.0 + 1e-6 < peak <= 1.5:
+            i, j = np.unravel_index(int(np.argmax(values)), values.shape)
+            raise InputFileError(path, f"column {names[i]!r}: maximum {kind} {peak:g} is neither a fraction (<= 1) "
+                                       f"nor plausibly percent; state the unit with a '# units: percent' or "
+                                       f"'# units: fraction' comment line", int(lines[j]))
         is_percent = peak > 1.5 if percent is None else percent
         if is_percent:
             if peak > 100.0 + 1e-6:
@@ -264,7 +282,7 @@ def read_spectral_csv(path: str | Path, kind: str, percent: bool | None = None) 
             values = values / 100.0
             notes.append(f"{kind} read as percent (maximum {peak:g}) and converted to fraction")
         else:
-            if peak > 1.5:
+            if peak > 1.0 + 1e-6:
                 i, j = np.unravel_index(int(np.argmax(values)), values.shape)
                 raise InputFileError(path, f"column {names[i]!r}: {kind} {peak:g} exceeds 1 (fraction)", int(lines[j]))
             notes.append(f"{kind} read as fraction (maximum {peak:g})")

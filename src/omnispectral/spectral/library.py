@@ -112,6 +112,8 @@ def load_filter(name: str) -> SpectralSet:
         f = read_spectral_csv(name, "transmittance")
         if len(f) != 1:
             raise InputFileError(name, f"a filter file needs exactly one transmittance curve; found {len(f)}")
+        if not np.any(f.values > 0):
+            raise InputFileError(name, "the filter's transmittance is zero at every wavelength")
         return f
     if key in _PACKAGE_FILTERS:
         path = _data_file("filters", _PACKAGE_FILTERS[key])

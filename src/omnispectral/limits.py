@@ -1,0 +1,142 @@
+"""Limits that turn absurd inputs into one clear error before any work or allocation.
+
+Numbers here are far outside anything the paper's rigs need (Table 2: 2048 × 1088 sensors, 7260-px
+panoramas, exposures 15 µs – 3.9 s) but small enough that a hostile or mistyped value cannot make
+a command allocate tens of GiB or run for days:
+
+* exposure times in [``MIN_EXPOSURE_S``, ``MAX_EXPOSURE_S``] and finite;
+* a raw frame or bracket image at most ``MAX_IMAGE_SIDE_PX`` per side and ``MAX_IMAGE_PIXELS`` pixels,
+  checked from the file's header *before* decoding (:func:`check_image_header`);
+* a plan of at most ``MAX_DIRECTIONS`` directions;
+* a panorama at most ``MAX_PANORAMA_WIDTH_PX`` wide, and never larger than the free disk space of its
+  output (:func:`check_panorama_size`).
+"""
+
+from __future__ import annotations
+
+import math
+import shutil
+from pathlib import Path
+
+from omnispectral.errors import ConfigurationError, InputFileError
+
+MIN_EXPOSURE_S = 1e-7
+MAX_EXPOSURE_S = 3600.0
+MAX_IMAGE_SIDE_PX = 32768
+MAX_IMAGE_PIXELS = 1 << 28  # 268 Mpx: a 16-bit RGB frame of this size is 1.5 GiB
+MAX_DIRECTIONS = 100_000
+MIN_FOV_DEG = 0.1  # a 0.1° lens needs 1.3 million directions for the sphere
+MAX_PANORAMA_WIDTH_PX = 131_072
+PANORAMA_BYTES_PER_PX = 6 * 4 * 4 / 3  # six float32 bands, pyramid levels add a third
+
+
+def gib(n_bytes: float) -> str:
+    return f"{n_bytes / 2**30:.1f} GiB"
+
+
+def check_exposure_times(times_s, where: str = "exposure times") -> list[float]:
+    """Finite exposure times within the limits (seconds); the error names ``where`` and the bad value."""
+    out = []
+    for t in times_s:
+        try:
+            v = float(t)
+        except (TypeError, ValueError):
+            raise ConfigurationError(f"{where}: {t!r} is not a number of seconds") from None
+        if not math.isfinite(v) or not MIN_EXPOSURE_S <= v <= MAX_EXPOSURE_S:
+            raise ConfigurationError(f"{where}: {t!r} s is outside {MIN_EXPOSURE_S:g}-{MAX_EXPOSURE_S:g} s")
+        out.append(v)
+    return out
+
+
+def check_bit_depth(bit_depth: int, where: str = "bit depth") -> int:
+    if isinstance(bit_depth, bool) or not isinstance(bit_depth, int) or not 1 <= bit_depth <= 16:
+        raise ConfigurationError(f"{where}: {bit_depth!r} is not a sensor bit depth (1-16)")
+    return bit_depth
+
+
+def check_image_shape(path: str | Path, shape: tuple[int, ...], expected_hw: tuple[int, int] | None = None,
+                      bytes_per_sample: int = 2) -> None:
+    """Refuse an image whose header claims an absurd size (or not the rig's sensor size) before decoding."""
+    try:
+        dims = [int(x) for x in shape]
+    except (TypeError, ValueError):
+        raise InputFileError(path, f"damaged image header (shape {shape!r})") from None
+    if len(dims) < 2 or min(dims) < 1:
+        raise InputFileError(path, f"not an image (shape {tuple(dims)})")
+    h, w = dims[0], dims[1]
+    n = math.prod(dims)
+    if expected_hw is not None and (h, w) != tuple(expected_hw):
+        raise InputFileError(path, f"{w}x{h} px, the rig's sensor is {expected_hw[1]}x{expected_hw[0]}")
+    if h > MAX_IMAGE_SIDE_PX or w > MAX_IMAGE_SIDE_PX or h * w > MAX_IMAGE_PIXELS:
+        raise InputFileError(path, f"claims {w}x{h} px ({gib(n * bytes_per_sample)} decoded), above the limit of "
+                                   f"{MAX_IMAGE_SIDE_PX} px per side and {MAX_IMAGE_PIXELS / 1e6:.0f} Mpx")
+
+
+def check_image_header(path: str | Path, expected_hw: tuple[int, int] | None = None) -> None:
+    """Read only a TIFF's first page header (or an image's header via OpenCV-free means) and check its size."""
+    import tifffile
+
+    path = Path(path)
+    if path.suffix.lower() not in (".tif", ".tiff"):
+        return
+    try:
+        with tifffile.TiffFile(path) as tf:
+            page = tf.pages[0]
+            shape, itemsize = page.shape, int(page.dtype.itemsize) if page.dtype is not None else 2
+    except Exception as exc:  # tifffile raises several types for damaged headers
+        raise InputFileError(path, f"damaged TIFF ({type(exc).__name__}: {exc})") from None
+    check_image_shape(path, shape, expected_hw, itemsize)
+
+
+def check_panorama_size(width: int, output: str | Path) -> None:
+    """Refuse a panorama width beyond the limit or needing more disk than is free at ``output``."""
+    if isinstance(width, bool) or not isinstance(width, int) or width < 8:
+        raise ConfigurationError(f"panorama width must be an even number >= 8, got {width!r}")
+    need = (width // 2) * width * PANORAMA_BYTES_PER_PX
+    if width > MAX_PANORAMA_WIDTH_PX:
+        raise ConfigurationError(f"a {width}x{width // 2} px panorama needs about {gib(need)} of disk "
+                                 f"(limit {MAX_PANORAMA_WIDTH_PX} px wide)")
+    probe = Path(output)
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    free = shutil.disk_usage(probe).free
+    if need > free:
+        raise ConfigurationError(f"a {width}x{width // 2} px panorama needs about {gib(need)} of disk "
+                                 f"(uncompressed); {gib(free)} free at {probe}")
+
+
+def check_directions(n_pan: int, n_tilt: int, where: str = "plan") -> None:
+    n = int(n_pan) * int(n_tilt)
+    if n > MAX_DIRECTIONS:
+        raise ConfigurationError(f"{where}: {n_pan} x {n_tilt} = {n} directions is above the limit of "
+                                 f"{MAX_DIRECTIONS} (check the field of view and the grid)")
+
+
+def same_file(a: str | Path, b: str | Path) -> bool:
+    """Whether two paths name the same file (existing or not)."""
+    a, b = Path(a), Path(b)
+    try:
+        if a.exists() and b.exists():
+            return a.samefile(b)
+    except OSError:
+        pass
+    return a.resolve() == b.resolve()
+
+
+def refuse_overwriting_inputs(output: str | Path, inputs, what: str = "input") -> None:
+    """Refuse an output path that is one of the inputs (the command would destroy what it reads)."""
+    for p in inputs:
+        if same_file(output, p):
+            raise ConfigurationError(f"{output}: is also an {what} of this command; choose another output")
+
+
+def guard_product_output(session: str | Path, product: str | Path, width: int | None = None) -> None:
+    """``process``: the product directory is not the session or inside it, and the width is sane."""
+    s, p = Path(session).resolve(), Path(product).resolve()
+    if p == s or s in p.parents:
+        raise ConfigurationError(f"{product}: the product would be written into the session {session}; "
+                                 f"choose an output outside it")
+    if (p / "session.json").exists():
+        raise ConfigurationError(f"{product}: is a capture session, not a product directory")
+    if width is not None:
+        check_panorama_size(int(width) if not isinstance(width, bool) else width, product)

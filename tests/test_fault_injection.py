@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import tifffile
-from omnispectral.capture.rig import load_preset, load_rig, rig_from_dict
+from omnispectral.rig import load_preset, load_rig, rig_from_dict
 
 from omnispectral.capture.session import Session, read_journal, verify_session
 from omnispectral.capture.simulate import simulate_session

@@ -17,7 +17,7 @@ import pytest
 import tifffile
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from omnispectral.capture.rig import load_preset, load_rig, rig_from_dict
+from omnispectral.rig import load_preset, load_rig, rig_from_dict
 
 from omnispectral.capture.plan import make_plan
 from omnispectral.capture.session import Session, read_journal, verify_session

@@ -61,7 +61,7 @@ def _product(tmp_path, est, light_west: str, light_east: str, name: str):
 
 
 def _patch_lab(product, boxes, half, white_signal_fn):
-    index, store, est = open_product(product)
+    _, store, est = open_product(product)
     bands = store.read(0)
     sig = np.array([est.estimate(bands[r0 + 2:r0 + 6, c0 + 2:c0 + 6].reshape(-1, 6).mean(axis=0)[None])[0]
                     for (h, i), (r0, c0) in sorted(boxes.items(), key=str) if h == half and i != "white"])
@@ -71,7 +71,7 @@ def _patch_lab(product, boxes, half, white_signal_fn):
 
 
 def test_relight_fl11_to_a_matches_capture_under_a(tmp_path, est):
-    src, cc, boxes = _product(tmp_path, est, "FL11", "FL11", "fl11")
+    src, _, boxes = _product(tmp_path, est, "FL11", "FL11", "fl11")
     ref, _, _ = _product(tmp_path, est, "A", "A", "a")
     white = WhiteReference(*_centre_lonlat(*boxes[("west", "white")]), radius_deg=3.0)
     out = relight_product(src, tmp_path / "relit", [white], to="A")
@@ -113,7 +113,7 @@ def test_tiled_relighting_equals_whole_image(tmp_path, est):
 def test_two_white_references_relight_mixed_lighting(tmp_path, est):
     """West half under FL11, east half under D65; one white per half. With both references the east half relights
     as well as the west; with the west reference only it does not."""
-    src, cc, boxes = _product(tmp_path, est, "FL11", "D65", "mixed")
+    src, _, boxes = _product(tmp_path, est, "FL11", "D65", "mixed")
     ref, _, _ = _product(tmp_path, est, "A", "A", "a")
     whites = [WhiteReference(*_centre_lonlat(*boxes[(h, "white")]), radius_deg=3.0) for h in ("west", "east")]
     relight_product(src, tmp_path / "both", whites, to="A")

@@ -114,7 +114,7 @@ def test_mirror_ball_pixel_is_environment_in_reflected_direction_times_silver_fr
 
 def _chart_xml(tmp_path, names, values) -> str:
     shapes = []
-    for i, (name, v) in enumerate(zip(names, values, strict=True)):
+    for i, (_name, v) in enumerate(zip(names, values, strict=True)):
         csv = tmp_path / f"patch{i:02d}.csv"
         csv.write_text("wavelength_nm,reflectance\n" + "".join(f"{w:g},{x:.6f}\n" for w, x in zip(WL, v, strict=True)))
         r, c = divmod(i, 6)
@@ -222,7 +222,7 @@ def test_fast_path_agrees_with_band_packed_for_flat_materials(small_estimator):
 def test_environment_from_product_flags_saturation_fills_holes_never_negative(tmp_path, small_estimator):
     rig = load_preset("small")
     clip = 0.99 * rig.camera_a.max_dn / min(rig.bracket.exposures_s)
-    h, w = 128, 256
+    h = 128
     bands = _band_env(small_estimator, h)
     bands[10:12, 100:102] = 1.2 * clip  # a sun: 2 × 2 px saturated at level 0
     bands[h - 6:, :] = np.nan  # below the head: never seen
@@ -254,3 +254,32 @@ def test_write_render_outputs_round_trip(tmp_path):
     rgb = read_image(files["srgb_exr"])
     assert rgb.shape == (16, 16, 3) and np.isfinite(rgb).all()
     assert np.allclose(rgb, res.linear_srgb(), rtol=1e-5, atol=1e-6)
+
+
+def test_cli_render_render_series_and_relight(tmp_path, small_estimator):
+    from omnispectral.cli import main
+
+    est = small_estimator
+    for k, scale in enumerate((0.3, 1.0)):
+        write_band_product(tmp_path / "series" / f"slot_{k}", scale * _band_env(est, 32),
+                           {"bands": list(est.band_names), "units": "DN/s",
+                            "estimator": {"params": estimator_params(load_preset("small"))}}, tile=32)
+    rc = main(["render", str(tmp_path / "series" / "slot_1"), "-o", str(tmp_path / "r"), "--width", "24",
+               "--height", "16", "--spp", "2", "--wavelength-step", "50", "--json"])
+    assert rc == 0
+    meta = json.loads((tmp_path / "r" / "render.json").read_text())
+    assert meta["passes"] == 3 and meta["environment"]["width"] == 64
+    rc = main(["render-series", str(tmp_path / "series"), "-o", str(tmp_path / "s"), "--width", "16", "--height", "16",
+               "--spp", "1", "--fast", "--exposure", "common", "--json"])
+    assert rc == 0 and len(list((tmp_path / "s" / "frames").glob("frame_*.png"))) == 2
+    import cv2
+
+    sheet = cv2.imread(str(tmp_path / "s" / "contact_sheet.png"))
+    assert sheet.shape == (16, 32, 3)
+    # with one exposure for both, the dimmer slot's frame is darker
+    f0, f1 = (cv2.imread(str(tmp_path / "s" / "frames" / f"frame_000{i}.png")).mean() for i in (0, 1))
+    assert f0 < f1
+    rc = main(["relight", str(tmp_path / "series" / "slot_1"), "--white", "0,45,5", "--to", "D65", "-o",
+               str(tmp_path / "rl"), "--json"])
+    assert rc == 0 and (tmp_path / "rl" / "preview_relit.png").is_file()
+    assert main(["relight", str(tmp_path / "series" / "slot_1"), "--white", "0,95", "-o", str(tmp_path / "x")]) == 2

@@ -148,8 +148,8 @@ class Relighter:
             raise ConfigurationError(f"method must be 'wiener' (with a system matrix) or 'ratio', got {self.method!r}")
         if np.any(self.illuminants <= 0):
             bad = np.argwhere(self.illuminants <= 0)[0]
-            raise ConfigurationError(f"white reference {bad[0] + 1} measures no light at {self.wavelength_nm[bad[1]]:g} "
-                                     "nm (is it in the dark, or not white?)")
+            raise ConfigurationError(f"white reference {bad[0] + 1} measures no light at "
+                                     f"{self.wavelength_nm[bad[1]]:g} nm (is it in the dark, or not white?)")
         self._y_new = float(luminance(self.new_illuminant[None], self.wavelength_nm)[0])
         self._maps: dict = {}
 

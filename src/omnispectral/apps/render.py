@@ -65,7 +65,8 @@ def mitsuba(variant: str | None = None):
     if wanted is None and mi.variant() is not None:
         return mi
     if wanted is None:
-        wanted = "llvm_ad_rgb" if "llvm_ad_rgb" in mi.variants() and dr.has_backend(dr.JitBackend.LLVM) else "scalar_rgb"
+        llvm = "llvm_ad_rgb" in mi.variants() and dr.has_backend(dr.JitBackend.LLVM)
+        wanted = "llvm_ad_rgb" if llvm else "scalar_rgb"
     if wanted not in ("scalar_rgb", "llvm_ad_rgb"):
         raise ConfigurationError(f"Mitsuba variant {wanted!r} is not supported here; use scalar_rgb or llvm_ad_rgb")
     if wanted == "llvm_ad_rgb" and not dr.has_backend(dr.JitBackend.LLVM):

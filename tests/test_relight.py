@@ -132,3 +132,66 @@ def test_bad_input():
             parse_white(bad)
     with pytest.raises(ConfigurationError, match="no light"):
         Relighter(WL, np.zeros((1, 3)), np.zeros((1, WL.size)), np.ones(WL.size), method="ratio")
+
+
+def _indoor_product(tmp_path, est, light):
+    from omnispectral.capture.scenes import IndoorScene
+
+    scene = IndoorScene(light)
+    w, h = 1024, 512
+    bands = np.empty((h, w, 6), np.float32)
+    for r0, block in scene.ground_truth_bands(w, h, est.system_matrix):
+        bands[r0:r0 + block.shape[0]] = block
+    write_band_product(tmp_path / light, 1e4 * bands, {"bands": list(est.band_names), "units": "DN/s",
+                                                       "estimator": {"params": estimator_params(load_preset("small"))}},
+                       tile=256)
+    return tmp_path / light, scene
+
+
+def test_indoor_scene_radiometry(est):
+    from omnispectral.apps.colour import spectra_to_xyz
+    from omnispectral.capture.scenes import IndoorScene, lonlat_to_direction
+
+    scene = IndoorScene("FL11")
+    s = scene.spectrum
+    lamp = scene.spectral_radiance(np.array([[-1.2, 1.7, 0.5]]))[0]  # at the west panel's centre
+    assert 683 * spectra_to_xyz(lamp[None], WL)[0, 1] == pytest.approx(scene.lamp_cd_m2, rel=1e-3)
+    wref = scene.white_reference()
+    white = scene.spectral_radiance(lonlat_to_direction(wref["lon_deg"], wref["lat_deg"])[None])[0]
+    ratio = white / (0.95 * s / np.pi)
+    assert np.ptp(ratio) / ratio.mean() < 1e-5  # one spectrum lights the room
+    # illuminance at the white from the two panels + ambient, computed here from the geometry
+    p = np.array([0.9, 0.0, 3.5])
+    e = scene.ambient_lx
+    for cx, cz in ((-1.2, 0.5), (1.2, 0.5)):
+        v = np.array([cx, 1.7, cz]) - p
+        d = np.linalg.norm(v)
+        e += scene.lamp_cd_m2 * 0.72 * (v @ [0, 0, -1] / d) * (v[1] / d) / d**2
+    assert ratio.mean() == pytest.approx(e, rel=1e-4)
+    d = np.random.default_rng(0).normal(size=(500, 3))
+    assert np.allclose(scene.band_radiance(d, est.system_matrix), scene.spectral_radiance(d) @ est.system_matrix.T,
+                       rtol=1e-4, atol=1e-9)
+
+
+def test_indoor_ground_truth_fl11_to_a(tmp_path, est):
+    """The indoor scene's exact bands under FL11, relit to A from its white reference, against its bands under A."""
+    src, scene = _indoor_product(tmp_path, est, "FL11")
+    ref, _ = _indoor_product(tmp_path, est, "A")
+    wref = scene.white_reference()
+    white = WhiteReference(wref["lon_deg"], wref["lat_deg"], 0.6 * wref["half_size_deg"])
+    out = relight_product(src, tmp_path / "relit", [white], to="A")
+    assert out["light_source_pixels"] > 0  # the ceiling panels
+
+    def lab(product):
+        from omnispectral.apps.relight import disk_mean_bands
+
+        _, store, e = open_product(product)
+        sig = e.estimate(np.array([disk_mean_bands(store, 0, WhiteReference(p["lon_deg"], p["lat_deg"],
+                                                                             0.6 * p["half_size_deg"]))
+                                   for p in scene.colorchecker_patches()]))
+        w = e.estimate(disk_mean_bands(store, 0, white)[None])[0] / 0.95
+        return signals_to_lab(sig, w, WL)
+
+    de = delta_e_ab(lab(tmp_path / "relit"), lab(ref))
+    print(f"indoor FL11 -> A, exact bands: mean {de.mean():.2f}, max {de.max():.2f}")
+    assert de.mean() < 2.0

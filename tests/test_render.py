@@ -283,3 +283,12 @@ def test_cli_render_render_series_and_relight(tmp_path, small_estimator):
                str(tmp_path / "rl"), "--json"])
     assert rc == 0 and (tmp_path / "rl" / "preview_relit.png").is_file()
     assert main(["relight", str(tmp_path / "series" / "slot_1"), "--white", "0,95", "-o", str(tmp_path / "x")]) == 2
+
+
+def test_colour_weights_match_colour_science_integration():
+    s = np.random.default_rng(1).random((5, WL.size))
+    shape = colour.SpectralShape(400, 700, 5)
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(shape)
+    ref = np.array([colour.sd_to_XYZ(colour.SpectralDistribution(dict(zip(WL, x, strict=True))), cmfs,
+                                     colour.sd_ones(shape), k=1, method="Integration") for x in s])
+    assert np.allclose(spectra_to_xyz(s, WL), 100 * ref, rtol=1e-10)  # colour-science returns k Σ … / 100

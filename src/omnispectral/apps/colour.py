@@ -7,6 +7,8 @@ colours are relative to a white signal (CIE 015, ``Y_white = 1``).
 
 from __future__ import annotations
 
+import functools
+
 import colour
 import numpy as np
 
@@ -23,18 +25,23 @@ def _shape(wavelength_nm: np.ndarray) -> colour.SpectralShape:
     return colour.SpectralShape(float(wl[0]), float(wl[-1]), float(steps[0]))
 
 
+@functools.lru_cache(maxsize=8)
+def _cmf_weights(start: float, stop: float, step: float) -> np.ndarray:
+    """``(n, 3)`` CIE 1931 colour-matching functions × Δλ on a grid, from colour-science's table: the weights of
+    its ``Integration`` method (checked against ``msds_to_XYZ`` in the tests)."""
+    shape = colour.SpectralShape(start, stop, step)
+    return (colour.MSDS_CMFS[OBSERVER].copy().align(shape).values * step).astype(np.float64)
+
+
 def spectra_to_xyz(spectra: np.ndarray, wavelength_nm: np.ndarray) -> np.ndarray:
-    """CIE 1931 XYZ ``Σ S(λ) cmf(λ) Δλ`` of spectra ``(..., n)`` (emissive, no normalisation; NaN kept)."""
+    """CIE 1931 XYZ ``Σ S(λ) cmf(λ) Δλ`` of spectra ``(..., n)`` (emissive, no normalisation; NaN kept); float32
+    spectra give float32 XYZ."""
     shape = _shape(wavelength_nm)
-    cmfs = colour.MSDS_CMFS[OBSERVER].copy().align(shape)
-    ones = colour.sd_ones(shape)
-    s = np.asarray(spectra, np.float64)
-    xyz = colour.msds_to_XYZ(np.nan_to_num(s), cmfs, ones, k=1, method="Integration", shape=shape)
-    bad = ~np.isfinite(s).all(axis=-1)
-    # colour-science's integration returns k Σ ... / 100 (its reflectance-in-percent convention); undo the 1/100
-    xyz = 100.0 * np.asarray(xyz, np.float64)
-    xyz[bad] = np.nan
-    return xyz
+    w = _cmf_weights(float(shape.start), float(shape.end), float(shape.interval))
+    s = np.asarray(spectra)
+    if s.shape[-1] != w.shape[0]:
+        raise ConfigurationError(f"spectra with {s.shape[-1]} samples do not match {w.shape[0]} wavelengths")
+    return s @ w.astype(s.dtype if s.dtype in (np.float32, np.float64) else np.float64)
 
 
 def xyz_to_linear_srgb(xyz: np.ndarray) -> np.ndarray:

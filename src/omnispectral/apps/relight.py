@@ -69,9 +69,12 @@ def parse_white(text: str) -> WhiteReference:
 
 
 def white_reflectance(spec: str | float | None, wavelength_nm: np.ndarray) -> np.ndarray:
-    """The white reference's reflectance on the grid: a number (flat) or a reflectance CSV."""
+    """The white reference's reflectance on the grid: a number (flat), a reflectance CSV, or
+    ``(wavelength_nm, values)`` arrays."""
     if spec is None:
         return np.full(np.asarray(wavelength_nm).size, DEFAULT_WHITE_REFLECTANCE)
+    if isinstance(spec, tuple):
+        return np.interp(np.asarray(wavelength_nm, float), np.asarray(spec[0], float), np.asarray(spec[1], float))
     try:
         value = float(spec)
     except (TypeError, ValueError):
@@ -184,22 +187,26 @@ class Relighter:
         """Relit signals ``(N, n)`` and the light-source flag ``(N,)`` of pixels at directions ``rays`` (their
         estimated signals, and their bands for the Wiener reflectance)."""
         wts = self.weights_at(rays)
-        e = wts @ self.illuminants
-        y_e = luminance(e, self.wavelength_nm)
-        scale = (y_e / self._y_new)[:, None]
-        if self.method == "ratio":
-            relit = signals * self.new_illuminant[None, :] * scale / e
-        else:
-            relit = np.empty_like(signals, dtype=np.float64)
-            combos, inverse = np.unique(wts, axis=0, return_inverse=True)
-            for j, combo in enumerate(combos):
-                sel = inverse.reshape(-1) == j
-                w, c = self._reflectance_map(combo @ self.illuminants)
-                relit[sel] = (np.asarray(bands[sel], float) @ w.T + c) * self.new_illuminant[None, :] * scale[sel]
-        bright = luminance(signals, self.wavelength_nm) > y_e
+        combos, inverse = np.unique(wts, axis=0, return_inverse=True)
+        inverse = inverse.reshape(-1)
+        relit = np.empty(signals.shape, np.float32)
+        bright = np.empty(signals.shape[0], bool)
+        y_signal = luminance(np.asarray(signals, np.float32), self.wavelength_nm)
+        for j, combo in enumerate(combos):  # one illuminant (and one linear map) per combination of weights
+            sel = inverse == j
+            e = combo @ self.illuminants
+            y_e = float(luminance(e[None], self.wavelength_nm)[0])
+            new = (self.new_illuminant * (y_e / self._y_new)).astype(np.float32)
+            if self.method == "ratio":
+                relit[sel] = signals[sel] * (new / e).astype(np.float32)
+            else:
+                w, c = self._reflectance_map(e)
+                relit[sel] = (np.asarray(bands[sel], np.float32) @ (w.T * new[None, :]).astype(np.float32)
+                              + (c * new).astype(np.float32))
+            bright[sel] = y_signal[sel] > y_e
         if self.sources == "keep":
             relit[bright] = signals[bright]
-        return relit.astype(np.float32), bright
+        return relit, bright
 
     def describe(self) -> dict:
         return {"wavelength_nm": self.wavelength_nm.tolist(), "measured_illuminants": self.illuminants.tolist(),

@@ -127,7 +127,8 @@ def add_commands(sub) -> None:
                                    "signals under the new illuminant; tile by tile into a product-like directory.")
     e.add_argument("product", metavar="PRODUCT")
     e.add_argument("--white", action="append", required=True, metavar="LON,LAT[,RADIUS_DEG]",
-                   help="a white reference's direction (repeat for several; interpolated between them)")
+                   help="a white reference's direction (repeat for several; interpolated between them); write "
+                        "--white=-30,0 when the longitude is negative")
     e.add_argument("--to", default="A", metavar="A|D65|FILE.csv", help="the new illuminant (default A)")
     e.add_argument("--white-reflectance", default=None, metavar="0.95|FILE.csv",
                    help="the white reference's reflectance (default flat 0.95)")

@@ -137,6 +137,9 @@ def cmd_demo(args) -> int:
                       ("rgb-exr", "panorama_rgb.exr"), ("hdr", "panorama_rgb.hdr"), ("envi", "panorama_envi.hdr"),
                       ("uncertainty", "panorama_uncertainty.exr")):
         exports[fmt] = export_product(out / "product", fmt, out / name, level=level)["output"]
+    from omnispectral.apps.demo import demo_applications  # issue 11: rendered mirror ball, relit preview
+
+    exports.update(demo_applications(out / "product", out, out / "session"))
     console.print("[bold]4/4 report[/bold]")
     import json
 

@@ -15,11 +15,18 @@ DEFAULT_DATE = _dt.date(2017, 6, 21)  # summer solstice; the paper's captures ar
 
 
 def build_scene(scene: str, cube: str | None, when: _dt.datetime, wavelength_nm=None, seed: int = 0,
-                chart_distance_m: float | None = None, chart_patch_m: float | None = None):
-    """The scene named on the command line: ``procedural``, an HDR panorama file, optionally a cube on a wall."""
+                chart_distance_m: float | None = None, chart_patch_m: float | None = None, light: str | None = None):
+    """The scene named on the command line: ``procedural``, ``indoor`` (lit by ``light``), an HDR panorama file,
+    optionally a cube on a wall."""
     from omnispectral.capture import scenes
 
     kwargs = {} if wavelength_nm is None else {"wavelength_nm": wavelength_nm}
+    if scene == "indoor":
+        if cube:
+            raise ConfigurationError("--cube mounts the cube on a wall of the procedural scene; use --scene procedural")
+        return scenes.IndoorScene(light or "FL11", **kwargs)
+    if light:
+        raise ConfigurationError("--light chooses the light source of --scene indoor")
     if scene == "procedural":
         chart = {k: v for k, v in (("chart_distance_m", chart_distance_m), ("chart_patch_m", chart_patch_m))
                  if v is not None}
@@ -45,7 +52,7 @@ def cmd_simulate(args) -> int:
     rig = rig_from_args(args, default_preset="small")
     start = _start_time(args.time, args.date)
     scene = build_scene(args.scene, args.cube, start, seed=args.seed, chart_distance_m=args.chart_distance,
-                        chart_patch_m=args.chart_patch)
+                        chart_patch_m=args.chart_patch, light=args.light)
     out = simulate_session(args.output, rig, scene, start=start, noise=args.noise == "on", seed=args.seed,
                            ground_truth_width=args.gt_width, progress=not args.json,
                            mounting_error_deg=args.mounting_error)
@@ -110,7 +117,7 @@ def cmd_timelapse(args) -> int:
 
     def capture(session_dir: Path, t: _dt.datetime) -> dict:
         scene = build_scene(args.scene, args.cube, t, seed=args.seed, chart_distance_m=args.chart_distance,
-                            chart_patch_m=args.chart_patch)
+                            chart_patch_m=args.chart_patch, light=args.light)
         res = simulate_session(session_dir, rig, scene, start=clock.now(), noise=args.noise == "on",
                                seed=args.seed, ground_truth_width=args.gt_width, progress=False,
                                mounting_error_deg=args.mounting_error)
@@ -133,8 +140,11 @@ def cmd_timelapse(args) -> int:
 
 
 def _add_scene_args(p) -> None:
-    p.add_argument("--scene", default="procedural", metavar="procedural|FILE.hdr|FILE.exr",
-                   help="procedural outdoor scene (default) or an HDR equirectangular panorama")
+    p.add_argument("--scene", default="procedural", metavar="procedural|indoor|FILE.hdr|FILE.exr",
+                   help="procedural outdoor scene (default), an indoor room with a chart and a white reference "
+                        "(relighting ground truth), or an HDR equirectangular panorama")
+    p.add_argument("--light", default=None, metavar="FL11|LED-B3|D65|A|FILE.csv",
+                   help="light source of --scene indoor (default FL11)")
     p.add_argument("--cube", default=None, metavar="FILE.npz|FILE.hdr",
                    help="hyperspectral reflectance cube mounted on a wall of the procedural scene")
     p.add_argument("--date", default=None, metavar="YYYY-MM-DD", help=f"day of the capture (default {DEFAULT_DATE})")

@@ -17,6 +17,7 @@ from omnispectral.capture.scenes.base import (
     lonlat_to_direction,
 )
 from omnispectral.capture.scenes.cube import CubeOnWallScene, load_reflectance_cube
+from omnispectral.capture.scenes.indoor import IndoorScene
 from omnispectral.capture.scenes.panorama import PanoramaScene, read_panorama
 from omnispectral.capture.scenes.procedural import ProceduralOutdoorScene
 from omnispectral.capture.scenes.sky import ClearSkyDaylight, SolarPosition, solar_position
@@ -24,6 +25,7 @@ from omnispectral.capture.scenes.sky import ClearSkyDaylight, SolarPosition, sol
 __all__ = [
     "ClearSkyDaylight",
     "CubeOnWallScene",
+    "IndoorScene",
     "PanoramaScene",
     "ProceduralOutdoorScene",
     "Scene",

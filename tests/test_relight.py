@@ -195,3 +195,19 @@ def test_indoor_ground_truth_fl11_to_a(tmp_path, est):
     de = delta_e_ab(lab(tmp_path / "relit"), lab(ref))
     print(f"indoor FL11 -> A, exact bands: mean {de.mean():.2f}, max {de.max():.2f}")
     assert de.mean() < 2.0
+
+
+def test_simulate_scene_choice():
+    import datetime as dt
+
+    from omnispectral.capture.scenes import IndoorScene
+    from omnispectral.cli.simulate import build_scene
+
+    when = dt.datetime(2017, 6, 21, 12, tzinfo=dt.UTC)
+    scene = build_scene("indoor", None, when, light="LED-B3")
+    assert isinstance(scene, IndoorScene) and scene.describe()["light"] == "LED-B3"
+    assert build_scene("indoor", None, when).light == "FL11"
+    with pytest.raises(ConfigurationError, match="--light"):
+        build_scene("procedural", None, when, light="A")
+    with pytest.raises(ConfigurationError, match="unknown illuminant"):
+        build_scene("indoor", None, when, light="no-such-light")

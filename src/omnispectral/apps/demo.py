@@ -21,7 +21,7 @@ def demo_applications(product: str | Path, out: str | Path, session: str | Path 
     out = Path(out)
     files: dict = {}
     ball = render_product(product, out / "render_mirror_ball", width=128, height=128, spp=16, wavelength_step_nm=10.0,
-                          view_lon_deg=180.0, progress=progress)
+                          progress=progress)
     files["render_mirror_ball"] = ball["files"]["png"]
     files["render_mirror_ball_spectral"] = ball["files"]["spectral_exr"]
     gt = Path(session) / "ground_truth" / "ground_truth.json" if session else None

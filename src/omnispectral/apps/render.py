@@ -143,11 +143,10 @@ class MirrorBallScene:
         """World direction through image position ``(col, row)`` (pixel centres at +0.5), for checks."""
         f = 0.5 * width / math.tan(math.radians(self.fov_deg) / 2)
         fwd = self.view_direction
-        right = np.cross(fwd, [0.0, 1.0, 0.0])  # Mitsuba's look_at: image x runs along up × forward... see below
+        # Mitsuba's look_at builds left = up × forward; image columns grow towards -left (the viewer's right)
+        right = np.cross(fwd, [0.0, 1.0, 0.0])
         right /= np.linalg.norm(right)
         up = np.cross(right, fwd)
-        # Mitsuba's perspective camera looks along +Z of its frame with +X to the image's left (look_at builds
-        # left = up × dir); image column grows towards -left = right-hand side of the viewer
         d = fwd * f + right * (col - 0.5 * width) - up * (row - 0.5 * height)
         return d / np.linalg.norm(d)
 
@@ -254,7 +253,9 @@ class XmlScene:
                 em = ET.SubElement(root, "emitter", {"type": "envmap"})
                 ET.SubElement(em, "string", {"name": "filename", "value": str(env_path)})
             resolver = mi.file_resolver()
-            resolver.prepend(str(self.path.parent.resolve()))
+            base = str(self.path.parent.resolve())
+            if not any(str(p) == base for p in resolver):  # relative meshes and textures of the scene file
+                resolver.prepend(base)
             try:
                 return mi.load_string(ET.tostring(root, encoding="unicode"))
             except Exception as exc:  # Mitsuba raises RuntimeError with its own message

@@ -187,8 +187,12 @@ class Relighter:
         """Relit signals ``(N, n)`` and the light-source flag ``(N,)`` of pixels at directions ``rays`` (their
         estimated signals, and their bands for the Wiener reflectance)."""
         wts = self.weights_at(rays)
-        combos, inverse = np.unique(wts, axis=0, return_inverse=True)
-        inverse = inverse.reshape(-1)
+        if wts.shape[1] == 1:
+            combos, inverse = wts[:1], np.zeros(wts.shape[0], np.int64)
+        else:  # weights are multiples of 1/20: one integer key per combination
+            key = np.rint(wts * 20).astype(np.int64) @ (21 ** np.arange(wts.shape[1]))
+            _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+            combos = wts[first]
         relit = np.empty(signals.shape, np.float32)
         bright = np.empty(signals.shape[0], bool)
         y_signal = luminance(np.asarray(signals, np.float32), self.wavelength_nm)
@@ -236,6 +240,20 @@ def pixel_rays(rows: slice, cols: slice, height: int, width: int) -> np.ndarray:
     return lonlat_to_ray(lon, lat).reshape(-1, 3)
 
 
+#: Pixels relit at once (bounds the (pixels × n) spectral temporaries of a task to ~16 MiB each).
+BLOCK_PIXELS = 1 << 16
+
+
+def relight_tile(bands: np.ndarray, estimator, relighter: Relighter, r0: int, c0: int, shape: tuple[int, int],
+                 reduce: Callable[[np.ndarray, np.ndarray, np.ndarray], tuple]) -> list:
+    """:func:`relight_block` over row strips of at most ``BLOCK_PIXELS``; ``reduce(relit, captured, flag)`` turns each
+    strip into what is kept (e.g. its six bands), so the spectra of a whole tile never exist at once."""
+    h, w = bands.shape[:2]
+    step = max(1, BLOCK_PIXELS // max(1, w))
+    return [reduce(*relight_block(bands[i:i + step], estimator, relighter, slice(r0 + i, r0 + min(h, i + step)),
+                                  slice(c0, c0 + w), shape)) for i in range(0, h, step)]
+
+
 def relight_block(bands: np.ndarray, estimator, relighter: Relighter, rows: slice, cols: slice,
                   shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(relit spectra (h, w, n), captured spectra (h, w, n), light-source flag (h, w))`` of a block of a level."""
@@ -280,8 +298,8 @@ def relight_product(product: str | Path, output: str | Path, whites: list[WhiteR
 
     def tile(r0, r1, c0, c1):
         bands = store.read(0, slice(r0, r1), slice(c0, c1))
-        relit, _, flag = relight_block(bands, estimator, relighter, slice(r0, r1), slice(c0, c1), (h, w))
-        return relit @ R.T, {"light_source_pixels": int(flag.sum())}
+        parts = relight_tile(bands, estimator, relighter, r0, c0, (h, w), lambda rel, _, flag: (rel @ R.T, flag.sum()))
+        return np.concatenate([p[0] for p in parts]), {"light_source_pixels": int(sum(p[1] for p in parts))}
 
     def tick(done, total):
         if progress and (done == total or done % max(1, total // 10) == 0):
@@ -294,9 +312,12 @@ def relight_product(product: str | Path, output: str | Path, whites: list[WhiteR
 
     lv = choose_level(store.shapes, None, PREVIEW_MAX_WIDTH)
     ph, pw = store.shapes[lv]
-    relit, captured, flag = relight_block(store.read(lv), estimator, relighter, slice(0, ph), slice(0, pw), (ph, pw))
     wl = relighter.wavelength_nm
-    rgb_c, rgb_r = spectra_to_linear_srgb(captured, wl), spectra_to_linear_srgb(relit, wl)
+    def to_rgb(rel, cap, flag):
+        return spectra_to_linear_srgb(cap, wl), spectra_to_linear_srgb(rel, wl), flag
+
+    parts = relight_tile(store.read(lv), estimator, relighter, 0, 0, (ph, pw), to_rgb)
+    rgb_c, rgb_r, flag = (np.concatenate([p[k] for p in parts]) for k in range(3))
     scale = np.float32(1.0 / auto_exposure_reference(rgb_c))
     flags_img = reinhard_srgb8(rgb_r * scale)
     flags_img[flag] = (255, 0, 255)

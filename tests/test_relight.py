@@ -173,6 +173,7 @@ def test_indoor_scene_radiometry(est):
                        rtol=1e-4, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_indoor_ground_truth_fl11_to_a(tmp_path, est):
     """The indoor scene's exact bands under FL11, relit to A from its white reference, against its bands under A."""
     src, scene = _indoor_product(tmp_path, est, "FL11")

@@ -292,3 +292,62 @@ def test_colour_weights_match_colour_science_integration():
     ref = np.array([colour.sd_to_XYZ(colour.SpectralDistribution(dict(zip(WL, x, strict=True))), cmfs,
                                      colour.sd_ones(shape), k=1, method="Integration") for x in s])
     assert np.allclose(spectra_to_xyz(s, WL), 100 * ref, rtol=1e-10)  # colour-science returns k Σ … / 100
+
+
+def test_xml_conductor_from_csv_and_series_from_time_stack(tmp_path, small_estimator):
+    """A metal given as a CSV (n, k) in a scene file: the sphere's centre pixel under a uniform sky is
+    L(λ) · R(0°, n, k); and render-series finds its slots through a process-series time stack."""
+    import shutil
+
+    import zarr
+
+    from omnispectral.apps.series import series_slots
+
+    metal_csv = tmp_path / "silver.csv"
+    from omnispectral.apps import materials
+
+    shutil.copyfile(materials._DATA / "silver.csv", metal_csv)
+    (tmp_path / "ball.xml").write_text("""<scene version="3.0.0">
+  <integrator type="path"/>
+  <sensor type="perspective"><float name="fov" value="10"/>
+    <transform name="to_world"><lookat origin="0, 0, 5" target="0, 0, 0" up="0, 1, 0"/></transform>
+    <sampler type="independent"><integer name="sample_count" value="4"/></sampler>
+    <film type="hdrfilm"><integer name="width" value="9"/><integer name="height" value="9"/><rfilter type="box"/></film>
+  </sensor>
+  <shape type="sphere"><float name="radius" value="0.3"/>
+    <bsdf type="conductor"><spectrum name="eta" filename="silver.csv"/><spectrum name="k" filename="silver.csv"/></bsdf>
+  </shape>
+</scene>""")
+    scene = XmlScene(tmp_path / "ball.xml")
+    env = uniform_environment(np.linspace(1.0, 2.0, WL.size), WL)
+    res = render_spectral(env, scene, 9, 9, spp=4, wavelength_step_nm=20.0)
+    n, k = load_metal("silver").eta_k(res.wavelength_nm)
+    expected = np.interp(res.wavelength_nm, WL, np.linspace(1.0, 2.0, WL.size)) * conductor_reflectance(1.0, n, k)
+    assert np.max(np.abs(res.spectra[4, 4] / expected - 1)) < 2e-3
+    # a process-series output: slots listed by its time stack, in time order
+    for name in ("slot_0630", "slot_1000"):
+        write_band_product(tmp_path / "series" / name, _band_env(small_estimator, 16),
+                           {"bands": list(small_estimator.band_names), "units": "DN/s",
+                            "estimator": {"params": estimator_params(load_preset("small"))}}, tile=16)
+    g = zarr.open_group(str(tmp_path / "series" / "timestack.zarr"), mode="w", zarr_format=3)
+    g.attrs.update({"times": ["2017-06-21T06:30:00+00:00", "2017-06-21T10:00:00+00:00"],
+                    "products": ["slot_0630", "slot_1000"]})
+    assert [p.name for _, p in series_slots(tmp_path / "series")] == ["slot_0630", "slot_1000"]
+
+
+def test_bad_inputs_name_the_file(tmp_path):
+    from omnispectral.errors import ConfigurationError, InputFileError
+
+    (tmp_path / "broken.xml").write_text("<scene><sensor>")
+    with pytest.raises(InputFileError, match=r"broken\.xml: not valid XML"):
+        XmlScene(tmp_path / "broken.xml")
+    (tmp_path / "nosensor.xml").write_text('<scene version="3.0.0"><shape type="sphere"/></scene>')
+    with pytest.raises(InputFileError, match="has no <sensor>"):
+        XmlScene(tmp_path / "nosensor.xml")
+    with pytest.raises(ConfigurationError, match="unknown metal"):
+        load_metal("unobtainium")
+    (tmp_path / "nk.csv").write_text("wavelength_nm,n,k\n400,0.1\n")
+    with pytest.raises(InputFileError, match=r"nk\.csv"):
+        load_metal(str(tmp_path / "nk.csv"))
+    with pytest.raises(ConfigurationError, match="is tabulated on"):
+        load_metal("silver").eta_k(np.array([300.0]))

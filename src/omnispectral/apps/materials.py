@@ -96,10 +96,15 @@ def load_metal(name: str) -> Conductor:
         raise ConfigurationError(f"unknown metal {name!r}; expected one of {', '.join(METALS)} or a CSV file "
                                  "wavelength_nm,n,k")
     try:
-        table = np.loadtxt(path, delimiter=",", comments="#", skiprows=2 if key in METALS else 1, ndmin=2)
-    except (OSError, ValueError) as exc:
+        rows = [ln.split(",") for ln in path.read_text(encoding="utf-8").splitlines()
+                if ln.strip() and not ln.lstrip().startswith("#")]
+        if rows and rows[0][0].strip().lower().startswith("wavelength"):
+            rows = rows[1:]  # the header line
+        table = np.array([[float(x) for x in r] for r in rows], float)
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise InputFileError(path, f"cannot be read as wavelength_nm,n,k ({exc})") from None
-    if table.shape[1] != 3 or table.shape[0] < 2 or np.any(np.diff(table[:, 0]) <= 0) or not np.isfinite(table).all():
+    if (table.ndim != 2 or table.shape[1] != 3 or table.shape[0] < 2 or np.any(np.diff(table[:, 0]) <= 0)
+            or not np.isfinite(table).all()):
         raise InputFileError(path, "needs three columns wavelength_nm,n,k with increasing wavelengths")
     return Conductor(key if key in METALS else path.stem, table[:, 0], table[:, 1], table[:, 2])
 

@@ -21,7 +21,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 import tifffile
-from omnispectral.rig import load_preset, load_rig, rig_from_dict
 
 from omnispectral.capture.session import Session, read_journal, verify_session
 from omnispectral.capture.simulate import simulate_session
@@ -29,6 +28,7 @@ from omnispectral.cli import main
 from omnispectral.errors import ConfigurationError, InputFileError, OmnispectralError
 from omnispectral.io import TEMP_MARK, atomic_write_text, is_temp_name
 from omnispectral.locking import LOCK_NAME, LockedError, directory_lock, read_holder
+from omnispectral.rig import load_preset, load_rig, rig_from_dict
 
 NOON = dt.datetime(2017, 6, 21, 12, 0, tzinfo=dt.UTC)
 TESTS = os.path.dirname(os.path.abspath(__file__))

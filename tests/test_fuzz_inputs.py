@@ -17,11 +17,11 @@ import pytest
 import tifffile
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from omnispectral.rig import load_preset, load_rig, rig_from_dict
 
 from omnispectral.capture.plan import make_plan
 from omnispectral.capture.session import Session, read_journal, verify_session
 from omnispectral.errors import OmnispectralError
+from omnispectral.rig import load_preset, load_rig, rig_from_dict
 
 #: CI budget; a longer, random search:
 #: OMNISPECTRAL_FUZZ_EXAMPLES=2000 OMNISPECTRAL_FUZZ_RANDOM=1 pytest tests/test_fuzz_inputs.py

@@ -18,7 +18,7 @@ from omnispectral.errors import OmnispectralError, describe_os_error
 
 #: Modules of ``omnispectral.cli`` that register sub-commands, in the order ``--help`` lists them.
 COMMAND_MODULES = ("spectral", "hdr", "lens", "capture", "register", "simulate", "devices", "mosaic", "product",
-                   "view")
+                   "view", "apps")
 
 
 def build_parser() -> argparse.ArgumentParser:

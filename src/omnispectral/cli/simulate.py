@@ -26,7 +26,7 @@ def cmd_simulate(args) -> int:
     rig = rig_from_args(args, default_preset="small")
     start = _start_time(args.time, args.date)
     scene = build_scene(args.scene, args.cube, start, seed=args.seed, chart_distance_m=args.chart_distance,
-                        chart_patch_m=args.chart_patch)
+                        chart_patch_m=args.chart_patch, light=args.light)
     with ProgressBars(enabled=not args.json, transient=True) as bars:
         out = simulate_session(args.output, rig, scene, start=start, noise=args.noise == "on", seed=args.seed,
                                ground_truth_width=args.gt_width, progress=bars, mounting_error_deg=args.mounting_error)
@@ -85,7 +85,7 @@ def cmd_timelapse(args) -> int:
 
     def capture(session_dir: Path, t: _dt.datetime) -> dict:
         scene = build_scene(args.scene, args.cube, t, seed=args.seed, chart_distance_m=args.chart_distance,
-                            chart_patch_m=args.chart_patch)
+                            chart_patch_m=args.chart_patch, light=args.light)
         res = simulate_session(session_dir, rig, scene, start=clock.now(), noise=args.noise == "on",
                                seed=args.seed, ground_truth_width=args.gt_width, progress=False,
                                mounting_error_deg=args.mounting_error)
@@ -108,8 +108,11 @@ def cmd_timelapse(args) -> int:
 
 
 def _add_scene_args(p) -> None:
-    p.add_argument("--scene", default="procedural", metavar="procedural|FILE.hdr|FILE.exr",
-                   help="procedural outdoor scene (default) or an HDR equirectangular panorama")
+    p.add_argument("--scene", default="procedural", metavar="procedural|indoor|FILE.hdr|FILE.exr",
+                   help="procedural outdoor scene (default), an indoor room with a chart and a white reference "
+                        "(relighting ground truth), or an HDR equirectangular panorama")
+    p.add_argument("--light", default=None, metavar="FL11|LED-B3|D65|A|FILE.csv",
+                   help="light source of --scene indoor (default FL11)")
     p.add_argument("--cube", default=None, metavar="FILE.npz|FILE.hdr",
                    help="hyperspectral reflectance cube mounted on a wall of the procedural scene")
     p.add_argument("--date", default=None, metavar="YYYY-MM-DD", help=f"day of the capture (default {DEFAULT_DATE})")

@@ -13,6 +13,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from omnispectral.apps.demo import demo_applications
 from omnispectral.capture.scenes import DEFAULT_DATE, build_scene
 from omnispectral.capture.simulate import simulate_session
 from omnispectral.io import atomic_write_json
@@ -51,6 +52,8 @@ def run_demo(out: str | Path, *, full: bool = False, time_hhmm: str = "12:00", s
     level = 0 if not full else 1
     exports = {fmt: export_product(out / "product", fmt, out / name, level=level)["output"]
                for fmt, name in DEMO_EXPORTS}
+    # the paper's applications (Sec. 6): a rendered mirror ball and a relit preview
+    exports.update(demo_applications(out / "product", out, out / "session"))
     step(4, 4, "report")
     report_dir = product_paths(out / "product")["report"]
     report = json.loads((report_dir / "report.json").read_text())

@@ -19,6 +19,7 @@ from omnispectral.capture.scenes.base import (
 )
 from omnispectral.capture.scenes.build import DEFAULT_DATE, build_scene
 from omnispectral.capture.scenes.cube import CubeOnWallScene, load_reflectance_cube
+from omnispectral.capture.scenes.indoor import IndoorScene
 from omnispectral.capture.scenes.panorama import PanoramaScene, read_panorama
 from omnispectral.capture.scenes.procedural import ProceduralOutdoorScene
 from omnispectral.capture.scenes.sky import ClearSkyDaylight, SolarPosition, solar_position
@@ -27,6 +28,7 @@ __all__ = [
     "DEFAULT_DATE",
     "ClearSkyDaylight",
     "CubeOnWallScene",
+    "IndoorScene",
     "PanoramaScene",
     "ProceduralOutdoorScene",
     "Scene",

@@ -5,6 +5,7 @@ from __future__ import annotations
 import datetime as _dt
 
 from omnispectral.capture.scenes.cube import CubeOnWallScene
+from omnispectral.capture.scenes.indoor import IndoorScene
 from omnispectral.capture.scenes.panorama import PanoramaScene
 from omnispectral.capture.scenes.procedural import ProceduralOutdoorScene
 from omnispectral.errors import ConfigurationError
@@ -15,10 +16,17 @@ DEFAULT_DATE = _dt.date(2017, 6, 21)
 
 
 def build_scene(scene: str, cube: str | None, when: _dt.datetime, wavelength_nm=None, seed: int = 0,
-                chart_distance_m: float | None = None, chart_patch_m: float | None = None):
-    """``procedural`` (sun and sky at ``when``), or an HDR equirectangular panorama file; with ``cube``, a
-    hyperspectral reflectance cube mounted on a wall of the procedural scene."""
+                chart_distance_m: float | None = None, chart_patch_m: float | None = None, light: str | None = None):
+    """``procedural`` (sun and sky at ``when``), ``indoor`` (a room lit by ``light``), or an HDR
+    equirectangular panorama file; with ``cube``, a hyperspectral reflectance cube mounted on a wall of
+    the procedural scene."""
     kwargs = {} if wavelength_nm is None else {"wavelength_nm": wavelength_nm}
+    if scene == "indoor":
+        if cube:
+            raise ConfigurationError("--cube mounts the cube on a wall of the procedural scene; use --scene procedural")
+        return IndoorScene(light or "FL11", **kwargs)
+    if light:
+        raise ConfigurationError("--light chooses the light source of --scene indoor")
     if scene == "procedural":
         chart = {k: v for k, v in (("chart_distance_m", chart_distance_m), ("chart_patch_m", chart_patch_m))
                  if v is not None}

@@ -1,0 +1,81 @@
+"""Relighting throughput and memory on a large synthetic product (numbers go to docs/benchmarks.md).
+
+    .venv/bin/python benchmarks/bench_relight_scale.py [--width 4096] [--tile 512] [--work DIR]
+
+A product of ``width × width/2`` six-band pixels is written tile by tile (never whole in memory: ColorChecker
+reflectances in a repeating pattern under FL11, a white reference), then ``relight`` runs in a fresh
+subprocess; its wall time, pixels per second and peak resident memory (``ru_maxrss``) are reported.
+Memory should follow the tile size and the workers, not the panorama.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def make_product(root: Path, width: int, tile: int) -> None:
+    from omnispectral.capture.rig import load_preset
+
+    from omnispectral.apps.productio import create_band_product, fill_pyramid, write_level0
+    from omnispectral.product.estimator import estimator_params, rig_estimator
+    from omnispectral.spectral.library import load_illuminant, load_reflectances
+
+    rig = load_preset("small")
+    est = rig_estimator(rig)[0]
+    wl = np.asarray(est.wavelength_nm)
+    cc = load_reflectances("colorchecker").resample(wl).values
+    fl11 = load_illuminant("FL11").resample(wl).values[0]
+    patch_bands = (1000 * (cc * fl11 / fl11.mean()) @ est.system_matrix.T).astype(np.float32)  # (24, 6)
+    h = width // 2
+    store = create_band_product(root, h, width, {"bands": list(est.band_names), "units": "DN/s",
+                                                 "estimator": {"params": estimator_params(rig)}},
+                                {"bands": list(est.band_names)}, tile=tile)
+
+    def tile_fn(r0, r1, c0, c1):
+        rr, cc_ = np.mgrid[r0:r1, c0:c1]
+        return patch_bands[((rr // 16) * 7 + cc_ // 16) % 24]
+
+    write_level0(store, tile_fn)
+    fill_pyramid(store)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--width", type=int, default=4096)
+    ap.add_argument("--tile", type=int, default=512)
+    ap.add_argument("--work", default=None)
+    a = ap.parse_args()
+    with tempfile.TemporaryDirectory(dir=a.work) as tmp:
+        product = Path(tmp) / "product"
+        t = time.perf_counter()
+        make_product(product, a.width, a.tile)
+        t_make = time.perf_counter() - t
+        # the white patch (index 18) first appears at rows 32-47, columns 64-79 (pattern (r//16)*7 + c//16 = 18)
+        h = a.width // 2
+        lon = (72 + 0.5) / a.width * 360 - 180
+        lat = 90 - (40 + 0.5) / h * 180
+        t = time.perf_counter()
+        subprocess.run([str(Path(sys.executable).with_name("omnispectral")), "relight", str(product),
+                        f"--white={lon},{lat},{2 * 360 / a.width}", "--to", "A", "-o", str(Path(tmp) / "relit")],
+                       check=True, stdout=subprocess.DEVNULL)
+        t_relight = time.perf_counter() - t
+        rss_mib = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+    px = a.width * (a.width // 2)
+    out = {"width": a.width, "height": a.width // 2, "megapixels": px / 1e6, "tile": a.tile,
+           "write_product_s": t_make, "relight_s": t_relight, "megapixels_per_s": px / 1e6 / t_relight,
+           "relight_peak_rss_mib": rss_mib, "load": os.getloadavg()}
+    print(json.dumps(out, indent=2))
+
+
+if __name__ == "__main__":
+    main()

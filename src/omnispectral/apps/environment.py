@@ -1,0 +1,200 @@
+"""A product's spectral radiance as an environment map for image-based lighting (paper Sec. 6.1).
+
+The product stores six bands (DN/s) and its Wiener estimator; the environment map is the estimator
+applied per pixel (mixture prior, per-pixel posterior weights) at one pyramid level, clipped at 0
+(an estimate can undershoot on dark or noisy pixels; light is never negative).
+
+- **Saturated pixels.** Pixels saturated in every exposure of the bracket (the sun disk) hold the
+  shortest exposure's value: a lower bound of the true radiance (paper Sec. 4.1, ``imaging.hdr``).
+  They are flagged: a pixel of the chosen level is saturated when any level-0 pixel under it reaches
+  95 % of the shortest exposure's clipping level (``0.99 · max_dn / t_shortest``, from the rig
+  snapshot in the store).  Their share of the map's energy is reported, since a render's highlights
+  and cast shadows are then too weak by an unknown factor.
+- **Uncovered pixels** (``NaN``: no direction saw them, e.g. below the head) take the value of the
+  nearest covered pixel of the same column, and are flagged.
+- **Grid.** Spectra are on the estimator's grid (400–700 nm / 5 nm); :meth:`EnvironmentMap.resampled`
+  gives a coarser grid (linear interpolation, no extrapolation).
+- **Orientation.** The panorama's equirectangular convention (row 0 at +90°, column 0 at −180°, +Y up,
+  lon 0 = +Z, lon +90° = −X) is Mitsuba's environment-map orientation: the map is used unchanged.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from omnispectral.capture.scenes.base import resample_matrix
+from omnispectral.errors import ConfigurationError
+
+#: A level-0 pixel counts as saturated from this fraction of the shortest exposure's clipping level.
+SATURATION_FRACTION = 0.95
+#: Default largest environment width picked when no level is given (px).
+DEFAULT_MAX_WIDTH = 1024
+
+
+@dataclass
+class EnvironmentMap:
+    """Spectral radiance on an equirectangular grid, with what it knows about its own reliability."""
+
+    spectra: np.ndarray  # (H, W, n) float32, >= 0
+    wavelength_nm: np.ndarray  # (n,)
+    units: str
+    bands: np.ndarray | None = None  # (H, W, m) float32 >= 0 (the six bands it was estimated from), if any
+    saturated: np.ndarray | None = None  # (H, W) bool: a lower bound only (None: unknown)
+    filled: np.ndarray | None = None  # (H, W) bool: uncovered in the product, filled from its column
+    info: dict = field(default_factory=dict)
+
+    @property
+    def height(self) -> int:
+        return self.spectra.shape[0]
+
+    @property
+    def width(self) -> int:
+        return self.spectra.shape[1]
+
+    def resampled(self, wavelength_nm: np.ndarray) -> EnvironmentMap:
+        """The same map on another wavelength grid (linear interpolation within the current range)."""
+        m = resample_matrix(self.wavelength_nm, np.asarray(wavelength_nm, float)).astype(np.float32)
+        return replace(self, spectra=self.spectra @ m.T, wavelength_nm=np.asarray(wavelength_nm, float).copy())
+
+    def solid_angle_weights(self) -> np.ndarray:
+        """Solid angle (sr) of each row's pixels, ``(H,)``."""
+        h, w = self.height, self.width
+        lat_edges = np.radians(90.0 - np.arange(h + 1) * 180.0 / h)
+        return (2 * math.pi / w) * (np.sin(lat_edges[:-1]) - np.sin(lat_edges[1:]))
+
+    def describe(self) -> dict:
+        """JSON-able summary: size, grid, flags and the saturated pixels' share of the energy."""
+        omega = self.solid_angle_weights()[:, None]
+        power = (self.spectra.sum(axis=2) * omega)
+        total = float(power.sum())
+        out = {"width": self.width, "height": self.height, "n_wavelengths": int(self.wavelength_nm.size),
+               "wavelength_nm": [float(self.wavelength_nm[0]), float(self.wavelength_nm[-1])],
+               "units": self.units, **self.info}
+        if self.saturated is None:
+            out["saturated"] = "unknown (the product has no rig snapshot to tell the clipping level)"
+        else:
+            out["saturated_pixels"] = int(self.saturated.sum())
+            out["saturated_energy_fraction"] = float(power[self.saturated].sum() / total) if total > 0 else 0.0
+        if self.filled is not None:
+            out["filled_fraction"] = float(self.filled.mean())
+        return out
+
+
+def uniform_environment(spectrum: np.ndarray, wavelength_nm: np.ndarray, height: int = 16,
+                        units: str = "relative") -> EnvironmentMap:
+    """A constant environment (every direction the same spectral radiance): a test and a reference."""
+    s = np.asarray(spectrum, np.float32)
+    return EnvironmentMap(np.broadcast_to(s, (height, 2 * height, s.size)).copy(),
+                          np.asarray(wavelength_nm, float), units, info={"source": "uniform"})
+
+
+def fill_uncovered(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Replace non-finite pixels ``(H, W, c)`` by the nearest finite pixel of their column (rows); columns
+    with nothing finite become 0.  Returns ``(filled values, mask of the replaced pixels)``."""
+    bad = ~np.isfinite(values).all(axis=2)
+    if not bad.any():
+        return values, bad
+    h, w = bad.shape
+    rows = np.arange(h)[:, None].repeat(w, axis=1)
+    above = np.where(~bad, rows, -1)
+    above = np.maximum.accumulate(above, axis=0)  # last finite row at or above
+    below = np.where(~bad, rows, h)
+    below = np.minimum.accumulate(below[::-1], axis=0)[::-1]  # first finite row at or below
+    use_above = (above >= 0) & ((below >= h) | (rows - above <= below - rows))
+    src = np.where(use_above, above, below)
+    cols = np.arange(w)[None, :].repeat(h, axis=0)
+    ok = (src >= 0) & (src < h)
+    out = values.copy()
+    out[bad & ok] = values[src[bad & ok], cols[bad & ok]]
+    out[bad & ~ok] = 0.0
+    return out, bad
+
+
+def saturation_level_dn_s(attrs: dict) -> float | None:
+    """The shortest exposure's clipping level (DN/s) from the store's rig snapshot, or ``None``."""
+    from omnispectral.capture.rig import rig_from_dict
+
+    text = ((attrs.get("omnispectral") or {}).get("rig") or {}).get("toml")
+    if not text:
+        return None
+    try:
+        rig = rig_from_dict(tomllib.loads(text), "panorama rig snapshot", text)
+    except Exception:  # a snapshot this version cannot read: no saturation information, said in describe()
+        return None
+    return 0.99 * rig.camera_a.max_dn / min(rig.bracket.exposures_s)
+
+
+def saturated_mask(store, level: int, bands: np.ndarray, level_dn_s: float) -> np.ndarray:
+    """Pixels of ``level`` over at least one level-0 pixel at ≥ ``SATURATION_FRACTION`` of ``level_dn_s``.
+
+    A level-``L`` pixel is a mean of ``4^L`` level-0 pixels, so only those at ≥ threshold/4^L can hold one;
+    their level-0 footprints are read row by row.
+    """
+    thr = SATURATION_FRACTION * level_dn_s
+    f = 2 ** level
+    peak = np.nan_to_num(bands, nan=0.0).max(axis=2)
+    cand = peak >= thr / (f * f)
+    if level == 0 or not cand.any():
+        return peak >= thr if level == 0 else cand
+    out = np.zeros_like(cand)
+    h0, w0 = store.shapes[0]
+    for r in np.flatnonzero(cand.any(axis=1)):
+        cols = np.flatnonzero(cand[r])
+        c0, c1 = int(cols.min()), int(cols.max()) + 1
+        full = store.read(0, slice(r * f, min(h0, (r + 1) * f)), slice(c0 * f, min(w0, c1 * f)))
+        hit = np.nan_to_num(full, nan=0.0).max(axis=2) >= thr
+        pad = np.zeros((f, (c1 - c0) * f), bool)
+        pad[:hit.shape[0], :hit.shape[1]] = hit
+        out[r, c0:c1] = pad.reshape(f, c1 - c0, f).any(axis=(0, 2)) & cand[r, c0:c1]
+    return out
+
+
+def choose_level(shapes: list[tuple[int, int]], level: int | None, max_width: int = DEFAULT_MAX_WIDTH) -> int:
+    """``level`` checked, or the finest level at most ``max_width`` wide (the coarsest if none is)."""
+    if level is not None:
+        if not 0 <= level < len(shapes):
+            raise ConfigurationError(f"level {level} does not exist; the product has levels 0-{len(shapes) - 1} "
+                                     f"({', '.join(f'{w}x{h}' for h, w in shapes)})")
+        return level
+    for k, (_, w) in enumerate(shapes):
+        if w <= max_width:
+            return k
+    return len(shapes) - 1
+
+
+def environment_from_bands(bands: np.ndarray, estimator, units: str, saturated: np.ndarray | None = None,
+                           info: dict | None = None, linear_map: tuple | None = None) -> EnvironmentMap:
+    """Environment map from six-band radiance ``(H, W, 6)``: uncovered pixels filled, per-pixel mixture
+    estimate (or one ``linear_map = (M (n, 6), b (n,))``), clipped at 0."""
+    from omnispectral.product.spectra import estimate_image
+
+    filled_bands, filled = fill_uncovered(np.asarray(bands, np.float32))
+    filled_bands = np.maximum(filled_bands, 0.0)
+    if linear_map is not None:
+        spectra = filled_bands @ np.asarray(linear_map[0], np.float32).T + np.asarray(linear_map[1], np.float32)
+    else:
+        spectra = estimate_image(filled_bands, estimator)
+    spectra = np.maximum(spectra, 0.0)
+    return EnvironmentMap(spectra.astype(np.float32), np.asarray(estimator.wavelength_nm, float), units,
+                          filled_bands, saturated, filled, dict(info or {}))
+
+
+def environment_from_product(product: str | Path, level: int | None = None, max_width: int = DEFAULT_MAX_WIDTH):
+    """``(EnvironmentMap, estimator)`` of a processed product at a pyramid level (module docstring)."""
+    from omnispectral.product.spectra import open_product
+
+    index, store, estimator = open_product(product)
+    level = choose_level(store.shapes, level, max_width)
+    bands = store.read(level)
+    clip = saturation_level_dn_s(store.attrs())
+    sat = saturated_mask(store, level, bands, clip) if clip is not None else None
+    units = f"{index.get('units', 'DN per second of exposure')} per unit of the system matrix"
+    env = environment_from_bands(bands, estimator, units, sat,
+                                 {"source": str(Path(product).resolve()), "level": level,
+                                  "saturation_level_dn_s": clip})
+    return env, estimator

@@ -1,0 +1,186 @@
+"""An indoor scene lit by one chosen light source: the ground truth for relighting (paper Sec. 6.2, Fig. 17).
+
+A room 6 m × 3.2 m × 6 m (x, y, z; the head 1.5 m above the floor, 2.5 m from the south wall) with
+Lambertian walls (0.7), ceiling (0.8) and floor (0.25).  Two ceiling panels (0.6 m × 1.2 m, luminance
+``lamp_cd_m2``) light it; their spectrum is the chosen light source (``FL11``, ``LED-B3``, ``D65``, ``A``,
+any colour-science light source, or a CSV), normalised to unit luminous quantity so radiances are absolute.
+On the north wall (longitude 0) hangs the "painting": a ColorChecker with 10 cm patches (N. Ohta's
+reflectances), and beside it a flat 0.95 white reference 25 cm square (``describe()["white_reference"]``).
+
+Light: a surface point of normal ``n`` receives ``E = Σ_lamps L A cos θ_p cos θ_lamp / d²`` from each
+panel (small-source approximation, no shadows: nothing stands in the room) plus a uniform ambient
+``ambient_lx`` of the same spectrum standing in for light reflected by the walls, so the whole room is
+lit by one spectrum and relighting has an exact answer.  Radiance ``L(λ) = ρ(λ) E S(λ)/π``; the panels
+themselves are seen at ``lamp_cd_m2 · S(λ)``.  Every ray's radiance is one scalar times one row
+``P[k] = ρ_k S/π`` (or ``S`` for a lamp), so the band path projects ``P`` once per sensitivity.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from omnispectral.capture.scenes.base import (
+    RAY_BLOCK,
+    BandProjectionCache,
+    Scene,
+    as_directions,
+    as_origin,
+    direction_to_lonlat,
+)
+from omnispectral.capture.scenes.materials import colorchecker_reflectances
+from omnispectral.capture.scenes.procedural import ChartBoard
+from omnispectral.errors import ConfigurationError
+from omnispectral.spectral.curves import DEFAULT_WAVELENGTH_NM
+
+ROOM_LO_M = (-3.0, -1.5, -2.5)
+ROOM_HI_M = (3.0, 1.7, 3.5)
+LAMPS_M = ((-1.2, 0.5), (1.2, 0.5))  # panel centres (x, z) on the ceiling
+LAMP_SIZE_M = (0.6, 1.2)
+WHITE_CENTRE_M = (0.9, 0.0)  # (x, y) on the north wall
+WHITE_HALF_M = 0.125
+WHITE_REFLECTANCE = 0.95
+LIGHTS = ("FL11", "LED-B3", "D65", "A")
+
+
+def light_spectrum(light: str, wavelength_nm: np.ndarray) -> np.ndarray:
+    """A light source's spectrum on the grid, scaled so that ``683 Σ S ȳ Δλ = 1`` (unit luminous quantity)."""
+    from omnispectral.spectral.library import load_illuminant
+    from omnispectral.spectral.metrics import cmfs_on_grid
+
+    s = np.asarray(load_illuminant(light).resample(wavelength_nm).values[0], float)
+    y = cmfs_on_grid(wavelength_nm)[1]
+    lum = 683.0 * float(s @ (y * np.gradient(wavelength_nm)))
+    if lum <= 0:
+        raise ConfigurationError(f"light source {light!r} has no luminous output on {wavelength_nm[0]:g}-"
+                                 f"{wavelength_nm[-1]:g} nm")
+    return s / lum
+
+
+class IndoorScene(Scene):
+    """The indoor scene (module docstring)."""
+
+    kind = "indoor"
+
+    def __init__(self, light: str = "FL11", wavelength_nm=None, lamp_cd_m2: float = 3000.0,
+                 ambient_lx: float = 60.0, chart_patch_m: float = 0.10):
+        super().__init__(DEFAULT_WAVELENGTH_NM if wavelength_nm is None else wavelength_nm)
+        self.light = str(light)
+        self.spectrum = light_spectrum(self.light, self.wavelength_nm)
+        self.lamp_cd_m2, self.ambient_lx = float(lamp_cd_m2), float(ambient_lx)
+        self.lo, self.hi = np.array(ROOM_LO_M), np.array(ROOM_HI_M)
+        self.patch_names, self.patch_reflectance = colorchecker_reflectances(self.wavelength_nm)
+        self.chart = ChartBoard(np.array([0.0, 0.0, self.hi[2]]), np.array([0.0, 0.0, -1.0]), np.array([-1.0, 0, 0]),
+                                np.array([0.0, 1.0, 0.0]), chart_patch_m, 0.2 * chart_patch_m)
+        n = self.wavelength_nm.size
+        # rows: 0 lamp, 1 wall, 2 ceiling, 3 floor, 4 white reference, 5 chart frame, 6.. patches
+        refl = np.vstack([np.zeros(n), np.full(n, 0.7), np.full(n, 0.8), np.full(n, 0.25),
+                          np.full(n, WHITE_REFLECTANCE), self.patch_reflectance[-1], self.patch_reflectance])
+        table = refl * self.spectrum / math.pi
+        table[0] = self.spectrum
+        self._table64 = table
+        self._table32 = table.astype(np.float32)
+        self._bands = BandProjectionCache()
+
+    # -- the interface ----------------------------------------------------------------------------
+    def spectral_radiance(self, directions, origin_m=(0.0, 0.0, 0.0)) -> np.ndarray:
+        return self._render(directions, origin_m, self._table32)
+
+    def band_radiance(self, directions, sensitivity, origin_m=(0.0, 0.0, 0.0)) -> np.ndarray:
+        s = self.check_sensitivity(sensitivity)
+        table = self._bands.get(s, lambda m: (self._table64 @ m.T).astype(np.float32))
+        return self._render(directions, origin_m, table)
+
+    def _render(self, directions, origin_m, table: np.ndarray) -> np.ndarray:
+        d, lead = as_directions(directions)
+        o = as_origin(origin_m)
+        out = np.empty((d.shape[0], table.shape[1]), np.float32)
+        for b0 in range(0, d.shape[0], RAY_BLOCK):
+            b1 = min(d.shape[0], b0 + RAY_BLOCK)
+            row, weight = self.shade(d[b0:b1].astype(np.float64), o)
+            out[b0:b1] = table[row] * weight[:, None].astype(np.float32)
+        return out.reshape(*lead, table.shape[1])
+
+    # -- tracing ----------------------------------------------------------------------------------
+    def shade(self, d: np.ndarray, o: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Material row and radiance weight (lx for surfaces, cd/m² for lamps) of unit rays from ``o``."""
+        if np.any(o <= self.lo) or np.any(o >= self.hi):
+            raise ConfigurationError(f"the viewpoint {o.tolist()} is outside the room")
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_axes = np.where(d > 0, (self.hi - o) / d, np.where(d < 0, (self.lo - o) / d, np.inf))
+        axis = np.argmin(t_axes, axis=1)
+        t = t_axes[np.arange(d.shape[0]), axis]
+        p = o + t[:, None] * d
+        positive = d[np.arange(d.shape[0]), axis] > 0
+        normal = np.zeros_like(d)
+        normal[np.arange(d.shape[0]), axis] = np.where(positive, -1.0, 1.0)  # facing into the room
+        row = np.ones(d.shape[0], np.int64)  # walls
+        row[(axis == 1) & positive] = 2
+        row[(axis == 1) & ~positive] = 3
+        north = (axis == 2) & positive
+        ch = self.chart
+        rel = p[north] - ch.centre_m
+        u, v = rel @ ch.right, rel @ ch.up
+        on_board = (np.abs(u) <= ch.half_width_m) & (np.abs(v) <= ch.half_height_m)
+        patch = ch.patch_index(u, v)
+        idx = np.flatnonzero(north)
+        row[idx[on_board]] = np.where(patch[on_board] >= 0, 6 + patch[on_board], 5)
+        on_white = (np.abs(p[idx, 0] - WHITE_CENTRE_M[0]) <= WHITE_HALF_M) & (
+            np.abs(p[idx, 1] - WHITE_CENTRE_M[1]) <= WHITE_HALF_M)
+        row[idx[on_white]] = 4
+        weight = self.irradiance_lx(p, normal)
+        ceiling = (axis == 1) & positive
+        for cx, cz in LAMPS_M:
+            lamp = ceiling & (np.abs(p[:, 0] - cx) <= LAMP_SIZE_M[0] / 2) & (np.abs(p[:, 2] - cz) <= LAMP_SIZE_M[1] / 2)
+            row[lamp] = 0
+            weight[lamp] = self.lamp_cd_m2
+        return row, weight
+
+    def irradiance_lx(self, points_m: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        """Illuminance (lx) on surfaces: the two panels as small sources plus the ambient term."""
+        e = np.full(points_m.shape[0], self.ambient_lx)
+        area = LAMP_SIZE_M[0] * LAMP_SIZE_M[1]
+        for cx, cz in LAMPS_M:
+            v = np.array([cx, self.hi[1], cz]) - points_m
+            dist2 = np.einsum("ij,ij->i", v, v)
+            dist = np.sqrt(dist2)
+            cos_p = np.einsum("ij,ij->i", v, normals) / dist
+            cos_l = v[:, 1] / dist  # the panel faces down (-Y): cos with the direction from it to the point
+            e += np.where((cos_p > 0) & (cos_l > 0), self.lamp_cd_m2 * area * cos_p * cos_l / dist2, 0.0)
+        return e
+
+    # -- what a report needs ----------------------------------------------------------------------
+    def colorchecker_patches(self, origin_m=(0.0, 0.0, 0.0)) -> list[dict]:
+        o = as_origin(origin_m)
+        out = []
+        for i, name in enumerate(self.patch_names):
+            c = self.chart.patch_centre_m(i)
+            rel = c - o
+            dist = float(np.linalg.norm(rel))
+            lon, lat = direction_to_lonlat(rel)
+            out.append({"index": i, "name": name, "lon_deg": float(lon), "lat_deg": float(lat), "distance_m": dist,
+                        "half_size_deg": math.degrees(math.atan(0.5 * self.chart.patch_m / dist)),
+                        "half_size_m": 0.5 * self.chart.patch_m, "centre_m": [float(x) for x in c],
+                        "normal": [float(x) for x in self.chart.normal],
+                        "wavelength_nm": self.wavelength_nm.tolist(),
+                        "reflectance": self.patch_reflectance[i].tolist()})
+        return out
+
+    def white_reference(self, origin_m=(0.0, 0.0, 0.0)) -> dict:
+        """Direction, angular half-size and reflectance of the white reference seen from ``origin_m``."""
+        c = np.array([WHITE_CENTRE_M[0], WHITE_CENTRE_M[1], self.hi[2]]) - as_origin(origin_m)
+        lon, lat = direction_to_lonlat(c)
+        return {"lon_deg": float(lon), "lat_deg": float(lat), "reflectance": WHITE_REFLECTANCE,
+                "half_size_deg": math.degrees(math.atan(WHITE_HALF_M / float(np.linalg.norm(c))))}
+
+    def describe(self) -> dict:
+        return {"kind": self.kind, "light": self.light, "lamp_cd_m2": self.lamp_cd_m2, "ambient_lx": self.ambient_lx,
+                "room_m": {"lo": list(ROOM_LO_M), "hi": list(ROOM_HI_M)},
+                "lamps": [{"centre_m": [x, ROOM_HI_M[1], z], "size_m": list(LAMP_SIZE_M)} for x, z in LAMPS_M],
+                "chart": {"reflectances": "ColorChecker N Ohta", "centre_m": self.chart.centre_m.tolist(),
+                          "patch_m": self.chart.patch_m},
+                "white_reference": self.white_reference(),
+                "wavelength_nm": {"start": float(self.wavelength_nm[0]), "stop": float(self.wavelength_nm[-1]),
+                                  "count": int(self.wavelength_nm.size)},
+                "radiance_units": self.radiance_units}

@@ -261,3 +261,31 @@ def test_calibration_file_round_trip_and_bad_files(tmp_path):
         RigCalibration.load(tmp_path / "bad.json")
     with pytest.raises(InputFileError, match="not found"):
         RigCalibration.load(tmp_path / "missing.json")
+
+
+def test_reject_inconsistent_keeps_the_majority_and_leaves_pairs_alone():
+    """Three views of a pixel, one registered on the wrong surface (the most trusted one): it is dropped
+    there and only there; two disagreeing views are left as they are; weights elsewhere unchanged."""
+    from omnispectral.mosaic.blending import reject_inconsistent
+
+    shape = (4, 5)
+    good = np.full((4, 5, 3), 1.0, np.float32)
+    wrong = good.copy()
+    wrong[1, 2] = 0.5                      # the background instead of the patch, at one pixel
+    off = good * 1.05                      # 5 % gain difference: the same surface
+    weights = [np.full(shape, 0.1, np.float32), np.full(shape, 1.0, np.float32), np.full(shape, 0.2, np.float32)]
+    out = reject_inconsistent([good, wrong, off], weights, [(0, 0)] * 3, shape)
+    assert out[1][1, 2] == 0.0
+    assert np.count_nonzero(out[1] == 0) == 1
+    np.testing.assert_array_equal(out[0], weights[0])
+    np.testing.assert_array_equal(out[2], weights[2])
+    blended = sum(w[..., None] * v for w, v in zip(out, [good, wrong, off], strict=True)) / sum(out)[..., None]
+    assert abs(float(blended[1, 2, 0]) - 1.0) < 0.05
+    # an occluded view (weight 1e-6) does not vote: two voters left, nothing is dropped
+    out2 = reject_inconsistent([good, wrong, off], [weights[0], weights[1], np.full(shape, 1e-6, np.float32)],
+                               [(0, 0)] * 3, shape)
+    assert out2[1][1, 2] == 1.0
+    # sources at offsets inside the tile
+    out3 = reject_inconsistent([good[:2, :2], wrong[1:3, 2:4], off[1:3, 2:4]],
+                               [np.ones((2, 2), np.float32)] * 3, [(1, 2)] * 3, shape)
+    assert out3[1][0, 0] == 0.0 and out3[0].sum() == 4

@@ -67,6 +67,48 @@ class LinearBlend:
         return out
 
 
+#: Relative difference (sum over the camera's bands) beyond which two sources see different surfaces.
+CONSISTENCY_TOL = 0.1
+
+
+def reject_inconsistent(values: list[np.ndarray], weights: list[np.ndarray], offsets: list[tuple[int, int]],
+                        shape: tuple[int, int], tol: float = CONSISTENCY_TOL) -> list[np.ndarray]:
+    """Weights with the sources that disagree with the majority set to 0, pixel by pixel.
+
+    ``values[i]`` ``(h_i, w_i, c)`` and ``weights[i]`` ``(h_i, w_i)`` lie at ``offsets[i]`` (row, col) of
+    an ``shape`` tile; all see the same bands.  Where three or more sources cover a pixel (each with at
+    least 10⁻³ of the largest weight there: an occluded view does not vote), the reference is the median
+    of their band sums, and a source more than ``tol`` (relative) from it is dropped there: a pixel takes
+    its value from the views that agree and does not average two surfaces (one direction's registration
+    putting the background where the others see a chart patch).  The median is not weighted: the wrong
+    view can be the most confident one (a chart's corner matched on its background with NCC 0.92 while
+    two of three right views sit at their image's edge).  Two disagreeing sources are left as they are:
+    nothing says which is right.  Returns new weight arrays, same shapes as ``weights``.
+    """
+    n = len(values)
+    if n < 3:
+        return [np.asarray(w) for w in weights]
+    h, w = shape
+    s = np.full((n, h, w), np.nan, np.float32)
+    wt = np.zeros((n, h, w), np.float32)
+    for i, (v, wi, (r, c)) in enumerate(zip(values, weights, offsets, strict=True)):
+        s[i, r:r + wi.shape[0], c:c + wi.shape[1]] = np.where(wi > 0, v.sum(axis=-1), np.nan)
+        wt[i, r:r + wi.shape[0], c:c + wi.shape[1]] = np.where(np.isfinite(v).all(axis=-1), wi, 0.0)
+    voting = (wt > 1e-3 * wt.max(axis=0, keepdims=True)) & np.isfinite(s)
+    several = voting.sum(axis=0) >= 3
+    if not several.any():
+        return [np.asarray(x) for x in weights]
+    with np.errstate(all="ignore"):
+        ref = np.nanmedian(np.where(voting, s, np.nan)[:, several], axis=0)
+    disagree = np.zeros((n, h, w), bool)
+    disagree[:, several] = np.abs(s[:, several] - ref) > tol * np.abs(ref)
+    out = []
+    for i, (wi, (r, c)) in enumerate(zip(weights, offsets, strict=True)):
+        d = disagree[i, r:r + wi.shape[0], c:c + wi.shape[1]]
+        out.append(np.where(d, 0.0, wi).astype(np.float32))
+    return out
+
+
 # ------------------------------------------------------------------------------------------ multi-band
 def _down(img: np.ndarray) -> np.ndarray:
     return cv2.pyrDown(img, borderType=cv2.BORDER_REFLECT101)

@@ -43,6 +43,7 @@ from omnispectral.mosaic.blending import (
     feather_weight,
     multiband_blend,
     multiband_halo_px,
+    reject_inconsistent,
 )
 from omnispectral.mosaic.gain import estimate_gains
 from omnispectral.mosaic.interp import (
@@ -258,16 +259,25 @@ def render_tile(job: MosaicJob, rect: Rect) -> tuple[np.ndarray, dict]:
     else:
         acc = LinearBlend(rect.shape, N_BANDS)
         quality = LinearBlend(rect.shape, N_QUALITY) if job.has_quality else None
+        with_parallax = []
         for i in job.sources_for(work):
             w = warp_source(job, int(i), work)
             if w is None:
                 continue
-            acc.add(job.images[w.index].bands, w.row0 - rect.row0, w.col0 - rect.col0, w.values, w.weight)
-            if quality is not None and w.confidence is not None:
-                quality.add((0, 1), w.row0 - rect.row0, w.col0 - rect.col0,
-                            np.stack([w.confidence, w.occluded], axis=-1).astype(np.float32), w.weight)
             steps.append(w.step)
             errors.append(w.max_error_px)
+            if w.confidence is not None:
+                with_parallax.append(w)  # held until all are resampled: checked against each other
+                continue
+            acc.add(job.images[w.index].bands, w.row0 - rect.row0, w.col0 - rect.col0, w.values, w.weight)
+        # camera B registered per pixel: where the directions disagree, the pixel keeps those that agree
+        kept = reject_inconsistent([w.values for w in with_parallax], [w.weight for w in with_parallax],
+                                   [(w.row0 - rect.row0, w.col0 - rect.col0) for w in with_parallax], rect.shape)
+        for w, weight in zip(with_parallax, kept, strict=True):
+            acc.add(job.images[w.index].bands, w.row0 - rect.row0, w.col0 - rect.col0, w.values, weight)
+            if quality is not None:
+                quality.add((0, 1), w.row0 - rect.row0, w.col0 - rect.col0,
+                            np.stack([w.confidence, w.occluded], axis=-1).astype(np.float32), weight)
         out = acc.result()
         if quality is not None:
             stats_q = quality.result()

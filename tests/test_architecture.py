@@ -1,14 +1,17 @@
 """The package's layers, checked on its import statements (every one, including those inside functions).
 
-    base      omnispectral, errors, io, threads                    (import nothing else of the package)
+    base      omnispectral, errors, io, threads, limits, locking,  (import nothing else of the package)
+              fingerprint
     core      imaging, spectral                                    (base and each other)
     rig       omnispectral.rig                                     (base, core)
     stages    capture, mosaic                                      (base, core, rig; mosaic never capture)
     product   product                                              (all of the above)
+    apps      apps: rendering, relighting, the demo                (all of the above)
     front     view (library), cli (command line)                   (anything; nothing imports cli)
 
-and the simulator (``capture.simulate``, ``capture.scenes``) is used under ``product/`` only by the demo,
-which runs it, and the report's ground-truth comparison; ``mosaic`` never sees it.  See docs/architecture.md.
+and the simulator (``capture.simulate``, ``capture.scenes``) is used under ``product/`` only by the report's
+ground-truth comparison (the demo, which runs it, is an application); ``mosaic`` never sees it.
+See docs/architecture.md.
 """
 
 from __future__ import annotations
@@ -23,11 +26,12 @@ import pytest
 SRC = Path(__file__).resolve().parents[1] / "src"
 PACKAGE = "omnispectral"
 
-BASE = {"omnispectral", "omnispectral.errors", "omnispectral.io", "omnispectral.threads"}
+BASE = {"omnispectral", "omnispectral.errors", "omnispectral.io", "omnispectral.threads", "omnispectral.limits",
+        "omnispectral.locking", "omnispectral.fingerprint"}
 CORE = ("imaging", "spectral")
 SIMULATOR = ("omnispectral.capture.simulate", "omnispectral.capture.scenes")
 #: Modules of ``product`` that may use the simulator: the demo runs it; the report compares with its truth.
-SIMULATOR_USERS = {"omnispectral.product.demo", "omnispectral.product.report"}
+SIMULATOR_USERS = {"omnispectral.product.report"}
 #: Function-level imports kept lazy on purpose: heavy dependencies a code path needs only sometimes.
 LAZY_OK = ("matplotlib", "zarr", "dask", "distributed", "scipy.signal", "numba", "uvicorn", "spectral.io.envi")
 #: Modules whose function-level imports are not checked yet: camera B's rig calibration and alignment
@@ -87,8 +91,9 @@ ALLOWED = {
     "capture": {"base", "imaging", "spectral", "rig", "capture"},
     "mosaic": {"base", "imaging", "spectral", "rig", "mosaic"},
     "product": {"base", "imaging", "spectral", "rig", "capture", "mosaic", "product"},
-    "view": {"base", "imaging", "spectral", "rig", "capture", "mosaic", "product", "view"},
-    "cli": {"base", "imaging", "spectral", "rig", "capture", "mosaic", "product", "view", "cli"},
+    "apps": {"base", "imaging", "spectral", "rig", "capture", "mosaic", "product", "apps"},
+    "view": {"base", "imaging", "spectral", "rig", "capture", "mosaic", "product", "apps", "view"},
+    "cli": {"base", "imaging", "spectral", "rig", "capture", "mosaic", "product", "apps", "view", "cli"},
 }
 
 
@@ -100,7 +105,7 @@ def test_the_walk_sees_the_package():
     """The check is not vacuous: it finds the modules and their known imports."""
     assert len(GRAPH) > 60
     assert any(name == "omnispectral.product.layout" for name, _ in _internal("omnispectral.product.spectra"))
-    assert any(name == "omnispectral.capture.simulate" for name, _ in _internal("omnispectral.product.demo"))
+    assert any(name == "omnispectral.capture.simulate" for name, _ in _internal("omnispectral.apps.demo"))
     assert {_layer(m) for m in GRAPH} == set(ALLOWED)
 
 

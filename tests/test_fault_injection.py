@@ -125,8 +125,8 @@ def run_killed(tmp_path: Path, **kill) -> subprocess.CompletedProcess:
 # ------------------------------------------------------------------ 1. merged/ reused for other inputs
 @pytest.mark.slow
 def test_case01_process_refuses_intermediates_of_another_session_or_weight(session, product, tmp_path):
-    from omnispectral.fingerprint import session_identity
     from omnispectral.mosaic.store import PanoramaStore
+    from omnispectral.product.fingerprint import session_identity
     from omnispectral.product.process import process
 
     other = tmp_path / "s2"
@@ -153,7 +153,8 @@ def test_case01_process_refuses_intermediates_of_another_session_or_weight(sessi
 
 
 def test_case01_fingerprint_names_every_difference(session, tmp_path):
-    from omnispectral.fingerprint import differences, product_fingerprint
+    from omnispectral.fingerprint import differences
+    from omnispectral.product.fingerprint import product_fingerprint
 
     a = product_fingerprint(session, hdr_weight="noise", registration="parallax")
     cal = tmp_path / "cal.json"

@@ -2,7 +2,7 @@
 
 ``process`` writes ``PRODUCT/merged/`` (HDR-merged directions, camera B's offsets or parallax maps)
 and resumes from it.  What determined those files is recorded in ``merged/fingerprint.json`` *before*
-the first of them is written (:func:`product_fingerprint`):
+the first of them is written (:func:`omnispectral.product.fingerprint.product_fingerprint`):
 
 * the session's identity and content — its creation time, kind, and a SHA-256 over every frame
   record of its journal (each record holds the frame file's own SHA-256), so another session, a
@@ -42,43 +42,6 @@ def file_sha256(path: str | Path) -> str:
         for block in iter(lambda: fh.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
-
-
-def session_identity(session_path: str | Path) -> dict:
-    """Identity and content of a session: creation time, kind, rig, and a hash of all its frame records."""
-    from omnispectral.capture.session import Session, read_journal
-
-    s = Session.open(session_path)
-    meta = s.metadata()
-    records = read_journal(s.journal_path).records
-    h = hashlib.sha256()
-    for key in sorted(records):
-        rec = records[key]
-        h.update(json.dumps([list(key), rec.get("sha256"), rec.get("bytes"), rec.get("exposure_s")]).encode())
-    return {"created_utc": meta.get("created_utc"), "kind": meta.get("kind"), "rig": meta.get("rig"),
-            "n_frames": len(records), "frames_sha256": h.hexdigest()}
-
-
-def product_fingerprint(session_path: str | Path, *, hdr_weight: str, registration: str,
-                        min_confidence: float | None = None, rig_calibration: str | Path | None = None,
-                        skipped_directions=(), merged_format_version: int | None = None) -> dict:
-    """Everything that determines a product's ``merged/`` directory (module docstring)."""
-    from omnispectral.mosaic.sources import FORMAT_VERSION
-
-    session = Path(session_path)
-    rig_file = session / "rig.toml"
-    plan = json.loads((session / "plan.json").read_text(encoding="utf-8"))
-    reg: dict = {"method": registration}
-    if registration == "paper":
-        reg["min_confidence"] = None if min_confidence is None else float(min_confidence)
-    else:
-        reg["rig_calibration_sha256"] = None if rig_calibration is None else file_sha256(rig_calibration)
-    return {"fingerprint_version": FINGERPRINT_VERSION,
-            "merged_format_version": merged_format_version if merged_format_version is not None else FORMAT_VERSION,
-            "session": session_identity(session), "rig_sha256": file_sha256(rig_file),
-            "exposures_s": [float(t) for t in plan.get("exposures_s", [])],
-            "hdr_weight": hdr_weight, "registration": reg,
-            "skipped_directions": sorted(int(d) for d in skipped_directions)}
 
 
 def flatten(d: dict, prefix: str = "") -> dict:

@@ -7,9 +7,9 @@ from pathlib import Path
 from rich.markup import escape
 from rich.table import Table
 
+from omnispectral.apps.demo import run_demo
 from omnispectral.cli._common import ProgressBars, console, print_json
 from omnispectral.cli.lens import calibrate_group
-from omnispectral.product.demo import run_demo
 from omnispectral.product.exports import FORMATS, export_product
 from omnispectral.product.process import process
 from omnispectral.product.report import write_report

@@ -33,7 +33,7 @@ import numpy as np
 
 from omnispectral.capture.session import Session, verify_session
 from omnispectral.errors import ConfigurationError, InputFileError
-from omnispectral.fingerprint import check_merged, product_fingerprint
+from omnispectral.fingerprint import check_merged
 from omnispectral.imaging.geometry import CameraModel
 from omnispectral.imaging.registration import DEFAULT_MIN_CONFIDENCE
 from omnispectral.io import atomic_write_json, clean_temp_files
@@ -44,6 +44,7 @@ from omnispectral.mosaic.sources import MergedDirections, MergedDirectionsWriter
 from omnispectral.mosaic.store import PanoramaStore
 from omnispectral.product.align import align_direction, parallax_direction
 from omnispectral.product.estimator import rig_estimator
+from omnispectral.product.fingerprint import product_fingerprint
 from omnispectral.product.layout import MERGED, PANORAMA, PRODUCT_FORMAT, RIG_CALIBRATION, product_paths
 from omnispectral.product.merge import merge_session
 from omnispectral.product.report import write_report

@@ -24,7 +24,7 @@ import numpy as np
 
 
 def make_product(root: Path, width: int, tile: int) -> None:
-    from omnispectral.capture.rig import load_preset
+    from omnispectral.rig import load_preset
 
     from omnispectral.apps.productio import create_band_product, fill_pyramid, write_level0
     from omnispectral.product.estimator import estimator_params, rig_estimator

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from omnispectral.capture.rig import load_preset
+from omnispectral.rig import load_preset
 
 from omnispectral.apps.colour import delta_e_ab, signals_to_lab
 from omnispectral.apps.productio import read_index, write_band_product

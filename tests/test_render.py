@@ -10,7 +10,7 @@ import pytest
 
 pytest.importorskip("mitsuba")
 
-from omnispectral.capture.rig import load_preset, rig_toml
+from omnispectral.rig import load_preset, rig_toml
 
 from omnispectral.apps.colour import spectra_to_xyz
 from omnispectral.apps.environment import (

@@ -18,6 +18,8 @@ import math
 import shutil
 from pathlib import Path
 
+import tifffile
+
 from omnispectral.errors import ConfigurationError, InputFileError
 
 MIN_EXPOSURE_S = 1e-7
@@ -74,7 +76,6 @@ def check_image_shape(path: str | Path, shape: tuple[int, ...], expected_hw: tup
 
 def check_image_header(path: str | Path, expected_hw: tuple[int, int] | None = None) -> None:
     """Read only a TIFF's first page header (or an image's header via OpenCV-free means) and check its size."""
-    import tifffile
 
     path = Path(path)
     if path.suffix.lower() not in (".tif", ".tiff"):

@@ -29,6 +29,8 @@ import numpy as np
 
 from omnispectral.capture.scenes.base import resample_matrix
 from omnispectral.errors import ConfigurationError
+from omnispectral.product.spectra import estimate_image, open_product
+from omnispectral.rig import rig_from_dict
 
 #: A level-0 pixel counts as saturated from this fraction of the shortest exposure's clipping level.
 SATURATION_FRACTION = 0.95
@@ -117,7 +119,6 @@ def fill_uncovered(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def saturation_level_dn_s(attrs: dict) -> float | None:
     """The shortest exposure's clipping level (DN/s) from the store's rig snapshot, or ``None``."""
-    from omnispectral.capture.rig import rig_from_dict
 
     text = ((attrs.get("omnispectral") or {}).get("rig") or {}).get("toml")
     if not text:
@@ -171,7 +172,6 @@ def environment_from_bands(bands: np.ndarray, estimator, units: str, saturated: 
                            info: dict | None = None, linear_map: tuple | None = None) -> EnvironmentMap:
     """Environment map from six-band radiance ``(H, W, 6)``: uncovered pixels filled, per-pixel mixture
     estimate (or one ``linear_map = (M (n, 6), b (n,))``), clipped at 0."""
-    from omnispectral.product.spectra import estimate_image
 
     filled_bands, filled = fill_uncovered(np.asarray(bands, np.float32))
     filled_bands = np.maximum(filled_bands, 0.0)
@@ -186,7 +186,6 @@ def environment_from_bands(bands: np.ndarray, estimator, units: str, saturated: 
 
 def environment_from_product(product: str | Path, level: int | None = None, max_width: int = DEFAULT_MAX_WIDTH):
     """``(EnvironmentMap, estimator)`` of a processed product at a pyramid level (module docstring)."""
-    from omnispectral.product.spectra import open_product
 
     index, store, estimator = open_product(product)
     level = choose_level(store.shapes, level, max_width)

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.spectral.curves import read_spectral_csv
 
 METALS = ("silver", "aluminium")
 _DATA = Path(__file__).resolve().parents[1] / "data" / "metals"
@@ -49,7 +50,6 @@ class Diffuse:
     @classmethod
     def from_csv(cls, path: str | Path) -> Diffuse:
         """A reflectance CSV (``wavelength_nm,<name>``, one curve; percent detected) as a material."""
-        from omnispectral.spectral.curves import read_spectral_csv
 
         s = read_spectral_csv(path, "reflectance")
         if len(s) != 1:

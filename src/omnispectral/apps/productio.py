@@ -15,6 +15,7 @@ import numpy as np
 
 from omnispectral.io import atomic_write_json
 from omnispectral.mosaic.store import PanoramaStore
+from omnispectral.threads import kernel_threads
 
 PANORAMA = "panorama.zarr"
 INDEX = "product.json"
@@ -59,7 +60,6 @@ def write_level0(store: PanoramaStore, tile_fn: Callable[[int, int, int, int], n
     ``stats`` when ``tile_fn`` returns ``(data, stats)``."""
     import dask
 
-    from omnispectral.threads import kernel_threads
 
     arr = store.array(0, mode="r+")
     ny, nx = store.n_chunks(0)

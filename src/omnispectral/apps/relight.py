@@ -34,11 +34,22 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from omnispectral.apps.colour import spectra_to_linear_srgb, spectra_to_xyz
+from omnispectral.apps.environment import choose_level
+from omnispectral.apps.materials import Diffuse
+from omnispectral.apps.productio import create_band_product, fill_pyramid, write_level0
+from omnispectral.apps.render import auto_exposure_reference
 from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.geometry import equirect_pixel_to_lonlat, lonlat_to_equirect_pixel, lonlat_to_ray
+from omnispectral.io import atomic_path, atomic_write_json
+from omnispectral.product.exports import reinhard_srgb8
+from omnispectral.product.spectra import estimate_image, open_product
+from omnispectral.spectral.curves import concatenate
+from omnispectral.spectral.library import PRIOR_REFLECTANCE_SETS, load_illuminant, load_reflectances
+from omnispectral.spectral.prior import exclude_near
 
 DEFAULT_WHITE_REFLECTANCE = 0.95
 DEFAULT_RADIUS_DEG = 1.0
@@ -78,7 +89,6 @@ def white_reflectance(spec: str | float | None, wavelength_nm: np.ndarray) -> np
     try:
         value = float(spec)
     except (TypeError, ValueError):
-        from omnispectral.apps.materials import Diffuse
 
         return Diffuse.from_csv(spec).reflectance(wavelength_nm)
     if not 0 < value <= 1:
@@ -88,7 +98,6 @@ def white_reflectance(spec: str | float | None, wavelength_nm: np.ndarray) -> np
 
 def target_illuminant(name: str, wavelength_nm: np.ndarray) -> np.ndarray:
     """``A``, ``D65``, any light source colour-science knows, or an illuminant CSV, on the grid."""
-    from omnispectral.spectral.library import load_illuminant
 
     return np.asarray(load_illuminant(name).resample(np.asarray(wavelength_nm, float)).values[0], float)
 
@@ -121,9 +130,6 @@ def luminance(spectra: np.ndarray, wavelength_nm: np.ndarray) -> np.ndarray:
 def reflectance_prior(wavelength_key: tuple) -> tuple[np.ndarray, np.ndarray]:
     """Mean ``(n,)`` and covariance ``(n, n)`` of the prior's reflectance sets, ColorChecker look-alikes removed
     (``spectral.prior.exclude_near``: the chart evaluates the relighting, so it is not in its prior)."""
-    from omnispectral.spectral.curves import concatenate
-    from omnispectral.spectral.library import PRIOR_REFLECTANCE_SETS, load_reflectances
-    from omnispectral.spectral.prior import exclude_near
 
     wl = np.array(wavelength_key, float)
     refl = concatenate([load_reflectances(n).resample(wl) for n in PRIOR_REFLECTANCE_SETS], wl)
@@ -257,7 +263,6 @@ def relight_tile(bands: np.ndarray, estimator, relighter: Relighter, r0: int, c0
 def relight_block(bands: np.ndarray, estimator, relighter: Relighter, rows: slice, cols: slice,
                   shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(relit spectra (h, w, n), captured spectra (h, w, n), light-source flag (h, w))`` of a block of a level."""
-    from omnispectral.product.spectra import estimate_image
 
     h, w = bands.shape[:2]
     spectra = estimate_image(bands, estimator)
@@ -275,11 +280,6 @@ def relight_product(product: str | Path, output: str | Path, whites: list[WhiteR
                     reflectance=None, sources: str = "keep", method: str = "wiener", workers: int | None = None,
                     progress: Callable[[str], None] | None = None) -> dict:
     """Relight a whole product into a product-like directory ``output`` (module docstring)."""
-    from omnispectral.apps.productio import create_band_product, fill_pyramid, write_level0
-    from omnispectral.apps.render import auto_exposure_reference
-    from omnispectral.io import atomic_path, atomic_write_json
-    from omnispectral.product.exports import reinhard_srgb8
-    from omnispectral.product.spectra import open_product
 
     t0 = time.perf_counter()
     index, store, estimator = open_product(product)
@@ -308,7 +308,6 @@ def relight_product(product: str | Path, output: str | Path, whites: list[WhiteR
     stats = write_level0(out, tile, workers, tick)
     fill_pyramid(out)
     # previews from the relit spectra of a coarse level (not through the six-band round trip)
-    from omnispectral.apps.environment import choose_level
 
     lv = choose_level(store.shapes, None, PREVIEW_MAX_WIDTH)
     ph, pw = store.shapes[lv]
@@ -321,7 +320,6 @@ def relight_product(product: str | Path, output: str | Path, whites: list[WhiteR
     scale = np.float32(1.0 / auto_exposure_reference(rgb_c))
     flags_img = reinhard_srgb8(rgb_r * scale)
     flags_img[flag] = (255, 0, 255)
-    import cv2
 
     previews = {}
     for name, img in (("captured", reinhard_srgb8(rgb_c * scale)), ("relit", reinhard_srgb8(rgb_r * scale)),

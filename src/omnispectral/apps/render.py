@@ -38,13 +38,18 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from omnispectral.apps.colour import spectra_to_linear_srgb
-from omnispectral.apps.environment import EnvironmentMap
+from omnispectral.apps.environment import EnvironmentMap, environment_from_product
 from omnispectral.apps.materials import Conductor, Diffuse, load_metal, material_at
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.imaging.geometry import lonlat_to_ray
+from omnispectral.io import atomic_path, atomic_write_json
+from omnispectral.product.exports import reinhard_srgb8, write_rgb_exr, write_spectral_exr
+from omnispectral.product.spectra import estimate_image
+from omnispectral.spectral.library import load_reflectances
 
 #: Largest number of samples (pixels × spp) handed to one ``mi.render`` call: bounds the LLVM wavefront's memory.
 MAX_SAMPLES_PER_CALL = 1 << 22
@@ -95,7 +100,6 @@ def render_rgb(mi, scene, spp: int, seed: int = 0) -> np.ndarray:
 
 # -------------------------------------------------------------------------------------------- scenes
 def _grey_plate() -> Diffuse:
-    from omnispectral.spectral.library import load_reflectances
 
     s = load_reflectances("colorchecker")
     i = s.names.index("neutral 5 (.70 D)")
@@ -345,7 +349,6 @@ def render_fast(env: EnvironmentMap, estimator, scene, width: int = 256, height:
                 progress: Callable[[str], None] | None = None) -> RenderResult:
     """Six-band fast path (module docstring): two RGB passes of the bands, then the estimator per pixel
     (the mixture with per-pixel weights, or ``linear_map = (M (n, 6), b (n,))`` as one linear map)."""
-    from omnispectral.product.spectra import estimate_image
 
     _check_size(width, height, spp)
     if env.bands is None or env.bands.shape[2] != 6:
@@ -392,8 +395,6 @@ def write_render(result: RenderResult, out_dir: str | Path, name: str = "render"
 
     ``exposure`` scales the linear RGB before the tone curve (default: the 99th luminance percentile at 1).
     """
-    from omnispectral.io import atomic_path, atomic_write_json
-    from omnispectral.product.exports import reinhard_srgb8, write_rgb_exr, write_spectral_exr
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -404,7 +405,6 @@ def write_render(result: RenderResult, out_dir: str | Path, name: str = "render"
              "srgb_exr": str(write_rgb_exr(out / f"{name}_srgb.exr", rgb, attrs))}
     scale = exposure if exposure is not None else 1.0 / auto_exposure_reference(rgb)
     png = out / f"{name}.png"
-    import cv2
 
     with atomic_path(png) as tmp:
         cv2.imwrite(str(tmp), np.ascontiguousarray(reinhard_srgb8(rgb * np.float32(scale))[..., ::-1]))
@@ -428,7 +428,6 @@ def render_product(product: str | Path, out_dir: str | Path, scene: str | None =
                    variant: str | None = None, name: str = "render", exposure: float | None = None,
                    progress: Callable[[str], None] | None = None, **scene_kwargs) -> dict:
     """Render a product's environment with a scene (mirror ball by default) and write the outputs."""
-    from omnispectral.apps.environment import environment_from_product
 
     t0 = time.perf_counter()
     env, estimator = environment_from_product(product, level, max_env_width)

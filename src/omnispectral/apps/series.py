@@ -15,15 +15,19 @@ import shutil
 from collections.abc import Callable
 from pathlib import Path
 
+import cv2
 import numpy as np
 
+from omnispectral.apps.render import auto_exposure_reference, render_product
 from omnispectral.errors import InputFileError
+from omnispectral.imaging.imageio import read_image
 from omnispectral.io import atomic_path, atomic_write_json
+from omnispectral.product.exports import reinhard_srgb8
+from omnispectral.product.series import series_products
 
 
 def series_slots(series: str | Path) -> list[tuple[str, Path]]:
     """``(label, product)`` of a processed series (time stack) or of the product sub-directories of a folder."""
-    from omnispectral.product.series import series_products
 
     root = Path(series)
     if (root / "timestack.zarr").exists():
@@ -36,7 +40,6 @@ def series_slots(series: str | Path) -> list[tuple[str, Path]]:
 
 def contact_sheet(images: list[np.ndarray], labels: list[str], columns: int | None = None) -> np.ndarray:
     """8-bit RGB images of one size on a grid (4 columns at most), each labelled at its top-left corner."""
-    import cv2
 
     n = len(images)
     columns = columns or min(4, n)
@@ -57,10 +60,7 @@ def contact_sheet(images: list[np.ndarray], labels: list[str], columns: int | No
 def render_series(series: str | Path, output: str | Path, exposure: str = "auto",
                   progress: Callable[[str], None] | None = None, **render_kwargs) -> dict:
     """Render every slot (keyword arguments as :func:`omnispectral.apps.render.render_product`)."""
-    import cv2
 
-    from omnispectral.apps.render import auto_exposure_reference, render_product
-    from omnispectral.imaging.imageio import read_image
 
     if exposure not in ("auto", "common"):
         raise ValueError(f"exposure must be 'auto' or 'common', got {exposure!r}")
@@ -75,7 +75,6 @@ def render_series(series: str | Path, output: str | Path, exposure: str = "auto"
     if exposure == "common":
         refs = [auto_exposure_reference(read_image(r["files"]["srgb_exr"])) for _, r in results]
         scale = 1.0 / max(refs)
-        from omnispectral.product.exports import reinhard_srgb8
 
         for _, r in results:
             rgb = read_image(r["files"]["srgb_exr"])

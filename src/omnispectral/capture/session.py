@@ -189,7 +189,6 @@ class Session:
 
     def check_same_parameters(self, rig: Rig, plan: Plan, identity: dict | None = None) -> None:
         """Refuse to resume this session with another plan, rig or identity; the error names the differences."""
-        import tomllib
 
         existing = self.plan()
         if existing.to_dict()["directions"] != plan.to_dict()["directions"] or \

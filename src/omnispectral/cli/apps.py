@@ -4,6 +4,10 @@ from __future__ import annotations
 
 from rich.markup import escape
 
+from omnispectral.apps.materials import load_metal
+from omnispectral.apps.relight import parse_white, relight_product
+from omnispectral.apps.render import render_product
+from omnispectral.apps.series import render_series
 from omnispectral.cli._common import console, err_console, print_json
 
 
@@ -18,14 +22,12 @@ def _render_kwargs(args) -> dict:
     if args.scene in (None, "mirror-ball"):
         kw.update(view_lon_deg=args.view_lon, elevation_deg=args.elevation)
         if args.metal:
-            from omnispectral.apps.materials import load_metal
 
             kw["ball"] = load_metal(args.metal)
     return kw
 
 
 def cmd_render(args) -> int:
-    from omnispectral.apps.render import render_product
 
     out = render_product(args.product, args.output, progress=_progress(not args.json), **_render_kwargs(args))
     if args.json:
@@ -46,7 +48,6 @@ def cmd_render(args) -> int:
 
 
 def cmd_render_series(args) -> int:
-    from omnispectral.apps.series import render_series
 
     out = render_series(args.series, args.output, exposure=args.exposure, progress=_progress(not args.json),
                         **_render_kwargs(args))
@@ -59,7 +60,6 @@ def cmd_render_series(args) -> int:
 
 
 def cmd_relight(args) -> int:
-    from omnispectral.apps.relight import parse_white, relight_product
 
     whites = [parse_white(w) for w in args.white]
     out = relight_product(args.product, args.output, whites, to=args.to, reflectance=args.white_reflectance,

@@ -6,6 +6,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from omnispectral.capture.plan import format_duration, make_plan, plot_tradeoff, tradeoff
+from omnispectral.capture.resume import repair_session
 from omnispectral.capture.session import verify_session
 from omnispectral.cli._common import console, print_json
 from omnispectral.io import atomic_write_json
@@ -76,7 +77,6 @@ def cmd_session_verify(args) -> int:
 
 
 def cmd_session_repair(args) -> int:
-    from omnispectral.capture.resume import repair_session
 
     out = repair_session(args.session, apply=args.apply)
     if args.json:

@@ -27,7 +27,7 @@ import OpenEXR
 import spectral.io.envi as envi
 
 from omnispectral.errors import ConfigurationError
-from omnispectral.imaging.bracket import write_float_image
+from omnispectral.imaging.bracket import FLOAT_IMAGE_SUFFIXES, write_float_image
 from omnispectral.io import atomic_path
 from omnispectral.product.layout import open_product
 from omnispectral.product.spectra import bands_to_linear_srgb, estimate_image
@@ -144,7 +144,6 @@ FORMATS = ("spectral-exr", "envi", "rgb-exr", "hdr", "png", "jpg", "uncertainty"
 def check_export_output(fmt: str, output: str | Path, product: str | Path) -> None:
     """Refuse, before any work, an output that is a directory, has the wrong extension for ``fmt``, or
     lies inside the product (an export never overwrites a product's own files)."""
-    from omnispectral.imaging.bracket import FLOAT_IMAGE_SUFFIXES
 
     out = Path(output)
     if out.is_dir():

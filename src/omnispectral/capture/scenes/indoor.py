@@ -32,7 +32,9 @@ from omnispectral.capture.scenes.base import (
 from omnispectral.capture.scenes.materials import colorchecker_reflectances
 from omnispectral.capture.scenes.procedural import ChartBoard
 from omnispectral.errors import ConfigurationError
+from omnispectral.spectral.colour import cmfs_on_grid
 from omnispectral.spectral.curves import DEFAULT_WAVELENGTH_NM
+from omnispectral.spectral.library import load_illuminant
 
 ROOM_LO_M = (-3.0, -1.5, -2.5)
 ROOM_HI_M = (3.0, 1.7, 3.5)
@@ -46,8 +48,6 @@ LIGHTS = ("FL11", "LED-B3", "D65", "A")
 
 def light_spectrum(light: str, wavelength_nm: np.ndarray) -> np.ndarray:
     """A light source's spectrum on the grid, scaled so that ``683 Σ S ȳ Δλ = 1`` (unit luminous quantity)."""
-    from omnispectral.spectral.library import load_illuminant
-    from omnispectral.spectral.metrics import cmfs_on_grid
 
     s = np.asarray(load_illuminant(light).resample(wavelength_nm).values[0], float)
     y = cmfs_on_grid(wavelength_nm)[1]

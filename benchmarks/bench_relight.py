@@ -102,8 +102,8 @@ def main() -> None:
     # (noise-free radiance of the patches and the white from the scene), von Kries to the camera's response to
     # 0.95 A, then a 3x3 matrix to XYZ fitted on the prior's reflectances under A
     import colour
-    from omnispectral.rig import load_preset
 
+    from omnispectral.rig import load_preset
     from omnispectral.spectral.system import rgb_system
 
     r3 = rgb_system(load_preset("small").camera_a.sensitivity, wl).matrix

@@ -24,10 +24,9 @@ import numpy as np
 
 
 def make_product(root: Path, width: int, tile: int) -> None:
-    from omnispectral.rig import load_preset
-
     from omnispectral.apps.productio import create_band_product, fill_pyramid, write_level0
     from omnispectral.product.estimator import estimator_params, rig_estimator
+    from omnispectral.rig import load_preset
     from omnispectral.spectral.library import load_illuminant, load_reflectances
 
     rig = load_preset("small")

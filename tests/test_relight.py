@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from omnispectral.rig import load_preset
 
 from omnispectral.apps.colour import delta_e_ab, signals_to_lab
 from omnispectral.apps.productio import read_index, write_band_product
@@ -13,6 +12,7 @@ from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.geometry import equirect_pixel_to_lonlat
 from omnispectral.product.estimator import estimator_params, rig_estimator
 from omnispectral.product.spectra import open_product
+from omnispectral.rig import load_preset
 from omnispectral.spectral.library import load_illuminant, load_reflectances
 
 H, W = 128, 256

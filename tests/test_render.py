@@ -10,8 +10,6 @@ import pytest
 
 pytest.importorskip("mitsuba")
 
-from omnispectral.rig import load_preset, rig_toml
-
 from omnispectral.apps.colour import spectra_to_xyz
 from omnispectral.apps.environment import (
     EnvironmentMap,
@@ -25,6 +23,7 @@ from omnispectral.apps.productio import write_band_product
 from omnispectral.apps.render import MirrorBallScene, XmlScene, render_fast, render_spectral, write_render
 from omnispectral.imaging.geometry import lonlat_to_ray
 from omnispectral.product.estimator import estimator_params, rig_estimator
+from omnispectral.rig import load_preset, rig_toml
 from omnispectral.spectral.library import load_illuminant, load_reflectances
 
 WL = np.arange(400.0, 701.0, 5.0)

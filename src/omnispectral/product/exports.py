@@ -150,7 +150,6 @@ def export_product(product: str | Path, fmt: str, output: str | Path, region: tu
     machine's memory) is refused before anything is computed, naming the size and the way out.
     """
 
-
     if fmt not in FORMATS:
         raise ConfigurationError(f"unknown format {fmt!r}; expected one of {', '.join(FORMATS)}")
     index, store, estimator = open_product(product)

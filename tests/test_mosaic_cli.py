@@ -113,6 +113,6 @@ def test_mosaic_of_a_raw_session_matches_its_ground_truth(tmp_path):
     assert np.median(rel) < 2e-3 and np.percentile(rel, 99) < 1e-2  # 12-bit quantisation of the brackets
     attrs = PanoramaStore.open(tmp_path / "p.zarr").attrs()["omnispectral"]
     assert attrs["session"]["kind"] == "simulation" and attrs["rig"]["name"] == "small"
-    # mosaicking again reuses the merged directions and resumes the store
-    again = mosaic(session, tmp_path / "p.zarr", width=256, tile=64)
+    # mosaicking again (the library takes the merged directions the command wrote) resumes the store
+    again = mosaic(session / "merged", tmp_path / "p.zarr", width=256, tile=64)
     assert again["tiles_skipped"] == again["tiles"]

@@ -180,7 +180,6 @@ def plot_tradeoff(rig: Rig, rows: list[dict], path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-
     ref = make_plan(rig)
     fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)
     o = [100 * r["overlap"] for r in rows]

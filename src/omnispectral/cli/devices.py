@@ -6,13 +6,15 @@ from rich.markup import escape
 from rich.table import Table
 
 from omnispectral.capture.drivers import list_serial_ports
-from omnispectral.capture.drivers.gentl import GenTLSystem, producer_paths
 from omnispectral.capture.hardware import probe_rig
 from omnispectral.cli._common import console, print_json
 from omnispectral.cli.capture import rig_from_args
 
 
 def cmd_devices_list(args) -> int:
+    # lazy: harvesters and genicam load the GenTL native libraries, only wanted when cameras are listed
+    from omnispectral.capture.drivers.gentl import GenTLSystem, producer_paths
+
     ports = list_serial_ports()
     producers = producer_paths(args.cti)
     cameras = []

@@ -146,7 +146,6 @@ def cmd_spectral_list(args) -> int:
 def add_commands(sub) -> None:
     """Register ``spectral evaluate | select-filters | list``."""
 
-
     spectral = sub.add_parser("spectral", help="six-band system, Wiener estimation, accuracy, filter selection",
                               description="Spectral core: six-band system, Wiener estimation (paper Eq. (7)).")
     ssub = spectral.add_subparsers(dest="spectral_command", metavar="SUBCOMMAND", required=True)

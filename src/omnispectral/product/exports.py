@@ -173,7 +173,6 @@ def export_product(product: str | Path, fmt: str, output: str | Path, region: tu
     machine's memory) is refused before anything is computed, naming the size and the way out.
     """
 
-
     if fmt not in FORMATS:
         raise ConfigurationError(f"unknown format {fmt!r}; expected one of {', '.join(FORMATS)}")
     check_export_output(fmt, output, product)

@@ -146,8 +146,6 @@ def register_parallax(merged, calibration=None, progress=None, timings: dict | N
     Resumes: directions whose parallax was computed with the same calibration are kept.  Returns the
     calibration and the per-direction parallax statistics.
     """
-
-
     t0 = time.perf_counter()
     nominal = merged.meta.get("rig_file_camera_b") or merged.meta["cameras"]["B"]  # the rig file's camera B
     model_b_nominal = CameraModel.from_dict(nominal)

@@ -156,7 +156,6 @@ def _plot_rig_residuals(directions: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-
     d = [x["direction"] for x in directions]
     r = [x["median_perpendicular_px"] if x["median_perpendicular_px"] is not None else np.nan for x in directions]
     fig, ax = plt.subplots(2, 1, figsize=(9, 5), sharex=True)

@@ -56,7 +56,6 @@ def process_series(series: str | Path, output: str | Path, regions: dict | None 
     """
     import zarr  # lazy: zarr costs ~0.25 s to import; only the time stack needs it here
 
-
     series, out = Path(series), Path(output)
     try:
         index = json.loads((series / "series.json").read_text(encoding="utf-8"))

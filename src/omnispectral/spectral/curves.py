@@ -292,7 +292,6 @@ def read_spectral_csv(path: str | Path, kind: str, percent: bool | None = None) 
 def write_spectral_csv(spectral_set: SpectralSet, path: str | Path, comment: str | None = None) -> Path:
     """Write curves as ``wavelength_nm,<name>...`` CSV, atomically (temporary name, then rename)."""
 
-
     buf = io.StringIO()
     for c in (comment or "").splitlines():
         buf.write(f"# {c}\n")

@@ -17,7 +17,6 @@ from pathlib import Path
 from serial.tools import list_ports
 
 from omnispectral.capture.devices import Camera, DeviceError, PanTiltHead
-from omnispectral.capture.drivers.gentl import GenTLSystem, producer_paths
 from omnispectral.capture.drivers.merlin import MerlinHead
 from omnispectral.capture.drivers.rodeon import RodeonHead
 from omnispectral.errors import ConfigurationError
@@ -76,6 +75,7 @@ def rig_producers(rig: Rig) -> list[str]:
 def open_cameras(rig: Rig):
     """Open both GenICam cameras of the rig; returns ``(cameras by name, GenTLSystem)`` (close the system)."""
     # lazy: harvesters and genicam load the GenTL native libraries, only wanted when cameras are used
+    from omnispectral.capture.drivers.gentl import GenTLSystem, producer_paths
 
     system = GenTLSystem(producer_paths(rig_producers(rig)))
     cams: dict[str, Camera] = {}

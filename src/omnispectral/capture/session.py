@@ -359,8 +359,9 @@ def verify_session(path: str | Path, check_pixels: bool = False, checksums: bool
         problem = None
         if not p.exists():
             problem = "file missing"
-        elif not checksums and "bytes" in rec and p.stat().st_size != rec["bytes"]:
-            problem = f"size {p.stat().st_size} bytes, the journal recorded {rec['bytes']} (truncated or changed)"
+        elif "bytes" in rec and p.stat().st_size != rec["bytes"]:  # the plainer message when sizes differ
+            problem = (f"size {p.stat().st_size} bytes, the journal recorded {rec['bytes']} (truncated or changed"
+                       + ("; checksum mismatch)" if checksums else ")"))
         elif (checksums or "bytes" not in rec) and sha256_of(p) != rec.get("sha256"):
             problem = "checksum mismatch (file changed or truncated)"
         elif check_pixels:

@@ -100,6 +100,8 @@ class PanoramaStore:
         import zarr
 
         path = Path(path)
+        if path.is_dir() and not any(path.iterdir()):
+            path.rmdir()  # an empty directory (a creation killed before its first file) is no store yet
         if path.exists():
             existing = None
             try:

@@ -130,6 +130,8 @@ def test_bad_input():
     for bad in ("10", "a,b", "0,95", "0,0,-1"):
         with pytest.raises(ConfigurationError):
             parse_white(bad)
+    with pytest.raises(ConfigurationError, match="its own directory"):
+        relight_product("somewhere", "somewhere/.", [WhiteReference(0, 0)])
     with pytest.raises(ConfigurationError, match="no light"):
         Relighter(WL, np.zeros((1, 3)), np.zeros((1, WL.size)), np.ones(WL.size), method="ratio")
 

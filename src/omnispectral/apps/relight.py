@@ -282,6 +282,8 @@ def relight_product(product: str | Path, output: str | Path, whites: list[WhiteR
     """Relight a whole product into a product-like directory ``output`` (module docstring)."""
 
     t0 = time.perf_counter()
+    if Path(output).resolve() == Path(product).resolve():
+        raise ConfigurationError(f"{output}: the relit product needs its own directory (it would replace the input)")
     index, store, estimator = open_product(product)
     relighter = measure_relighter(store, estimator, whites, to, reflectance, 0, sources, method)
     R = np.asarray(estimator.system_matrix, np.float32)  # (6, n): relit spectra back to six bands

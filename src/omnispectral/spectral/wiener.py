@@ -581,14 +581,18 @@ class WienerEstimator:
             raise ConfigurationError(f"input has {rho.shape[-1]} bands; the estimator expects {self.n_bands}")
         return rho
 
-    def _run(self, rho, noise_variance, chunk_pixels, fn, width, dtype):
-        """Apply ``fn(rho_chunk, var_chunk)`` over chunks of pixels; reshape to ``(..., width)``."""
+    def _flat_inputs(self, rho, noise_variance) -> tuple[tuple, np.ndarray, np.ndarray | None]:
+        """Leading shape, pixels as rows ``(n, bands)`` and their noise variances alike (or ``None``)."""
         rho = self._check_bands(rho)
-        lead = rho.shape[:-1]
         flat = rho.reshape(-1, self.n_bands)
         var = None
         if noise_variance is not None:
             var = np.broadcast_to(np.asarray(noise_variance, dtype=np.float64), rho.shape).reshape(-1, self.n_bands)
+        return rho.shape[:-1], flat, var
+
+    def _run(self, rho, noise_variance, chunk_pixels, fn, width, dtype):
+        """Apply ``fn(rho_chunk, var_chunk)`` over chunks of pixels; reshape to ``(..., width)``."""
+        lead, flat, var = self._flat_inputs(rho, noise_variance)
         out = np.empty((flat.shape[0], width), dtype=dtype)
         for s in range(0, flat.shape[0], chunk_pixels):
             out[s:s + chunk_pixels] = fn(flat[s:s + chunk_pixels], None if var is None else var[s:s + chunk_pixels])
@@ -612,12 +616,7 @@ class WienerEstimator:
         and cache-resident; the threads take contiguous runs of blocks (one thread inside another
         pool, see :func:`omnispectral.threads.kernel_threads`) with BLAS held to one thread.
         """
-        rho = self._check_bands(rho)
-        lead = rho.shape[:-1]
-        flat = rho.reshape(-1, self.n_bands)
-        var = None
-        if noise_variance is not None:
-            var = np.broadcast_to(np.asarray(noise_variance, dtype=np.float64), rho.shape).reshape(-1, self.n_bands)
+        lead, flat, var = self._flat_inputs(rho, noise_variance)
         out = np.empty((flat.shape[0], width), dtype=dtype)
         block = max(1, min(int(chunk_pixels), block_pixels))
         slices = blocks(flat.shape[0], block)

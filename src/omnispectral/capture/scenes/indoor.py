@@ -30,7 +30,7 @@ from omnispectral.capture.scenes.base import (
     direction_to_lonlat,
 )
 from omnispectral.capture.scenes.materials import colorchecker_reflectances
-from omnispectral.capture.scenes.procedural import ChartBoard
+from omnispectral.capture.scenes.procedural import ChartBoard, chart_patches
 from omnispectral.errors import ConfigurationError
 from omnispectral.spectral.colour import cmfs_on_grid
 from omnispectral.spectral.curves import DEFAULT_WAVELENGTH_NM
@@ -152,20 +152,8 @@ class IndoorScene(Scene):
 
     # -- what a report needs ----------------------------------------------------------------------
     def colorchecker_patches(self, origin_m=(0.0, 0.0, 0.0)) -> list[dict]:
-        o = as_origin(origin_m)
-        out = []
-        for i, name in enumerate(self.patch_names):
-            c = self.chart.patch_centre_m(i)
-            rel = c - o
-            dist = float(np.linalg.norm(rel))
-            lon, lat = direction_to_lonlat(rel)
-            out.append({"index": i, "name": name, "lon_deg": float(lon), "lat_deg": float(lat), "distance_m": dist,
-                        "half_size_deg": math.degrees(math.atan(0.5 * self.chart.patch_m / dist)),
-                        "half_size_m": 0.5 * self.chart.patch_m, "centre_m": [float(x) for x in c],
-                        "normal": [float(x) for x in self.chart.normal],
-                        "wavelength_nm": self.wavelength_nm.tolist(),
-                        "reflectance": self.patch_reflectance[i].tolist()})
-        return out
+        """The 24 patches: name, centre direction from ``origin_m``, angular half-size, reflectance."""
+        return chart_patches(self.chart, self.patch_names, self.patch_reflectance, self.wavelength_nm, origin_m)
 
     def white_reference(self, origin_m=(0.0, 0.0, 0.0)) -> dict:
         """Direction, angular half-size and reflectance of the white reference seen from ``origin_m``."""

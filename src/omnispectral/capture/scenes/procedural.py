@@ -155,6 +155,24 @@ def skyline_profile(rng: np.random.Generator) -> SkylineProfile:
     return SkylineProfile(1.5, amp, rng.uniform(0, 2 * np.pi, freq.size), freq)
 
 
+def chart_patches(chart: ChartBoard, names, reflectance: np.ndarray, wavelength_nm: np.ndarray,
+                  origin_m=(0.0, 0.0, 0.0)) -> list[dict]:
+    """A chart's patches seen from ``origin_m``: name, centre direction, distance, angular half-size, reflectance."""
+    o = as_origin(origin_m)
+    out = []
+    for i, name in enumerate(names):
+        c = chart.patch_centre_m(i)
+        rel = c - o
+        dist = float(np.linalg.norm(rel))
+        lon, lat = direction_to_lonlat(rel)
+        out.append({"index": i, "name": name, "lon_deg": float(lon), "lat_deg": float(lat), "distance_m": dist,
+                    "half_size_deg": math.degrees(math.atan(0.5 * chart.patch_m / dist)),
+                    "half_size_m": 0.5 * chart.patch_m, "centre_m": [float(x) for x in c],
+                    "normal": [float(x) for x in chart.normal], "wavelength_nm": wavelength_nm.tolist(),
+                    "reflectance": reflectance[i].tolist()})
+    return out
+
+
 def facing_board(lon_deg: float, lat_deg: float, distance_m: float, patch_m: float, gap_m: float) -> ChartBoard:
     """A chart board centred ``distance_m`` from the origin at ``(lon_deg, lat_deg)``, facing the origin."""
     d = lonlat_to_direction(lon_deg, lat_deg)
@@ -428,27 +446,7 @@ class ProceduralOutdoorScene(Scene):
 
     def colorchecker_patches(self, origin_m=(0.0, 0.0, 0.0)) -> list[dict]:
         """The 24 patches: name, centre direction from ``origin_m``, angular half-size, reflectance."""
-        o = as_origin(origin_m)
-        out = []
-        for i, name in enumerate(self.patch_names):
-            c = self.chart.patch_centre_m(i)
-            rel = c - o
-            dist = float(np.linalg.norm(rel))
-            lon, lat = direction_to_lonlat(rel)
-            out.append({
-                "index": i,
-                "name": name,
-                "lon_deg": float(lon),
-                "lat_deg": float(lat),
-                "distance_m": dist,
-                "half_size_deg": math.degrees(math.atan(0.5 * self.chart.patch_m / dist)),
-                "half_size_m": 0.5 * self.chart.patch_m,
-                "centre_m": [float(x) for x in c],
-                "normal": [float(x) for x in self.chart.normal],
-                "wavelength_nm": self.wavelength_nm.tolist(),
-                "reflectance": self.patch_reflectance[i].tolist(),
-            })
-        return out
+        return chart_patches(self.chart, self.patch_names, self.patch_reflectance, self.wavelength_nm, origin_m)
 
     def describe(self) -> dict:
         """Kind, parameters, sun and sky, materials, objects and the chart (JSON-able)."""

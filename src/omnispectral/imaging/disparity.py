@@ -15,9 +15,10 @@ pixels per unit of ``w``; :func:`parallax_map` measures ``w`` at every pixel:
    (normalised convolution over 5 × 5 blocks), else of the ground plane when one is known
    (rays below the horizon), else 0 (sky);
 3. every pixel sweeps the inverse depths spanned by its 3 × 3 neighbouring blocks (every 0.5 px of
-   parallax) and keeps the one whose warped-B neighbourhood matches A best (normalised
-   cross-correlation over 7 × 7 px of the square-rooted luminances, parabolic sub-step refinement;
-   edge-aware: a pixel takes the depth of its own surface, never a blend of two);
+   parallax) and keeps the one whose warped-B neighbourhood matches A best (:class:`LocalLinearScore`:
+   how well B's channels are a linear function of A's over 11 × 11 px, which the different filters of
+   the two cameras allow; parabolic sub-step refinement; shiftable windows: a pixel takes the depth of
+   its own surface, never a blend of two);
 4. pixels of A that B cannot see because a nearer surface hides them (z-buffer forward warp) are
    flagged as occluded: the mosaic takes B's bands there from other directions.
 """
@@ -340,6 +341,12 @@ def matching_feature(gray: np.ndarray) -> np.ndarray:
     return cv2.magnitude(gx, gy)
 
 
+def _channels(image: np.ndarray) -> np.ndarray:
+    """An image as ``(H, W, C)`` float32 with no NaN (the sweep's input)."""
+    img = np.asarray(image, dtype=np.float32)
+    return np.nan_to_num(img if img.ndim == 3 else img[..., None], nan=0.0, posinf=0.0, neginf=0.0)
+
+
 def local_ncc(a: np.ndarray, b: np.ndarray, window: int = NCC_WINDOW_PX) -> np.ndarray:
     """Normalised cross-correlation of ``a`` and ``b`` over a ``window`` box around each pixel (0 where flat)."""
     k = (window, window)
@@ -350,6 +357,60 @@ def local_ncc(a: np.ndarray, b: np.ndarray, window: int = NCC_WINDOW_PX) -> np.n
     den = np.sqrt(np.maximum(va, 0) * np.maximum(vb, 0))
     floor = np.float32(1e-6) * max(float(np.mean(np.maximum(va, 0))), 1e-12)
     return np.where(den > floor, cov / np.maximum(den, 1e-30), 0.0).astype(np.float32)
+
+
+class LocalLinearScore:
+    """How well B's channels are a linear function of A's channels within a window around each pixel.
+
+    The cameras see the scene through different filters: within a small window, which holds a few
+    materials, each of B's channels is close to a linear combination of A's three (a patch brighter than
+    its neighbour in A can be darker in B, and a regression takes that in its stride), but only when the
+    two images are aligned.  The score is the multiple correlation coefficient of that regression,
+    ``R_c = sqrt(c_cᵀ Σ_AA⁻¹ c_c / σ²_Bc)`` with the window's covariance ``Σ_AA`` of A's channels and
+    ``c_c`` of A's channels with B's channel ``c``, averaged over B's channels: 0..1, 1 for an exact
+    linear relation, scale-free like a normalised cross-correlation (the one-channel case is |NCC|).
+    The same local linear model underlies the guided filter (He et al. 2013); using it to match images
+    taken through different filters is in the spirit of cross-spectral stereo (Heo et al. 2011).
+    Correlating gradient magnitudes instead (this module's first version) doubles the frequency of a
+    row of patches, so that a chart at 5 m matched itself 2 px off.
+    """
+
+    def __init__(self, image_a: np.ndarray, window: int = NCC_WINDOW_PX, ridge: float = 1e-3):
+        a = np.asarray(image_a, dtype=np.float64)
+        if a.ndim == 2:
+            a = a[..., None]
+        self.k = (window, window)
+        self.scale = 1.0 / max(float(np.median(np.abs(a))), 1e-30)  # numbers near 1 (HDR radiance in DN/s)
+        a = a * self.scale
+        self.a = a
+        n = a.shape[-1]
+        self.mean_a = np.stack([cv2.blur(a[..., i], self.k) for i in range(n)], axis=-1)
+        cov = np.empty((*a.shape[:2], n, n))
+        for i in range(n):
+            for j in range(i, n):
+                cov[..., i, j] = cov[..., j, i] = (cv2.blur(a[..., i] * a[..., j], self.k)
+                                                   - self.mean_a[..., i] * self.mean_a[..., j])
+        trace = np.maximum(np.trace(cov, axis1=-2, axis2=-1), 0.0)
+        # a ridge: windows where A's channels are (nearly) collinear or flat stay solvable
+        cov += (ridge * trace + 1e-12)[..., None, None] * np.eye(n)
+        self.inv_cov_a = np.linalg.inv(cov)
+        self.var_floor = 1e-6 * max(float(np.mean(trace)) / n, 1e-24)
+
+    def __call__(self, moved_b: np.ndarray) -> np.ndarray:
+        b = np.asarray(moved_b, dtype=np.float64) * self.scale
+        if b.ndim == 2:
+            b = b[..., None]
+        total = np.zeros(b.shape[:2])
+        for c in range(b.shape[-1]):
+            bc = b[..., c]
+            mb = cv2.blur(bc, self.k)
+            var_b = cv2.blur(bc * bc, self.k) - mb * mb
+            cross = np.stack([cv2.blur(self.a[..., i] * bc, self.k) - self.mean_a[..., i] * mb
+                              for i in range(self.a.shape[-1])], axis=-1)
+            explained = np.einsum("...i,...ij,...j->...", cross, self.inv_cov_a, cross)
+            ok = var_b > self.var_floor
+            total += np.where(ok, np.sqrt(np.clip(explained / np.where(ok, var_b, 1.0), 0.0, 1.0)), 0.0)
+        return (total / b.shape[-1]).astype(np.float32)
 
 
 def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blocks: np.ndarray,
@@ -366,13 +427,13 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
     neighbouring levels.  Where nothing correlates (best correlation below :data:`SWEEP_MIN_NCC`: flat
     areas, noise) or no neighbouring block was measured, the pixel keeps its own block's value.  A prior
     must be beaten by a margin (:data:`SWEEP_ZERO_MARGIN`): infinity where the blocks around see infinity,
-    else the block's value.  A pixel whose best match is not distinctive (a level two or more steps away
-    correlates almost as well: inside a uniform patch a few pixels wide, whose windows hold only edges
-    along the line), or that matched nothing, takes the median depth of its distinctive neighbours
+    else the block's value.  A pixel whose best match is not distinctive (another local maximum of the
+    score comes within the margin: inside a uniform patch a few pixels wide, whose windows hold only
+    edges along the line), or that matched nothing, takes the median depth of its distinctive neighbours
     (:func:`fill_from_neighbours`; choosing them by colour was tried and did not help at 3-px patches).
     Returns the inverse depth and the correlation reached (0 where ambiguous), both ``(H, W)`` float32.
     """
-    h, w = ga.shape
+    h, w = ga.shape[:2]
     by = np.clip(np.rint(np.interp(np.arange(h), y_px, np.arange(y_px.size))).astype(int), 0, y_px.size - 1)
     bx = np.clip(np.rint(np.interp(np.arange(w), x_px, np.arange(x_px.size))).astype(int), 0, x_px.size - 1)
     e_len = np.linalg.norm(field[..., :2], axis=-1)
@@ -399,6 +460,8 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
     # shiftable windows (Bobick & Intille 1999): a pixel takes the best of all windows that contain it,
     # so near a depth edge it can use a window lying wholly on its own surface
     shift_kernel = np.ones((window, window), np.uint8)
+    # several channels: the local linear score; one: normalised cross-correlation
+    score_of = LocalLinearScore(ga, window) if ga.ndim == 3 else (lambda moved: local_ncc(ga, moved, window))
     best = np.full((h, w), -np.inf, np.float32)
     best_raw = np.full((h, w), np.nan, np.float32)
     best_k = np.zeros((h, w), np.int32)
@@ -409,11 +472,13 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
     score_zero = np.full((h, w), -np.inf, np.float32)
     score_own = np.full((h, w), -np.inf, np.float32)
     rival = np.full((h, w), -np.inf, np.float32)
+    top1 = np.full((h, w), -np.inf, np.float32)
+    prev_sel = prev2_sel = np.full((h, w), -np.inf, np.float32)
     for k, wk in enumerate(levels):
         wk2 = np.float32(wk * wk)
         moved = cv2.remap(gb, xx + np.float32(wk) * fx + wk2 * hx, yy + np.float32(wk) * fy + wk2 * hy,
                           cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        raw = local_ncc(ga, moved, window)
+        raw = score_of(moved)
         score = cv2.dilate(raw, shift_kernel)
         # the sub-step parabola uses the centred window's scores (the same window at every level)
         right = np.where(best_k == k - 1, raw, right)
@@ -423,16 +488,20 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
         score_own = np.where(at_own, np.maximum(score_own, score), score_own)
         score_sel = np.where((wk >= lo) & (wk <= hi), score + np.where(at_own, 0.01, 0.0), -np.inf).astype(np.float32)
         better = score_sel > best
-        # the best score of the levels at least two steps from the best: a match is distinctive when it
-        # beats them by a margin (the levels are visited in order, so this streaming update is exact)
-        rival = np.where(better, np.where(k - best_k >= 2, np.maximum(rival, best), rival),
-                         np.where(k - best_k >= 2, np.maximum(rival, score_sel), rival))
+        # the two highest local maxima of the score over the levels: a match is distinctive when the best
+        # beats every other peak by a margin (a broad peak's shoulders are not rivals; a flat curve, whose
+        # every level is a peak, is ambiguous).  Level k - 1 is judged once level k is known.
+        if k >= 1:
+            top1, rival = _add_peak(top1, rival, np.where((prev_sel >= prev2_sel) & (prev_sel >= score_sel),
+                                                          prev_sel, -np.inf))
+        prev2_sel, prev_sel = prev_sel, score_sel
         left = np.where(better, prev, left)
         right = np.where(better, np.nan, right)
         best = np.where(better, score_sel, best)
         best_raw = np.where(better, raw, best_raw)
         best_k = np.where(better, k, best_k)
         prev = raw
+    top1, rival = _add_peak(top1, rival, np.where(prev_sel >= prev2_sel, prev_sel, -np.inf))  # the last level
     # keep the block's value where nothing nearby was measured or the best match is not a real match
     near = ndimage.maximum_filter(measured.astype(np.uint8), size=3, mode="nearest")
     measured_near = near[by[:, None], bx[None, :]]
@@ -459,6 +528,12 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
     ambiguous = (flat | (best - rival < SWEEP_ZERO_MARGIN)) & ~(at_prior & zero_ok)
     out = fill_from_neighbours(out, ambiguous, ~ambiguous)
     return cv2.medianBlur(out, 3), np.clip(np.where(ambiguous, 0.0, centre), 0.0, 1.0).astype(np.float32)
+
+
+def _add_peak(top1: np.ndarray, top2: np.ndarray, peak: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Streaming update of the highest and second-highest local maxima (``-inf`` where none is new)."""
+    top2 = np.where(peak > top1, np.maximum(top2, top1), np.maximum(top2, peak))
+    return np.maximum(top1, peak), top2
 
 
 def fill_from_neighbours(values: np.ndarray, fill: np.ndarray, sources: np.ndarray, radius: int = 2,
@@ -539,7 +614,7 @@ def parallax_map(image_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, mo
     block = block or block_size_for(w, h)
     gray_a, gray_b = as_gray(image_a), as_gray(warped_b)
     bp = block_parallax(gray_a, gray_b, seen, field, block=block, min_confidence=min_confidence)
-    ga, gb = matching_feature(gray_a), matching_feature(gray_b)
+    ga, gb = _channels(image_a), _channels(warped_b)
     ground = None
     if ground_inv_depth is not None:
         gy, gx = np.meshgrid(bp.y_px, bp.x_px, indexing="ij")

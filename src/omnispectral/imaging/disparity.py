@@ -341,12 +341,6 @@ def matching_feature(gray: np.ndarray) -> np.ndarray:
     return cv2.magnitude(gx, gy)
 
 
-def _channels(image: np.ndarray) -> np.ndarray:
-    """An image as ``(H, W, C)`` float32 with no NaN (the sweep's input)."""
-    img = np.asarray(image, dtype=np.float32)
-    return np.nan_to_num(img if img.ndim == 3 else img[..., None], nan=0.0, posinf=0.0, neginf=0.0)
-
-
 def local_ncc(a: np.ndarray, b: np.ndarray, window: int = NCC_WINDOW_PX) -> np.ndarray:
     """Normalised cross-correlation of ``a`` and ``b`` over a ``window`` box around each pixel (0 where flat)."""
     k = (window, window)
@@ -376,41 +370,58 @@ class LocalLinearScore:
     """
 
     def __init__(self, image_a: np.ndarray, window: int = NCC_WINDOW_PX, ridge: float = 1e-3):
-        a = np.asarray(image_a, dtype=np.float64)
-        if a.ndim == 2:
-            a = a[..., None]
+        a = as_channels(image_a)
         self.k = (window, window)
         self.scale = 1.0 / max(float(np.median(np.abs(a))), 1e-30)  # numbers near 1 (HDR radiance in DN/s)
-        a = a * self.scale
-        self.a = a
-        n = a.shape[-1]
-        self.mean_a = np.stack([cv2.blur(a[..., i], self.k) for i in range(n)], axis=-1)
-        cov = np.empty((*a.shape[:2], n, n))
+        a = self.centred(a * np.float32(self.scale))
+        self.a = [np.ascontiguousarray(a[..., i]) for i in range(a.shape[-1])]
+        n = len(self.a)
+        mean = [cv2.blur(x, self.k) for x in self.a]
+        cov = np.empty((*a.shape[:2], n, n), np.float32)
         for i in range(n):
             for j in range(i, n):
-                cov[..., i, j] = cov[..., j, i] = (cv2.blur(a[..., i] * a[..., j], self.k)
-                                                   - self.mean_a[..., i] * self.mean_a[..., j])
+                cov[..., i, j] = cov[..., j, i] = cv2.blur(self.a[i] * self.a[j], self.k) - mean[i] * mean[j]
         trace = np.maximum(np.trace(cov, axis1=-2, axis2=-1), 0.0)
         # a ridge: windows where A's channels are (nearly) collinear or flat stay solvable
-        cov += (ridge * trace + 1e-12)[..., None, None] * np.eye(n)
-        self.inv_cov_a = np.linalg.inv(cov)
-        self.var_floor = 1e-6 * max(float(np.mean(trace)) / n, 1e-24)
+        cov += (ridge * trace + 1e-12)[..., None, None] * np.eye(n, dtype=np.float32)
+        inv = np.linalg.inv(cov.astype(np.float64)).astype(np.float32)
+        self.mean_a = mean
+        self.inv_cov_a = [[np.ascontiguousarray(inv[..., i, j]) for j in range(n)] for i in range(n)]
+        self.var_floor = np.float32(1e-6 * max(float(np.mean(trace)) / n, 1e-24))
+
+    def centred(self, image: np.ndarray) -> np.ndarray:
+        """``image`` minus its local mean: the window statistics are then formed from small numbers, which
+        float32 holds without cancellation next to the HDR sun (a window's covariances change only by the
+        small variation of the local mean across it)."""
+        img = as_channels(image)
+        return (img - cv2.blur(img, self.k).reshape(img.shape)).astype(np.float32)
+
+    def prepare_b(self, image_b: np.ndarray) -> np.ndarray:
+        """B's image as the score expects it: scaled like A and centred, once, before the levels move it."""
+        return self.centred(as_channels(image_b) * np.float32(self.scale))
 
     def __call__(self, moved_b: np.ndarray) -> np.ndarray:
-        b = np.asarray(moved_b, dtype=np.float64) * self.scale
-        if b.ndim == 2:
-            b = b[..., None]
-        total = np.zeros(b.shape[:2])
+        """The score of B (:meth:`prepare_b`-ed, then moved) against A at every pixel, ``(H, W)`` float32."""
+        b = moved_b if moved_b.ndim == 3 else moved_b[..., None]
+        n = len(self.a)
+        total = np.zeros(b.shape[:2], np.float32)
         for c in range(b.shape[-1]):
-            bc = b[..., c]
+            bc = np.ascontiguousarray(b[..., c])
             mb = cv2.blur(bc, self.k)
             var_b = cv2.blur(bc * bc, self.k) - mb * mb
-            cross = np.stack([cv2.blur(self.a[..., i] * bc, self.k) - self.mean_a[..., i] * mb
-                              for i in range(self.a.shape[-1])], axis=-1)
-            explained = np.einsum("...i,...ij,...j->...", cross, self.inv_cov_a, cross)
+            cross = [cv2.blur(self.a[i] * bc, self.k) - self.mean_a[i] * mb for i in range(n)]
+            explained = np.zeros_like(var_b)
+            for i in range(n):
+                explained += cross[i] * sum(self.inv_cov_a[i][j] * cross[j] for j in range(n))
             ok = var_b > self.var_floor
             total += np.where(ok, np.sqrt(np.clip(explained / np.where(ok, var_b, 1.0), 0.0, 1.0)), 0.0)
-        return (total / b.shape[-1]).astype(np.float32)
+        return total / np.float32(b.shape[-1])
+
+
+def as_channels(image: np.ndarray) -> np.ndarray:
+    """An image as ``(H, W, C)`` float32 with no NaN or infinity."""
+    img = np.asarray(image, dtype=np.float32)
+    return np.nan_to_num(img if img.ndim == 3 else img[..., None], nan=0.0, posinf=0.0, neginf=0.0)
 
 
 def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blocks: np.ndarray,
@@ -461,7 +472,12 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
     # so near a depth edge it can use a window lying wholly on its own surface
     shift_kernel = np.ones((window, window), np.uint8)
     # several channels: the local linear score; one: normalised cross-correlation
-    score_of = LocalLinearScore(ga, window) if ga.ndim == 3 else (lambda moved: local_ncc(ga, moved, window))
+    if ga.ndim == 3:
+        score_of = LocalLinearScore(ga, window)
+        gb = score_of.prepare_b(gb)
+    else:
+        def score_of(moved):
+            return local_ncc(ga, moved, window)
     best = np.full((h, w), -np.inf, np.float32)
     best_raw = np.full((h, w), np.nan, np.float32)
     best_k = np.zeros((h, w), np.int32)
@@ -614,7 +630,7 @@ def parallax_map(image_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, mo
     block = block or block_size_for(w, h)
     gray_a, gray_b = as_gray(image_a), as_gray(warped_b)
     bp = block_parallax(gray_a, gray_b, seen, field, block=block, min_confidence=min_confidence)
-    ga, gb = _channels(image_a), _channels(warped_b)
+    ga, gb = as_channels(image_a), as_channels(warped_b)
     ground = None
     if ground_inv_depth is not None:
         gy, gx = np.meshgrid(bp.y_px, bp.x_px, indexing="ij")

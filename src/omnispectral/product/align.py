@@ -16,12 +16,21 @@ infinity; POC then measures what that prediction misses:
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, replace
 
+import cv2
 import numpy as np
 
+from omnispectral.imaging.disparity import (
+    CALIBRATION_ANALYSIS_PX,
+    analysis_factor,
+    bin_image,
+    epipolar_field,
+    parallax_map,
+)
 from omnispectral.imaging.geometry import CameraModel
-from omnispectral.imaging.registration import DEFAULT_MIN_CONFIDENCE, register_with_fallback
+from omnispectral.imaging.registration import DEFAULT_MIN_CONFIDENCE, phase_correlate, register_with_fallback
 
 
 @dataclass(frozen=True)
@@ -38,6 +47,11 @@ class DirectionAlignment:
         return {"direction": self.direction, "offset_dx_px": self.offset_px[0], "offset_dy_px": self.offset_px[1],
                 "measured_dx_px": self.measured_px[0], "measured_dy_px": self.measured_px[1],
                 "confidence": self.confidence, "used_fallback": self.used_fallback}
+
+
+def baseline_m(model_b: CameraModel) -> np.ndarray:
+    """B's optical centre relative to A's in the world frame at pan = tilt = 0, metres."""
+    return model_b.camera_center_mm(0.0, 0.0) / 1000.0
 
 
 def b_onto_a_maps(model_a: CameraModel, model_b: CameraModel, pan_deg: float = 0.0, tilt_deg: float = 0.0,
@@ -59,7 +73,6 @@ _MAPS_CACHE: dict = {}
 
 def cached_maps(model_a: CameraModel, model_b: CameraModel) -> tuple[np.ndarray, np.ndarray]:
     """:func:`b_onto_a_maps` at pan = tilt = 0, computed once per pair of camera models in this process."""
-    import json
 
     key = json.dumps([model_a.to_dict(), model_b.to_dict()], sort_keys=True)
     value = _MAPS_CACHE.get(key)  # thread-safe without a lock: at worst two threads compute it
@@ -72,7 +85,6 @@ def cached_maps(model_a: CameraModel, model_b: CameraModel) -> tuple[np.ndarray,
 
 def warp_b_onto_a(image_b: np.ndarray, maps: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """B's image on A's grid (linear interpolation) and the mask of A's pixels that B sees."""
-    import cv2
 
     mx, my = maps
     img = np.asarray(image_b, np.float32)
@@ -151,10 +163,7 @@ _FIELD_CACHE: dict = {}
 
 def cached_epipolar_field(model_a: CameraModel, model_b: CameraModel) -> np.ndarray:
     """:func:`~omnispectral.imaging.disparity.epipolar_field` of A's every pixel, once per pair of models."""
-    import json
 
-    from omnispectral.imaging.disparity import epipolar_field
-    from omnispectral.product.rigcal import baseline_m
 
     key = json.dumps([model_a.to_dict(), model_b.to_dict()], sort_keys=True)
     value = _FIELD_CACHE.get(key)
@@ -205,8 +214,6 @@ def far_offset(image_a: np.ndarray, warped_b: np.ndarray, far: np.ndarray,
     sun): what the rig model still misses at infinity in this direction; (0, 0) when not measurable.
     Large images are measured binned to about 1024 px (POC's sub-pixel precision, ~0.02 px, is then
     ~0.04 full pixels)."""
-    from omnispectral.imaging.disparity import CALIBRATION_ANALYSIS_PX, analysis_factor, bin_image
-    from omnispectral.imaging.registration import phase_correlate
 
     if far.mean() < 0.05:
         return (0.0, 0.0), 0.0
@@ -233,8 +240,6 @@ def parallax_direction(image_a: np.ndarray, image_b: np.ndarray, model_a: Camera
        starts from ``p + d``, so ``w' = w − (d·e)/|e|²`` (clamped at 0; ``d`` is at most a pixel, its
        part across the line is what the offset corrects).
     """
-    from omnispectral.imaging.disparity import parallax_map
-    from omnispectral.product.rigcal import baseline_m
 
     maps = cached_maps(model_a, model_b)
     field = cached_epipolar_field(model_a, model_b)

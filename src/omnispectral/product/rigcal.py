@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -49,9 +50,11 @@ from omnispectral.imaging.disparity import (
     block_size_for,
     measure_blocks,
 )
-from omnispectral.imaging.geometry import CameraModel
+from omnispectral.imaging.geometry import CameraModel, Mounting
 from omnispectral.imaging.registration import as_gray
 from omnispectral.io import atomic_write_json, read_text_file
+from omnispectral.product.align import baseline_m, cached_maps, warp_b_onto_a
+from omnispectral.product.merge import merge_session
 from omnispectral.threads import ordered_thread_map
 
 CALIBRATION_FORMAT = "omnispectral-rig-calibration"
@@ -67,11 +70,6 @@ MAX_INV_DEPTH_PER_M = 3.0
 ALONG_MIN_WEIGHT = 0.3
 #: Smallest share of the usable blocks that makes a cluster.
 FAR_MIN_FRACTION = 0.15
-
-
-def baseline_m(model_b: CameraModel) -> np.ndarray:
-    """B's optical centre relative to A's in the world frame at pan = tilt = 0, metres."""
-    return model_b.camera_center_mm(0.0, 0.0) / 1000.0
 
 
 def predict_b_px(model_a: CameraModel, model_b: CameraModel, a_px: np.ndarray, inv_depth_per_m) -> np.ndarray:
@@ -116,7 +114,6 @@ class RigMeasurements:
 def measure_direction(direction: int, image_a: np.ndarray, image_b: np.ndarray, model_a: CameraModel,
                       model_b: CameraModel, min_confidence: float = PARALLAX_MIN_CONFIDENCE) -> RigMeasurements:
     """Reliable block correspondences (A pixel → B pixel) of one direction (module docstring)."""
-    from omnispectral.product.align import cached_maps, warp_b_onto_a  # align imports this module
 
     maps = cached_maps(model_a, model_b)
     warped, seen = warp_b_onto_a(image_b, maps)
@@ -168,8 +165,6 @@ class RigCalibration:
 
     def apply(self, model_b: CameraModel) -> CameraModel:
         """Camera B's model with the calibrated mounting (lens unchanged)."""
-        from omnispectral.imaging.geometry import Mounting
-
         return replace(model_b, mounting=Mounting.from_dict(self.mounting))
 
     def warnings(self) -> list[str]:
@@ -366,10 +361,6 @@ def calibrate_session(session: str | Path, output: str | Path, work_dir: str | P
                       progress=None) -> RigCalibration:
     """Merge a session's brackets (into ``work_dir``, default a temporary directory) and fit camera B's
     mounting from them; saved to ``output`` (JSON) for ``process --rig-calibration``."""
-    import tempfile
-
-    from omnispectral.product.merge import merge_session
-
     with tempfile.TemporaryDirectory(prefix="omnispectral-rigcal-") as tmp:
         merged = merge_session(session, Path(work_dir) if work_dir else Path(tmp) / "merged",
                                progress=None if progress is None else (lambda i, n: progress("merge", i, n)))

@@ -298,7 +298,7 @@ def _multiband(job: MosaicJob, warped: list[Warped], work: Rect) -> np.ndarray:
         group = [x for x in warped if job.images[x.index].bands == camera_bands]
         if not group:
             continue
-        values, weights = [], []
+        values, weights, per_pixel = [], [], []
         for x in group:
             val = np.zeros((h, w, 3), np.float32)
             wt = np.zeros((h, w), np.float32)
@@ -307,6 +307,15 @@ def _multiband(job: MosaicJob, warped: list[Warped], work: Rect) -> np.ndarray:
             wt[r:r + x.weight.shape[0], c:c + x.weight.shape[1]] = x.weight
             values.append(val)
             weights.append(wt)
+            per_pixel.append(x.confidence is not None)
+        # camera B registered per pixel: views that disagree with the majority are dropped there, as in
+        # linear blending (the seams then avoid them)
+        checked = [i for i, p in enumerate(per_pixel) if p]
+        if len(checked) >= 3:
+            kept = reject_inconsistent([values[i] for i in checked], [weights[i] for i in checked],
+                                       [(0, 0)] * len(checked), (h, w))
+            for i, k in zip(checked, kept, strict=True):
+                weights[i] = k
         out[..., camera_bands[0]:camera_bands[-1] + 1] = multiband_blend(values, weights, job.multiband_levels)
     return out
 

@@ -67,7 +67,7 @@ def record_darks(session: Session | str | Path, cameras: dict[str, Camera], n_fr
             mean = (total_dn / n_frames).astype(np.float32)
             rel = dark_relpath(c, k)
             with atomic_path(session.path / rel) as tmp:
-                tifffile.imwrite(tmp, mean, metadata=None)
+                tifffile.imwrite(tmp, mean, photometric="rgb" if mean.ndim == 3 else "minisblack", metadata=None)
             entries.append({"camera": c, "exposure_index": k, "exposure_s": actual, "n_frames": n_frames,
                             "file": rel, "shape": list(mean.shape), "mean_dn": float(mean.mean()),
                             "p99_dn": float(np.percentile(mean, 99)), "max_dn": float(mean.max())})

@@ -122,16 +122,25 @@ def raw_metadata(cam: CameraSpec) -> dict:
 
 @dataclass
 class DarkRenderer:
-    """Dark frames of the simulated rig (lens capped): dark signal, noise and black level, no light."""
+    """Dark frames of the simulated rig (lens capped): dark signal, noise and black level, no light.
+
+    Repeated dark frames at one exposure must have independent noise (they are averaged), so the noise
+    comes from one stream of ``seed`` advanced frame by frame, not from the camera's per-frame stream
+    (which depends only on direction and exposure, for resumable scene captures)."""
 
     rig: Rig
     noise: bool = True
+    seed: int = 0
+    _rng: np.random.Generator = field(init=False)
+
+    def __post_init__(self):
+        self._rng = np.random.default_rng([int(self.seed), 0x4441524B])
 
     def __call__(self, camera: str, pan_deg: float, tilt_deg: float, exposure_s: float,
                  rng: np.random.Generator) -> np.ndarray:
         cam = self.rig.cameras[camera]
         zeros = np.zeros((cam.height_px, cam.width_px, 3), np.float32)
-        return raw_frame(cam, zeros, exposure_s, rng if self.noise else None)
+        return raw_frame(cam, zeros, exposure_s, self._rng if self.noise else None)
 
 
 @dataclass
@@ -211,7 +220,7 @@ def simulated_dark_cameras(rig: Rig, seed: int = 0, noise: bool = True) -> dict[
     """The simulated rig's cameras with their lenses capped (:class:`DarkRenderer`), for ``capture darks``."""
     clock = FakeClock(_dt.datetime(2000, 1, 1, tzinfo=_dt.UTC))
     head = SimulatedHead(clock)
-    renderer = DarkRenderer(rig, noise)
+    renderer = DarkRenderer(rig, noise, seed)
     return {c: SimulatedCamera(c, head, renderer, clock, rig.cameras[c].bit_depth, rig.cameras[c].readout_s,
                                seed=seed * 2 + i + 7919, metadata=raw_metadata(rig.cameras[c]))
             for i, c in enumerate(("A", "B"))}

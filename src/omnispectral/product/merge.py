@@ -59,17 +59,22 @@ class RawSettings:
         return cls(cam.black_level_dn, darks, cam.raw)
 
 
-def _demosaic_frames(frames: list[np.ndarray], pattern: str, spec: RawSpec, bit_depth: int) -> list[np.ndarray]:
-    """Demosaic every corrected frame (``order = "demosaic-first"``) back to integer codes for the merge; pixels
-    within 2 px of a clipped photosite are set to full scale in all channels, so the merge still treats
-    them as saturated (an interpolated value next to a clipped one is not trustworthy)."""
+def _demosaic_frames(frames: list[np.ndarray], times: list[float], pattern: str, spec: RawSpec,
+                     bit_depth: int) -> list[np.ndarray]:
+    """Demosaic every corrected frame (``order = "demosaic-first"``) back to integer codes for the merge.
+
+    Pixels within 2 px of a clipped photosite are set to full scale in all channels (an interpolated value
+    next to a clipped one is not trustworthy: the merge then takes them from shorter exposures), except in
+    the shortest exposure, which has nothing shorter to fall back on.
+    """
     top = (1 << bit_depth) - 1
+    shortest = int(np.argmin(times))
     out = []
-    for f in frames:
+    for k, f in enumerate(frames):
         rgb = demosaic(f if spec.demosaic == "opencv-ea" else f.astype(np.float32), pattern, spec.demosaic)
         codes = np.clip(np.rint(rgb), 0, top).astype(np.uint16)
-        clipped = ndimage.maximum_filter(f >= 0.99 * top, size=5)
-        codes[clipped] = top
+        if k != shortest:
+            codes[ndimage.maximum_filter(f >= 0.99 * top, size=5)] = top
         out.append(codes)
     return out
 
@@ -99,7 +104,7 @@ def merge_direction(session, direction: int, camera: str, n_exposures: int, raw:
         tilts.append(float(meta.get("tilt_deg_reported", meta.get("tilt_deg_commanded"))))
     spec = raw.raw or RawSpec()
     if pattern is not None and spec.order == "demosaic-first":
-        frames = _demosaic_frames(frames, pattern, spec, bit_depth)
+        frames = _demosaic_frames(frames, times, pattern, spec, bit_depth)
     result = merge_exposures(frames, times, bit_depth, **merge_options)
     radiance = result.radiance if result.radiance.ndim == 3 else result.radiance[..., None]
     if pattern is not None and spec.order == "merge-first":

@@ -1,4 +1,4 @@
-"""Black level and dark frames: ``capture darks`` on the simulated rig, and ``process`` subtracting them (ground truth)."""
+"""Black level and dark frames: ``capture darks`` on the simulated rig, ``process`` subtracting them (ground truth)."""
 
 from __future__ import annotations
 

@@ -24,8 +24,10 @@ from omnispectral.errors import OmnispectralError
 from omnispectral.imaging import merge_exposures
 from omnispectral.imaging.bayer import correct_raw, demosaic
 from omnispectral.imaging.geometry import CameraModel
+from omnispectral.imaging.response import CameraResponse
 from omnispectral.mosaic.sources import CAMERAS, MergedDirections, MergedDirectionsWriter
 from omnispectral.rig import RawSpec, rig_toml
+from omnispectral.spectral.colour import srgb_decode
 
 #: ``register(direction, image_a, image_b) -> (dx, dy)``: camera B's offset for one direction; it may also
 #: return ``(dx, dy, extra)`` with a dict recorded in the direction's entry of ``merged.json``.
@@ -57,6 +59,17 @@ class RawSettings:
         cam = rig.cameras[camera]
         darks = {k: frame for (c, k), frame in load_darks(session.path).items() if c == camera}
         return cls(cam.black_level_dn, darks, cam.raw)
+
+
+def srgb_response(bit_depth: int = 8, full_scale_dn: float | None = None) -> CameraResponse:
+    """The response of sRGB-encoded images (IEC 61966-2-1): code ``z`` → linear ``decode(z / top) · full_scale``.
+
+    ``full_scale_dn``: the linear value of the largest code, in the rig camera's DN (the import records the
+    rig camera's full scale, so an imported JPEG's radiance is in the same DN/s as the camera's raw frames);
+    default ``top``."""
+    top = (1 << bit_depth) - 1
+    scale = float(full_scale_dn) if full_scale_dn else float(top)
+    return CameraResponse((srgb_decode(np.arange(top + 1) / top) * scale).astype(np.float32)[:, None], "srgb")
 
 
 def _demosaic_frames(frames: list[np.ndarray], times: list[float], pattern: str, spec: RawSpec,
@@ -92,6 +105,9 @@ def merge_direction(session, direction: int, camera: str, n_exposures: int, raw:
     for k in range(n_exposures):
         frame, meta = session.read_frame(direction, camera, k)
         camera_meta = meta.get("camera_metadata") or {}
+        if camera_meta.get("response") == "srgb":  # imported 8-bit images (omnispectral.capture.importer)
+            merge_options = {**merge_options, "response": srgb_response(int(meta.get("bit_depth", 8)),
+                                                                        camera_meta.get("full_scale_dn"))}
         bit_depth = int(meta.get("bit_depth", bit_depth))
         black = float(camera_meta.get("black_level", raw.black_level_dn))
         if k in raw.darks or black:

@@ -142,3 +142,52 @@ def test_jpeg_brackets_with_exif_and_pto_from_an_hdr_panorama_import_and_process
     # 8-bit sRGB JPEGs of a 6-exposure bracket, merged through the sRGB curve: the six bands against the truth
     # (measured 49.5 dB; 16-bit TIFFs of the same frames 51.6, the simulator's own session 54.5)
     assert report["accuracy"]["six_band_psnr_db"] > 45, report["accuracy"]
+
+
+def write_dng(path: Path, mosaic: np.ndarray, black_level: int, white_level: int) -> None:
+    """A minimal uncompressed DNG (TIFF/EP CFA, DNG 1.4 tags) of an RGGB mosaic, as a camera's converter writes."""
+    import tifffile
+
+    tags = [(33421, "H", 2, (2, 2), True), (33422, "B", 4, (0, 1, 1, 2), True),  # CFARepeatPatternDim, CFAPattern
+            (50706, "B", 4, (1, 4, 0, 0), True), (50708, "s", 0, "omnispectral simulated camera", True),
+            (50714, "H", 1, (black_level,), True), (50717, "H", 1, (white_level,), True),
+            (50721, "2i", 9, (10000, 10000, 0, 10000, 0, 10000) * 3, True), (50778, "H", 1, (21,), True)]
+    tifffile.imwrite(path, mosaic, photometric=32803, extratags=tags, subfiletype=0, metadata=None)
+
+
+def test_camera_raw_dng_import_is_a_bayer_session(tmp_path):
+    """DNGs (read by rawpy/LibRaw) keep their mosaic, CFA layout and black level; the merge demosaics them."""
+    pytest.importorskip("rawpy")
+    from omnispectral.capture.plan import make_plan
+    from omnispectral.capture.scenes import ProceduralOutdoorScene
+    from omnispectral.capture.simulate import bayer_rig
+    from omnispectral.rig import rig_with_camera_settings
+
+    rig = tiny_rig()
+    raw_rig = rig_with_camera_settings(bayer_rig(rig), {"A": {"black_level_dn": 64.0}})
+    renderer = RigRenderer(raw_rig, ProceduralOutdoorScene(time_hhmm="12:00"), noise=False)
+    plan = make_plan(rig)
+    lines = ["file,pan_deg,tilt_deg,exposure_s"]
+    for d in plan.directions[:2]:
+        for k, t in enumerate(plan.exposures_s):
+            mosaic = renderer("A", d.pan_deg, d.tilt_deg, t, None)
+            assert mosaic.shape == (52, 96)
+            write_dng(tmp_path / f"IMG_{d.index}_{k}.dng", mosaic, 64, 4095)
+            lines.append(f"IMG_{d.index}_{k}.dng,{d.pan_deg},{d.tilt_deg},{t!r}")
+    (tmp_path / "dirs.csv").write_text("\n".join(lines) + "\n")
+    out = import_images(tmp_path / "s", rig, "A", read_directions(tmp_path / "dirs.csv"))
+    assert out["n_directions"] == 2 and out["n_exposures"] == 6
+    s = Session.open(tmp_path / "s")
+    frame, meta = s.read_frame(1, "A", 2)
+    cm = meta["camera_metadata"]
+    assert frame.shape == (52, 96) and cm["cfa_pattern"] == "RGGB" and cm["black_level"] == 64.0
+    assert cm["white_level"] == 4095 and cm["response"] == "linear"
+    # the session's rig is the plain RGB one: the frames' own metadata make the merge subtract and demosaic
+    d = plan.directions[1]
+    radiance, _ = merge_direction(s, 1, "A", 6, weight="noise")
+    assert radiance.shape == (52, 96, 3)
+    truth = renderer.electrons_per_second("A", d.pan_deg, d.tilt_deg) / rig.camera_a.noise_model().gain_e_per_dn
+    ok = renderer.pixel_valid("A")[..., None] & (truth * plan.exposures_s[-1] < 3000) & (truth > 50)
+    ok[:3], ok[-3:], ok[:, :3], ok[:, -3:] = False, False, False, False
+    ratio = radiance[ok] / truth[ok]
+    assert abs(np.median(ratio) - 1) < 0.01 and np.median(np.abs(ratio - 1)) < 0.05

@@ -25,8 +25,12 @@ record's ``camera_metadata`` names the source file, its SHA-256, where the expos
 the sRGB curve, IEC 61966-2-1, with the largest code at the rig camera's full scale ``full_scale_dn``, so that
 radiance is in the rig's DN/s).  ``process`` then works on it unchanged.
 
-Not supported: frames referenced in place (they are always copied into the session), camera raw files
-(rawpy/DNG), per-image roll or lens parameters from the ``.pto`` (the rig file's lens model is used).
+Camera raw files (DNG, NEF, CR2, ARW, …) are read through rawpy (LibRaw): the Bayer mosaic as recorded, with
+its CFA layout and black level in ``camera_metadata`` (``process`` subtracts and demosaics as for a raw camera,
+:mod:`omnispectral.imaging.bayer`); their exposure times come from the table or the CSV.
+
+Not supported: frames referenced in place (they are always copied into the session), per-image roll or lens
+parameters from the ``.pto`` (the rig file's lens model is used), one-camera (three-band) products.
 """
 
 from __future__ import annotations
@@ -48,7 +52,9 @@ from omnispectral.imaging.bracket import exif_exposure_s, parse_exposure_s, read
 from omnispectral.locking import directory_lock
 from omnispectral.rig import Rig
 
-IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".jpg", ".jpeg")
+#: camera raw files, read through rawpy (LibRaw; the optional ``raw`` extra): DNG and the common makers' formats
+RAW_SUFFIXES = (".dng", ".nef", ".cr2", ".cr3", ".arw", ".orf", ".raf", ".rw2", ".pef")
+IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".jpg", ".jpeg", *RAW_SUFFIXES)
 RESPONSES = ("auto", "linear", "srgb")
 #: images whose pan and tilt agree within this belong to one direction's bracket
 SAME_DIRECTION_DEG = 0.05
@@ -324,8 +330,34 @@ def import_images(output: str | Path, rig: Rig, camera: str, entries: list[Image
             "cameras_imported": sorted({c for _, c, _ in Session.open(output).completed()})}
 
 
+def read_camera_raw(path: Path) -> tuple[np.ndarray, dict]:
+    """A camera raw file's Bayer mosaic as recorded (uint16 ``(H, W)``, visible area) and what the camera says
+    about it: CFA layout (``RGGB`` …), black level, white level (LibRaw through rawpy)."""
+    try:
+        import rawpy  # optional dependency (extra "raw"): LibRaw's native library
+    except ImportError:
+        raise InputFileError(path, "camera raw files need rawpy (pip install 'omnispectral[raw]')") from None
+    try:
+        with rawpy.imread(str(path)) as raw:
+            mosaic = np.array(raw.raw_image_visible, dtype=np.uint16)
+            pattern, desc = np.asarray(raw.raw_pattern), raw.color_desc.decode("ascii", "replace")
+            black = float(np.mean(raw.black_level_per_channel))
+            white = int(raw.white_level)
+    except (rawpy.LibRawError, OSError, ValueError) as exc:
+        raise InputFileError(path, f"not a readable camera raw file ({type(exc).__name__}: {exc})") from None
+    cfa = "".join(desc[int(i)] for i in pattern.ravel()) if pattern.shape == (2, 2) else ""
+    if sorted(cfa) != sorted("RGGB"):
+        raise InputFileError(path, f"colour filter array {desc} {pattern.tolist()} is not a 2 x 2 Bayer pattern")
+    return mosaic, {"cfa_pattern": cfa, "black_level": black, "white_level": white}
+
+
 def _write_one(session: Session, cam, camera: str, index: int, k: int, e: ImageEntry, time_and_source, response):
-    frame = read_frame(e.path)
+    raw_meta = {}
+    if e.path.suffix.lower() in RAW_SUFFIXES:
+        frame, raw_meta = read_camera_raw(e.path)
+        response = "linear"
+    else:
+        frame = read_frame(e.path)
     if frame.ndim == 3 and frame.shape[2] == 4:
         frame = frame[..., :3]
     if frame.shape[:2] != (cam.height_px, cam.width_px) or (frame.ndim == 3 and frame.shape[2] != 3):
@@ -339,7 +371,7 @@ def _write_one(session: Session, cam, camera: str, index: int, k: int, e: ImageE
     if response == "auto":
         response = "srgb" if bit_depth == 8 else "linear"
     meta = {"source_file": str(e.path.resolve()), "source_sha256": sha256_of(e.path),
-            "exposure_source": time_and_source[1], "response": response, "direction_source": e.where}
+            "exposure_source": time_and_source[1], "response": response, "direction_source": e.where, **raw_meta}
     if response == "srgb":  # the largest code means the camera's full scale: radiance in the rig's DN/s
         meta["full_scale_dn"] = cam.max_dn
     session.write_frame(frame.astype(np.uint16), direction=index, camera=camera, exposure_index=k,

@@ -17,18 +17,10 @@ from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.bayer import CFA_PATTERNS, channel_index, correct_raw, demosaic, mosaic
 from omnispectral.product.merge import RawSettings, merge_direction
 from omnispectral.rig import load_preset, rig_from_dict, rig_with_camera_settings
+from tests.test_fault_injection import tiny_rig
 
 NOON = dt.datetime(2017, 6, 21, 12, 0, tzinfo=dt.UTC)
 
-
-def tiny_rig():
-    text = load_preset("small").toml_text
-    for old, new in (("width_px = 256", "width_px = 96"), ("height_px = 136", "height_px = 52"),
-                     ("count = 15", "count = 6"), ("shortest_s = 0.000015", "shortest_s = 0.0002"),
-                     ("n_pan = 12", "n_pan = 6"), ("n_tilt = 3", "n_tilt = 2"),
-                     ("hfov_deg = 95.0", "hfov_deg = 120.0")):
-        text = text.replace(old, new)
-    return rig_from_dict(tomllib.loads(text), "tiny", text)
 
 
 def smooth_image(h=48, w=64):

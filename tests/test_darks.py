@@ -5,7 +5,6 @@ from __future__ import annotations
 import datetime as dt
 import json
 import shutil
-import tomllib
 
 import numpy as np
 import pytest
@@ -17,7 +16,8 @@ from omnispectral.cli import main
 from omnispectral.errors import InputFileError
 from omnispectral.product.merge import RawSettings, merge_direction
 from omnispectral.product.process import process
-from omnispectral.rig import load_preset, rig_from_dict, rig_with_camera_settings
+from omnispectral.rig import rig_with_camera_settings
+from tests.test_fault_injection import tiny_rig
 
 NOON = dt.datetime(2017, 6, 21, 12, 0, tzinfo=dt.UTC)
 BLACK_DN, DARK_E_S, DSNU = 64.0, 400.0, 0.8
@@ -25,14 +25,7 @@ BLACK_DN, DARK_E_S, DSNU = 64.0, 400.0, 0.8
 
 def dark_rig():
     """The tiny test rig with a black level of 64 DN and a strong, non-uniform dark signal (hot pixels)."""
-    text = load_preset("small").toml_text
-    for old, new in (("width_px = 256", "width_px = 96"), ("height_px = 136", "height_px = 52"),
-                     ("count = 15", "count = 6"), ("shortest_s = 0.000015", "shortest_s = 0.0002"),
-                     ("n_pan = 12", "n_pan = 6"), ("n_tilt = 3", "n_tilt = 2"),
-                     ("hfov_deg = 95.0", "hfov_deg = 120.0")):
-        text = text.replace(old, new)
-    rig = rig_from_dict(tomllib.loads(text), "tiny", text)
-    return rig_with_camera_settings(rig, {c: {"black_level_dn": BLACK_DN, "noise": {
+    return rig_with_camera_settings(tiny_rig(), {c: {"black_level_dn": BLACK_DN, "noise": {
         "dark_current_e_s": DARK_E_S, "dark_signal_nonuniformity": DSNU}} for c in "AB"})
 
 

@@ -17,17 +17,8 @@ from omnispectral.cli import main
 from omnispectral.errors import InputFileError
 from omnispectral.imaging.bracket import exif_exposure_s
 from omnispectral.product.merge import merge_direction
-from omnispectral.rig import load_preset, rig_from_dict
-
-
-def tiny_rig():
-    text = load_preset("small").toml_text
-    for old, new in (("width_px = 256", "width_px = 96"), ("height_px = 136", "height_px = 52"),
-                     ("count = 15", "count = 6"), ("shortest_s = 0.000015", "shortest_s = 0.0002"),
-                     ("n_pan = 12", "n_pan = 6"), ("n_tilt = 3", "n_tilt = 2"),
-                     ("hfov_deg = 95.0", "hfov_deg = 120.0")):
-        text = text.replace(old, new)
-    return rig_from_dict(tomllib.loads(text), "tiny", text)
+from omnispectral.rig import rig_from_dict
+from tests.test_fault_injection import tiny_rig
 
 
 @pytest.fixture(scope="module")

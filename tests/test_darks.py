@@ -106,3 +106,22 @@ def test_recording_darks_changes_the_product_fingerprint_and_damage_is_named(dar
         process(copy, tmp_path / "p", progress=False, registration="paper", report=False)
     index = process(copy, tmp_path / "p", progress=False, registration="paper", report=False, overwrite=True)
     assert "darks_sha256" not in index["fingerprint"]
+
+
+def test_capture_darks_through_the_genicam_driver(tmp_path, capsys):
+    """The real-device path: the rig's GenICam cameras (genicam's simulated GenTL producer, real harvesters
+    calls) are opened, set to each exposure of the bracket, read and averaged; the head is not touched."""
+    from omnispectral.capture.plan import make_plan
+    from omnispectral.rig import load_rig
+    from tests.test_real_capture import _rig
+
+    rig = load_rig(_rig(tmp_path / "rig.toml", "/dev/null-no-head"))
+    Session.create(tmp_path / "s", rig, make_plan(rig), kind="capture")
+    assert main(["capture", "darks", "-o", str(tmp_path / "s"), "--dark-frames", "3", "--json"]) == 0
+    index = json.loads(capsys.readouterr().out)
+    assert [(e["camera"], e["exposure_index"]) for e in index["frames"]] == [("A", 0), ("B", 0), ("A", 1), ("B", 1)]
+    assert all(e["n_frames"] == 3 and e["shape"] == [100, 120, 3] for e in index["frames"])
+    assert [e["exposure_s"] for e in index["frames"]] == pytest.approx([0.01, 0.01, 0.001, 0.001], rel=0.01)
+    darks = load_darks(tmp_path / "s")
+    # the producer's frames are a test pattern, not darkness: the average is what the camera gave
+    assert darks[("A", 0)].shape == (100, 120, 3) and darks[("A", 0)].max() > 0

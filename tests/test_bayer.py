@@ -8,7 +8,6 @@ import tomllib
 
 import numpy as np
 import pytest
-from colour_demosaicing import masks_CFA_Bayer
 
 from omnispectral.capture.session import Session
 from omnispectral.capture.simulate import RigRenderer, bayer_rig, simulate_session, true_mounting_error_deg
@@ -30,6 +29,8 @@ def smooth_image(h=48, w=64):
 
 @pytest.mark.parametrize("pattern", CFA_PATTERNS)
 def test_mosaic_layout_matches_colour_demosaicing(pattern):
+    from colour_demosaicing import masks_CFA_Bayer  # after omnispectral.imaging.bayer silenced its import warnings
+
     idx = channel_index((6, 8), pattern)
     masks = masks_CFA_Bayer((6, 8), pattern)  # the peer library's R, G, B masks
     for c in range(3):

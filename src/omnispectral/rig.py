@@ -28,6 +28,7 @@ import numpy as np
 import tomli_w
 
 from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.imaging.bayer import CFA_PATTERNS, DEMOSAIC_METHODS, ORDERS
 from omnispectral.imaging.geometry import CameraModel, Mounting
 from omnispectral.io import read_text_file
 from omnispectral.limits import (
@@ -97,6 +98,16 @@ class LensSpec:
 
 
 @dataclass(frozen=True)
+class RawSpec:
+    """A raw Bayer camera (``[cameras.X.raw]``): its CFA layout and how ``process`` demosaics
+    (:mod:`omnispectral.imaging.bayer`: method, and whether before or after the HDR merge)."""
+
+    cfa_pattern: str = "RGGB"
+    demosaic: str = "menon2007"
+    order: str = "merge-first"
+
+
+@dataclass(frozen=True)
 class CameraSpec:
     """One of the two cameras: sensor, lens, spectral sensitivity, filter, noise, orientation, device."""
 
@@ -115,6 +126,12 @@ class CameraSpec:
     full_well_e: float
     read_noise_e: float
     device: dict = field(default_factory=dict)
+    #: offset the camera adds to every code (DN); subtracted by ``process`` unless dark frames were recorded
+    black_level_dn: float = 0.0
+    #: mean dark signal (e-/s) and its pixel-to-pixel spread (relative; hot pixels) of the simulated sensor
+    dark_current_e_s: float = 0.0
+    dark_signal_nonuniformity: float = 0.0
+    raw: RawSpec | None = None  # None: frames are RGB (H, W, 3); else Bayer mosaics (H, W)
 
     @property
     def max_dn(self) -> int:
@@ -299,7 +316,34 @@ def _camera(r: _Reader, name: str) -> CameraSpec:
         filter=r.get("filter", str, "none"),
         lens=LensSpec(hfov, vfov, tuple(float(v) for v in dist), calib),
         full_well_e=noise.get("full_well_e", float, 13500.0, positive=True),
-        read_noise_e=noise.get("read_noise_e", float, 13.0, minimum=0.0), device=dict(device.data))
+        read_noise_e=noise.get("read_noise_e", float, 13.0, minimum=0.0), device=dict(device.data),
+        black_level_dn=_black_level(r, bit_depth),
+        dark_current_e_s=noise.get("dark_current_e_s", float, 0.0, minimum=0.0),
+        dark_signal_nonuniformity=noise.get("dark_signal_nonuniformity", float, 0.0, minimum=0.0),
+        raw=_raw(r))
+
+
+def _black_level(r: _Reader, bit_depth: int) -> float:
+    v = r.get("black_level_dn", float, 0.0, minimum=0.0)
+    if v >= (1 << bit_depth) - 1:
+        r.fail("black_level_dn", f"{v} DN leaves no range below the largest {bit_depth}-bit code")
+    return v
+
+
+def _raw(r: _Reader) -> RawSpec | None:
+    """``[cameras.X.raw]``: a Bayer camera (see :class:`RawSpec`), or None for RGB frames."""
+    if "raw" not in r.data:
+        return None
+    t = r.table("raw")
+    spec = RawSpec(t.get("cfa_pattern", str, "RGGB").upper(), t.get("demosaic", str, "menon2007"),
+                   t.get("order", str, "merge-first"))
+    for key, value, allowed in (("cfa_pattern", spec.cfa_pattern, CFA_PATTERNS),
+                                ("demosaic", spec.demosaic, DEMOSAIC_METHODS), ("order", spec.order, ORDERS)):
+        if value not in allowed:
+            t.fail(key, f"expected one of {', '.join(allowed)}, got {value!r}")
+    if spec.demosaic == "opencv-ea" and spec.order == "merge-first":
+        t.fail("demosaic", "opencv-ea demosaics integer codes only: use it with order = \"demosaic-first\"")
+    return spec
 
 
 def _side(r: _Reader, key: str) -> int:
@@ -409,6 +453,21 @@ def resolve_rig(preset: str | None = None, rig_path: str | Path | None = None) -
     if (preset is None) == (rig_path is None):
         raise ConfigurationError("give either --preset NAME or --rig FILE")
     return load_preset(preset) if preset is not None else load_rig(rig_path)
+
+
+def rig_with_camera_settings(rig: Rig, settings: dict[str, dict]) -> Rig:
+    """``rig`` with keys of ``[cameras.X]`` replaced (``{"A": {"raw": {...}, "black_level_dn": 64}}``; a nested
+    table such as ``noise`` is updated key by key), validated again, its TOML text rewritten."""
+    data = tomllib.loads(rig_toml(rig))
+    for name, values in settings.items():
+        cam = data["cameras"][name]
+        for key, value in values.items():
+            if isinstance(value, dict) and isinstance(cam.get(key), dict):
+                cam[key] = {**cam[key], **value}
+            else:
+                cam[key] = value
+    text = tomli_w.dumps(data)
+    return rig_from_dict(tomllib.loads(text), rig.source, text)
 
 
 def rig_toml(rig: Rig) -> str:

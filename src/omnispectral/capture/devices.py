@@ -216,6 +216,8 @@ class SimulatedCamera:
     readout_s: float = 0.0095
     seed: int = 0
     faults: CameraFaults = field(default_factory=CameraFaults)
+    #: what the camera reports with every frame besides time and exposure (a raw camera's CFA layout, black level)
+    metadata: dict = field(default_factory=dict)
     exposure_s: float = 0.01
     frames_read: int = 0
     _pending: tuple | None = None
@@ -248,7 +250,7 @@ class SimulatedCamera:
         self.frames_read += 1
         # the simulated clock's exact state (float seconds) lets a resumed simulation continue bit-identically
         return frame, {"camera_time": t0.isoformat(timespec="milliseconds"), "exposure_s": exposure,
-                       "sim_clock_trigger_s": t0_mono, "sim_clock_read_s": self.clock.monotonic()}
+                       "sim_clock_trigger_s": t0_mono, "sim_clock_read_s": self.clock.monotonic(), **self.metadata}
 
     def close(self) -> None:
         pass

@@ -13,10 +13,12 @@ import logging
 from pathlib import Path
 
 from omnispectral.capture import drivers
+from omnispectral.capture.darks import record_darks
 from omnispectral.capture.devices import DeviceError, SimulatedHead, SystemClock
 from omnispectral.capture.plan import format_duration, make_plan
 from omnispectral.capture.run import RetryPolicy, run_capture
 from omnispectral.capture.session import CAMERAS, Session
+from omnispectral.capture.simulate import simulated_dark_cameras
 from omnispectral.errors import ConfigurationError, OmnispectralError
 from omnispectral.rig import Rig
 
@@ -58,6 +60,24 @@ def capture_with_devices(output: str | Path, rig: Rig, *, progress=None) -> dict
         if head is not None:
             head.close()
     return result
+
+
+def capture_darks(session_path: str | Path, n_frames: int = 8, *, seed: int = 0, noise: bool = True,
+                  progress=None) -> dict:
+    """Dark frames for every exposure of a session's bracket with the cameras its rig names (lenses capped:
+    :func:`omnispectral.capture.darks.record_darks`); an all-simulated rig uses its simulated sensors."""
+    session = Session.open(session_path)
+    rig = session.rig()
+    system = None
+    try:
+        if all(rig.cameras[c].device.get("driver", "simulated") == "simulated" for c in CAMERAS):
+            cams = simulated_dark_cameras(rig, seed=seed, noise=noise)
+        else:
+            cams, system = drivers.open_cameras(rig)
+        return record_darks(session, cams, n_frames, rig.head.timeout_s, progress)
+    finally:
+        if system is not None:
+            system.close()
 
 
 def _head_info(rig: Rig, head) -> dict:

@@ -31,10 +31,11 @@ from omnispectral.capture.resume import resume_simulated_devices
 from omnispectral.capture.run import RetryPolicy, run_capture
 from omnispectral.capture.session import Session
 from omnispectral.errors import ConfigurationError
+from omnispectral.imaging.bayer import mosaic
 from omnispectral.imaging.geometry import CameraModel, equirect_pixel_to_lonlat, lonlat_to_ray
 from omnispectral.io import atomic_path, atomic_write_json
 from omnispectral.locking import directory_lock
-from omnispectral.rig import Rig
+from omnispectral.rig import CameraSpec, Rig, rig_with_camera_settings
 from omnispectral.spectral.noise import SensorNoiseModel
 from omnispectral.spectral.system import MultibandSystem
 
@@ -63,9 +64,11 @@ def perturbed_model(model: CameraModel, error_deg: tuple[float, float, float]) -
     return replace(model, mounting=model.mounting.with_misalignment_change(error_deg))
 
 
-def sample_dn(electrons: np.ndarray, noise: SensorNoiseModel, rng: np.random.Generator) -> np.ndarray:
+def sample_dn(electrons: np.ndarray, noise: SensorNoiseModel, rng: np.random.Generator,
+              black_level_dn: float = 0.0) -> np.ndarray:
     """Raw codes of mean photo-electron counts: Poisson shot noise (normal approximation above 30 e⁻),
-    Gaussian read noise, rounding to DN, clipping at full scale.  float32 throughout; returns uint16."""
+    Gaussian read noise, the camera's black level added, rounding to DN, clipping at full scale.  float32
+    throughout; returns uint16."""
     mu = np.maximum(electrons, 0, dtype=np.float32)
     e = rng.standard_normal(mu.shape, dtype=np.float32)
     small = mu < 30
@@ -75,7 +78,69 @@ def sample_dn(electrons: np.ndarray, noise: SensorNoiseModel, rng: np.random.Gen
         shot[small] = rng.poisson(mu_small).astype(np.float32) - mu_small
     read = rng.standard_normal(mu.shape, dtype=np.float32) * np.float32(noise.read_noise_e)
     dn = (mu + shot + read) * np.float32(1.0 / noise.gain_e_per_dn)
+    if black_level_dn:
+        dn += np.float32(black_level_dn)
     return np.clip(np.rint(dn), 0, noise.max_dn).astype(np.uint16)
+
+
+def dark_signal_map(cam: CameraSpec, shape: tuple[int, ...]) -> np.ndarray:
+    """Relative dark signal of every pixel (mean 1): a log-normal spread of relative standard deviation
+    ``cam.dark_signal_nonuniformity`` (its long tail: hot pixels).  A property of the sensor, so it is drawn
+    from the camera's name and model, not from a capture's seed: the dark frames and the scene frames of
+    one simulated camera share it, as a real sensor's do."""
+    if cam.dark_signal_nonuniformity <= 0:
+        return np.ones(shape, np.float32)
+    sigma2 = np.log1p(cam.dark_signal_nonuniformity ** 2)
+    rng = np.random.default_rng([*cam.name.encode(), *cam.model.encode()[:16], 0x44534E55])
+    return rng.lognormal(-sigma2 / 2, np.sqrt(sigma2), shape).astype(np.float32)
+
+
+def raw_frame(cam: CameraSpec, electrons_per_s: np.ndarray, exposure_s: float, rng: np.random.Generator | None,
+              dark_map: np.ndarray | None = None) -> np.ndarray:
+    """What camera ``cam`` outputs for ``(H, W, 3)`` photo-electrons per second: the Bayer mosaic of a raw camera
+    (``cam.raw``) or the three channels, plus the dark signal, noise (``rng``; None = noise-free) and black level."""
+    electrons = electrons_per_s * np.float32(exposure_s)
+    if cam.raw is not None:
+        electrons = mosaic(electrons, cam.raw.cfa_pattern)
+    if cam.dark_current_e_s > 0:
+        dmap = dark_map if dark_map is not None else dark_signal_map(cam, electrons.shape)
+        electrons = electrons + dmap * np.float32(cam.dark_current_e_s * exposure_s)
+    noise = cam.noise_model()
+    if rng is None:
+        return np.clip(np.rint(electrons / noise.gain_e_per_dn + cam.black_level_dn), 0,
+                       noise.max_dn).astype(np.uint16)
+    return sample_dn(electrons, noise, rng, cam.black_level_dn)
+
+
+def raw_metadata(cam: CameraSpec) -> dict:
+    """What a camera reports about its raw frames (as the GenICam driver does): CFA layout and black level."""
+    out = {"cfa_pattern": cam.raw.cfa_pattern} if cam.raw is not None else {}
+    if cam.black_level_dn:
+        out["black_level"] = cam.black_level_dn
+    return out
+
+
+@dataclass
+class DarkRenderer:
+    """Dark frames of the simulated rig (lens capped): dark signal, noise and black level, no light.
+
+    Repeated dark frames at one exposure must have independent noise (they are averaged), so the noise
+    comes from one stream of ``seed`` advanced frame by frame, not from the camera's per-frame stream
+    (which depends only on direction and exposure, for resumable scene captures)."""
+
+    rig: Rig
+    noise: bool = True
+    seed: int = 0
+    _rng: np.random.Generator = field(init=False)
+
+    def __post_init__(self):
+        self._rng = np.random.default_rng([int(self.seed), 0x4441524B])
+
+    def __call__(self, camera: str, pan_deg: float, tilt_deg: float, exposure_s: float,
+                 rng: np.random.Generator) -> np.ndarray:
+        cam = self.rig.cameras[camera]
+        zeros = np.zeros((cam.height_px, cam.width_px, 3), np.float32)
+        return raw_frame(cam, zeros, exposure_s, self._rng if self.noise else None)
 
 
 @dataclass
@@ -147,11 +212,24 @@ class RigRenderer:
     def __call__(self, camera: str, pan_deg: float, tilt_deg: float, exposure_s: float,
                  rng: np.random.Generator) -> np.ndarray:
         cam = self.rig.cameras[camera]
-        electrons = self.electrons_per_second(camera, pan_deg, tilt_deg) * np.float32(exposure_s)
-        noise = cam.noise_model()
-        if not self.noise:
-            return np.clip(np.rint(electrons / noise.gain_e_per_dn), 0, noise.max_dn).astype(np.uint16)
-        return sample_dn(electrons, noise, rng)
+        return raw_frame(cam, self.electrons_per_second(camera, pan_deg, tilt_deg), exposure_s,
+                         rng if self.noise else None)
+
+
+def simulated_dark_cameras(rig: Rig, seed: int = 0, noise: bool = True) -> dict[str, SimulatedCamera]:
+    """The simulated rig's cameras with their lenses capped (:class:`DarkRenderer`), for ``capture darks``."""
+    clock = FakeClock(_dt.datetime(2000, 1, 1, tzinfo=_dt.UTC))
+    head = SimulatedHead(clock)
+    renderer = DarkRenderer(rig, noise, seed)
+    return {c: SimulatedCamera(c, head, renderer, clock, rig.cameras[c].bit_depth, rig.cameras[c].readout_s,
+                               seed=seed * 2 + i + 7919, metadata=raw_metadata(rig.cameras[c]))
+            for i, c in enumerate(("A", "B"))}
+
+
+def bayer_rig(rig: Rig, pattern: str = "RGGB") -> Rig:
+    """``rig`` with every camera that has no ``[cameras.X.raw]`` table made a raw Bayer camera of ``pattern``."""
+    settings = {c: {"raw": {"cfa_pattern": pattern}} for c, cam in rig.cameras.items() if cam.raw is None}
+    return rig_with_camera_settings(rig, settings) if settings else rig
 
 
 def calibrate_exposure(rig: Rig, scene, system: MultibandSystem, grid: tuple[int, int] = (256, 128)) -> float:
@@ -263,14 +341,23 @@ def _jsonable(x):
 
 def simulate_session(output: str | Path, rig: Rig, scene, *, start: _dt.datetime, noise: bool = True,
                      seed: int = 0, ground_truth_width: int | None = None, progress=None,
-                     overlap: float | None = None, mounting_error_deg: float = DEFAULT_MOUNTING_ERROR_DEG) -> dict:
+                     overlap: float | None = None, mounting_error_deg: float = DEFAULT_MOUNTING_ERROR_DEG,
+                     raw: str | None = None) -> dict:
     """``capture`` with the simulated rig plus the ground truth; resumable like any capture.
+
+    ``raw="bayer"`` makes both cameras raw Bayer cameras (:func:`bayer_rig`): frames are the mosaics the
+    sensor records (uint16 ``(H, W)``), the CFA layout and black level go into the rig snapshot and into
+    every frame's journal record (``camera_metadata``), and ``process`` demosaics them.
 
     Camera B is rendered with an unknown mounting error of up to ``mounting_error_deg`` per axis drawn
     from ``seed`` (:func:`true_mounting_error_deg`; 0 renders the rig file's mounting exactly).
     ``progress(stage, done, total)`` follows the frames (:func:`~omnispectral.capture.run.run_capture`).
     """
 
+    if raw not in (None, "rgb", "bayer"):
+        raise ConfigurationError(f"raw must be 'rgb' or 'bayer', got {raw!r}")
+    if raw == "bayer":
+        rig = bayer_rig(rig)
     plan = make_plan(rig, overlap=overlap)
     renderer = RigRenderer(rig, scene, noise=noise,
                            b_mounting_error_deg=true_mounting_error_deg(seed, mounting_error_deg))
@@ -286,7 +373,8 @@ def simulate_session(output: str | Path, rig: Rig, scene, *, start: _dt.datetime
         clock = FakeClock(start)
         head = SimulatedHead(clock, rig.head.pan_speed_deg_s, rig.head.tilt_speed_deg_s, rig.head.settle_s)
         cams = {c: SimulatedCamera(c, head, renderer, clock, rig.cameras[c].bit_depth, rig.cameras[c].readout_s,
-                                   seed=seed * 2 + i) for i, c in enumerate(("A", "B"))}
+                                   seed=seed * 2 + i, metadata=raw_metadata(rig.cameras[c]))
+                for i, c in enumerate(("A", "B"))}
         resume_simulated_devices(session, clock, head)
         result = run_capture(session, head, cams, clock,
                              RetryPolicy(rig.head.retries, rig.head.timeout_s, rig.head.position_tolerance_deg),

@@ -17,8 +17,8 @@ from omnispectral.cli._common import err_console
 from omnispectral.errors import OmnispectralError, describe_os_error
 
 #: Modules of ``omnispectral.cli`` that register sub-commands, in the order ``--help`` lists them.
-COMMAND_MODULES = ("spectral", "hdr", "lens", "capture", "register", "simulate", "devices", "mosaic", "product",
-                   "view", "apps")
+COMMAND_MODULES = ("spectral", "hdr", "lens", "capture", "register", "simulate", "devices", "importer", "mosaic",
+                   "product", "view", "apps")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -9,7 +9,7 @@ from rich.markup import escape
 
 from omnispectral.capture.devices import FakeClock
 from omnispectral.capture.drivers import rig_device_kind
-from omnispectral.capture.hardware import capture_with_devices, dry_run
+from omnispectral.capture.hardware import capture_darks, capture_with_devices, dry_run
 from omnispectral.capture.scenes import DEFAULT_DATE, build_scene
 from omnispectral.capture.simulate import simulate_session
 from omnispectral.capture.timelapse import parse_hhmm, parse_interval_s, run_timelapse, slot_times
@@ -29,7 +29,8 @@ def cmd_simulate(args) -> int:
                         chart_patch_m=args.chart_patch, light=args.light)
     with ProgressBars(enabled=not args.json, transient=True) as bars:
         out = simulate_session(args.output, rig, scene, start=start, noise=args.noise == "on", seed=args.seed,
-                               ground_truth_width=args.gt_width, progress=bars, mounting_error_deg=args.mounting_error)
+                               ground_truth_width=args.gt_width, progress=bars, mounting_error_deg=args.mounting_error,
+                               raw=args.raw)
     out["rig"] = rig.name
     if args.json:
         print_json(out)
@@ -41,7 +42,22 @@ def cmd_simulate(args) -> int:
     return 0 if out["complete"] else 1
 
 
+def cmd_capture_darks(args) -> int:
+    with ProgressBars(enabled=not args.json, transient=True) as bars:
+        index = capture_darks(args.output, args.dark_frames, seed=args.seed, noise=args.noise == "on", progress=bars)
+    if args.json:
+        print_json(index)
+    else:
+        worst = max(index["frames"], key=lambda e: e["mean_dn"])
+        console.print(f"Recorded {len(index['frames'])} dark frames (mean of {args.dark_frames} each) into "
+                      f"{Path(args.output) / 'darks'}; largest mean {worst['mean_dn']:.1f} DN (camera "
+                      f"{worst['camera']}, {worst['exposure_s']:g} s). 'omnispectral process' subtracts them.")
+    return 0
+
+
 def cmd_capture(args) -> int:
+    if args.what == "darks":
+        return cmd_capture_darks(args)
     rig = rig_from_args(args)
     kind = rig_device_kind(rig)
     if args.dry_run:
@@ -88,7 +104,7 @@ def cmd_timelapse(args) -> int:
                             chart_patch_m=args.chart_patch, light=args.light)
         res = simulate_session(session_dir, rig, scene, start=clock.now(), noise=args.noise == "on",
                                seed=args.seed, ground_truth_width=args.gt_width, progress=False,
-                               mounting_error_deg=args.mounting_error)
+                               mounting_error_deg=args.mounting_error, raw=args.raw)
         clock.sleep(res["simulated_s"])
         return res
 
@@ -126,6 +142,9 @@ def _add_scene_args(p) -> None:
                    help="distance of the ColorChecker from the rig (procedural scene; default 2.5 m)")
     p.add_argument("--chart-patch", type=float, default=None, metavar="M",
                    help="ColorChecker patch size (procedural scene; default 0.05 m)")
+    p.add_argument("--raw", choices=["rgb", "bayer"], default="rgb",
+                   help="frames as RGB (default) or as the raw RGGB Bayer mosaics of single-sensor cameras "
+                        "(CFA layout in the rig snapshot and the journal; process demosaics)")
     p.add_argument("--gt-width", type=int, default=None, metavar="W",
                    help="width of the ground-truth panorama (default: the paper's 7260 px scaled to the sensor)")
 
@@ -152,8 +171,13 @@ def add_commands(sub) -> None:
                        description="Run the capture loop on the devices named in the rig file (GenICam cameras, "
                                    "RODEON or Merlin head; an all-simulated rig runs the simulator); resumes an "
                                    "incomplete session in the same directory.")
+    c.add_argument("what", nargs="?", choices=["frames", "darks"], default="frames",
+                   help="frames (default): the capture; darks: dark frames (lenses capped) for every exposure of "
+                        "the bracket of the existing session -o SESSION, subtracted by process")
     _add_session_args(c)
     c.add_argument("--dry-run", action="store_true", help="print the plan and the devices named; move nothing")
+    c.add_argument("--dark-frames", type=int, default=8, metavar="N",
+                   help="capture darks: frames averaged per camera and exposure (default 8)")
     c.set_defaults(func=cmd_capture)
 
     t = sub.add_parser("timelapse", help="one capture every N minutes into a series directory",

@@ -42,4 +42,11 @@ def product_fingerprint(session_path: str | Path, *, hdr_weight: str, registrati
             "session": session_identity(session), "rig_sha256": file_sha256(rig_file),
             "exposures_s": [float(t) for t in plan.get("exposures_s", [])],
             "hdr_weight": hdr_weight, "registration": reg,
-            "skipped_directions": sorted(int(d) for d in skipped_directions)}
+            "skipped_directions": sorted(int(d) for d in skipped_directions),
+            **_darks(session)}
+
+
+def _darks(session: Path) -> dict:
+    """The dark frames' index (``capture darks``), when the session has one: recording darks changes every merge."""
+    index = session / "darks" / "darks.json"
+    return {"darks_sha256": file_sha256(index)} if index.exists() else {}

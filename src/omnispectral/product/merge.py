@@ -12,16 +12,22 @@ merged directions (:func:`omnispectral.product.process.register_parallax`).
 from __future__ import annotations
 
 from collections.abc import Callable, Collection
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
 
+from omnispectral.capture.darks import load_darks
 from omnispectral.capture.session import Session
 from omnispectral.errors import OmnispectralError
 from omnispectral.imaging import merge_exposures
+from omnispectral.imaging.bayer import correct_raw, demosaic
 from omnispectral.imaging.geometry import CameraModel
+from omnispectral.imaging.response import CameraResponse
 from omnispectral.mosaic.sources import CAMERAS, MergedDirections, MergedDirectionsWriter
-from omnispectral.rig import rig_toml
+from omnispectral.rig import RawSpec, rig_toml
+from omnispectral.spectral.colour import srgb_decode
 
 #: ``register(direction, image_a, image_b) -> (dx, dy)``: camera B's offset for one direction; it may also
 #: return ``(dx, dy, extra)`` with a dict recorded in the direction's entry of ``merged.json``.
@@ -34,19 +40,91 @@ def calibrated_offset(offset_px: tuple[float, float] = (0.0, 0.0)) -> RegisterFn
     return lambda direction, image_a, image_b: (dx, dy)
 
 
-def merge_direction(session, direction: int, camera: str, n_exposures: int,
+@dataclass(frozen=True)
+class RawSettings:
+    """How one camera's raw frames are corrected and demosaiced before/after the HDR merge.
+
+    ``black_level_dn`` is the rig file's (a frame's own ``camera_metadata.black_level`` wins); ``darks`` maps
+    an exposure index to its mean dark frame (:mod:`omnispectral.capture.darks`), which replaces the black
+    level; ``raw`` is the rig's :class:`~omnispectral.rig.RawSpec` (None: RGB frames, unless a frame's
+    metadata names a CFA layout, which is then demosaiced with the defaults).
+    """
+
+    black_level_dn: float = 0.0
+    darks: dict = field(default_factory=dict)
+    raw: RawSpec | None = None
+
+    @classmethod
+    def of(cls, session: Session, rig, camera: str) -> RawSettings:
+        cam = rig.cameras[camera]
+        darks = {k: frame for (c, k), frame in load_darks(session.path).items() if c == camera}
+        return cls(cam.black_level_dn, darks, cam.raw)
+
+
+def srgb_response(bit_depth: int = 8, full_scale_dn: float | None = None) -> CameraResponse:
+    """The response of sRGB-encoded images (IEC 61966-2-1): code ``z`` → linear ``decode(z / top) · full_scale``.
+
+    ``full_scale_dn``: the linear value of the largest code, in the rig camera's DN (the import records the
+    rig camera's full scale, so an imported JPEG's radiance is in the same DN/s as the camera's raw frames);
+    default ``top``."""
+    top = (1 << bit_depth) - 1
+    scale = float(full_scale_dn) if full_scale_dn else float(top)
+    return CameraResponse((srgb_decode(np.arange(top + 1) / top) * scale).astype(np.float32)[:, None], "srgb")
+
+
+def _demosaic_frames(frames: list[np.ndarray], times: list[float], pattern: str, spec: RawSpec,
+                     bit_depth: int) -> list[np.ndarray]:
+    """Demosaic every corrected frame (``order = "demosaic-first"``) back to integer codes for the merge.
+
+    Pixels within 2 px of a clipped photosite are set to full scale in all channels (an interpolated value
+    next to a clipped one is not trustworthy: the merge then takes them from shorter exposures), except in
+    the shortest exposure, which has nothing shorter to fall back on.
+    """
+    top = (1 << bit_depth) - 1
+    shortest = int(np.argmin(times))
+    out = []
+    for k, f in enumerate(frames):
+        rgb = demosaic(f if spec.demosaic == "opencv-ea" else f.astype(np.float32), pattern, spec.demosaic)
+        codes = np.clip(np.rint(rgb), 0, top).astype(np.uint16)
+        if k != shortest:
+            codes[ndimage.maximum_filter(f >= 0.99 * top, size=5)] = top
+        out.append(codes)
+    return out
+
+
+def merge_direction(session, direction: int, camera: str, n_exposures: int, raw: RawSettings | None = None,
                     **merge_options) -> tuple[np.ndarray, tuple[float, float]]:
-    """HDR merge (Eqs. (1)-(2)) of one camera's bracket; returns radiance (H, W, 3) and the reported pan/tilt."""
-    frames, times, pans, tilts, bit_depth = [], [], [], [], 12
+    """HDR merge (Eqs. (1)-(2)) of one camera's bracket; returns radiance (H, W, 3) and the reported pan/tilt.
+
+    Raw frames are corrected first (:func:`omnispectral.imaging.bayer.correct_raw`: the exposure's dark frame,
+    else the black level); Bayer mosaics are merged and then demosaiced once, or demosaiced frame by frame
+    and then merged, as the rig's ``[cameras.X.raw] order`` says (:mod:`omnispectral.imaging.bayer`).
+    """
+    raw = raw or RawSettings()
+    frames, times, pans, tilts, bit_depth, pattern = [], [], [], [], 12, None
     for k in range(n_exposures):
         frame, meta = session.read_frame(direction, camera, k)
+        camera_meta = meta.get("camera_metadata") or {}
+        if camera_meta.get("response") == "srgb":  # imported 8-bit images (omnispectral.capture.importer)
+            merge_options = {**merge_options, "response": srgb_response(int(meta.get("bit_depth", 8)),
+                                                                        camera_meta.get("full_scale_dn"))}
+        bit_depth = int(meta.get("bit_depth", bit_depth))
+        black = float(camera_meta.get("black_level", raw.black_level_dn))
+        if k in raw.darks or black:
+            frame = correct_raw(frame, bit_depth, black, raw.darks.get(k))
+        if frame.ndim == 2 and (camera_meta.get("cfa_pattern") or raw.raw is not None):
+            pattern = camera_meta.get("cfa_pattern") or raw.raw.cfa_pattern
         frames.append(frame)
         times.append(float(meta["exposure_s"]))
         pans.append(float(meta.get("pan_deg_reported", meta.get("pan_deg_commanded"))))
         tilts.append(float(meta.get("tilt_deg_reported", meta.get("tilt_deg_commanded"))))
-        bit_depth = int(meta.get("bit_depth", bit_depth))
+    spec = raw.raw or RawSpec()
+    if pattern is not None and spec.order == "demosaic-first":
+        frames = _demosaic_frames(frames, times, pattern, spec, bit_depth)
     result = merge_exposures(frames, times, bit_depth, **merge_options)
     radiance = result.radiance if result.radiance.ndim == 3 else result.radiance[..., None]
+    if pattern is not None and spec.order == "merge-first":
+        radiance = demosaic(radiance[..., 0], pattern, spec.demosaic)
     return radiance, (float(np.mean(pans)), float(np.mean(tilts)))
 
 
@@ -71,6 +149,7 @@ def merge_session(session: Session | str | Path, output: str | Path, *, register
     register = register or calibrated_offset()
     cameras = cameras or {c: rig.camera_model(c) for c in CAMERAS}
     directions = [d for d in plan.directions if d.index not in set(skip)]
+    raw = {c: RawSettings.of(session, rig, c) for c in CAMERAS}
     writer = MergedDirectionsWriter.create(
         output, cameras, [d.to_dict() for d in directions], rig_name=rig.name, rig_toml=rig_toml(rig),
         session={"path": str(session.path.resolve()), **_session_summary(session)}, dtype=dtype,
@@ -79,8 +158,9 @@ def merge_session(session: Session | str | Path, output: str | Path, *, register
     n = len(directions)
     for i, d in enumerate(directions):
         if d.index not in done:
-            img_a, (pan, tilt) = merge_direction(session, d.index, "A", len(plan.exposures_s), **merge_options)
-            img_b, _ = merge_direction(session, d.index, "B", len(plan.exposures_s), **merge_options)
+            img_a, (pan, tilt) = merge_direction(session, d.index, "A", len(plan.exposures_s), raw["A"],
+                                                 **merge_options)
+            img_b, _ = merge_direction(session, d.index, "B", len(plan.exposures_s), raw["B"], **merge_options)
             dx, dy, *rest = register(d.index, img_a, img_b)
             writer.add(d.index, pan, tilt, {"A": img_a, "B": img_b}, {"B": (dx, dy)},
                        {"pan_deg_commanded": d.pan_deg, "tilt_deg_commanded": d.tilt_deg, **(rest[0] if rest else {})})

@@ -115,6 +115,12 @@ def srgb_encode(linear: np.ndarray) -> np.ndarray:
     return np.where(linear <= 0.0031308, 12.92 * linear, 1.055 * np.power(linear, 1 / 2.4) - 0.055)
 
 
+def srgb_decode(encoded: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`srgb_encode`: linear values of sRGB-encoded values in [0, 1] (IEC 61966-2-1)."""
+    v = np.asarray(encoded, np.float64)
+    return np.where(v <= 0.04045, v / 12.92, np.power((v + 0.055) / 1.055, 2.4))
+
+
 def spectrum_cct_K(wavelength_nm, spectrum) -> float:
     """CCT of a spectral power distribution (CIE 1931 2°; Ohno 2013 via CIE 1960 uv)."""
     wl = np.asarray(wavelength_nm, dtype=np.float64)

@@ -1,0 +1,110 @@
+"""Dark frames: what each camera records with no light, per exposure of the bracket (``capture darks``).
+
+A dark frame holds the camera's black level (its offset code) plus the sensor's dark signal, which grows
+with the exposure time and differs from pixel to pixel (hot pixels; EMVA 1288 calls the spread DSNU).
+``record_darks`` averages ``n_frames`` frames per camera and exposure (the lens capped, or the simulated
+rig with no light) into ``SESSION/darks/``; ``process`` subtracts the exposure's mean dark frame from
+every raw frame instead of the black level alone (:class:`omnispectral.product.merge.RawSettings`).
+
+Layout::
+
+    SESSION/darks/darks.json        index: one entry per camera and exposure index (exposure_s, n_frames, file,
+                                    mean and spread of the dark frame in DN), created time
+    SESSION/darks/{A,B}_eKK.tif     float32 mean dark frame, the shape of the session's raw frames
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import tifffile
+
+from omnispectral.capture.devices import Camera, DeviceError
+from omnispectral.capture.session import Session, utc_now_iso
+from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.io import atomic_path, atomic_write_json
+from omnispectral.locking import directory_lock
+
+DARKS_DIR = "darks"
+DARKS_INDEX = "darks.json"
+
+
+def dark_relpath(camera: str, exposure_index: int) -> str:
+    return f"{DARKS_DIR}/{camera}_e{exposure_index:02d}.tif"
+
+
+def record_darks(session: Session | str | Path, cameras: dict[str, Camera], n_frames: int = 8,
+                 timeout_s: float = 30.0, progress: Callable[[str, int, int], None] | None = None) -> dict:
+    """Record and average ``n_frames`` dark frames per camera and exposure of the session's plan.
+
+    The exposure actually set (as the camera reports it) is recorded; a dark frame whose exposure differs
+    by more than 1 % from the plan's is refused, since the dark signal is proportional to it.  Returns the
+    index written to ``darks/darks.json``.
+    """
+    session = session if isinstance(session, Session) else Session.open(session)
+    if n_frames < 1:
+        raise ConfigurationError(f"n_frames must be at least 1, got {n_frames}")
+    exposures = list(session.plan().exposures_s)
+    total = len(exposures) * len(cameras)
+    entries = []
+    with directory_lock(session.path, "capture darks"):
+        (session.path / DARKS_DIR).mkdir(exist_ok=True)
+        for i, (k, c) in enumerate((k, c) for k in range(len(exposures)) for c in sorted(cameras)):
+            cam = cameras[c]
+            actual = float(cam.set_exposure(exposures[k]))
+            if abs(actual - exposures[k]) > 0.01 * exposures[k]:
+                raise DeviceError(f"camera {c}: exposure {exposures[k]} s was set as {actual} s; dark frames must "
+                                  "match the bracket's exposures")
+            total_dn = None
+            for _ in range(n_frames):
+                cam.trigger()
+                frame, _meta = cam.read_frame(timeout_s)
+                f = frame.astype(np.float64)
+                total_dn = f if total_dn is None else total_dn + f
+            mean = (total_dn / n_frames).astype(np.float32)
+            rel = dark_relpath(c, k)
+            with atomic_path(session.path / rel) as tmp:
+                tifffile.imwrite(tmp, mean, photometric="rgb" if mean.ndim == 3 else "minisblack", metadata=None)
+            entries.append({"camera": c, "exposure_index": k, "exposure_s": actual, "n_frames": n_frames,
+                            "file": rel, "shape": list(mean.shape), "mean_dn": float(mean.mean()),
+                            "p99_dn": float(np.percentile(mean, 99)), "max_dn": float(mean.max())})
+            if progress is not None:
+                progress("darks", i + 1, total)
+        index = {"format": "omnispectral-darks", "format_version": 1, "created_utc": utc_now_iso(),
+                 "frames": entries}
+        atomic_write_json(session.path / DARKS_DIR / DARKS_INDEX, index)
+        session.log_event("darks", n_frames=n_frames, n_darks=len(entries))
+    return index
+
+
+def load_darks(session_path: str | Path) -> dict[tuple[str, int], np.ndarray]:
+    """The session's mean dark frames by (camera, exposure index); empty when none were recorded.
+
+    A damaged or inconsistent dark frame stops processing with its name (a wrong dark frame would bias
+    every pixel silently).
+    """
+    root = Path(session_path)
+    index_path = root / DARKS_DIR / DARKS_INDEX
+    if not index_path.exists():
+        return {}
+    try:
+        index = json.loads(index_path.read_text(encoding="utf-8"))
+        entries = index["frames"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InputFileError(index_path, f"not a dark-frame index ({exc})") from None
+    out = {}
+    for e in entries:
+        p = root / e["file"]
+        try:
+            data = tifffile.imread(p)
+        except FileNotFoundError:
+            raise InputFileError(p, "dark frame missing (listed in darks.json)") from None
+        except Exception as exc:  # tifffile raises several types for damaged files
+            raise InputFileError(p, f"damaged dark frame ({type(exc).__name__}: {exc})") from None
+        if list(data.shape) != list(e["shape"]):
+            raise InputFileError(p, f"shape {list(data.shape)}, darks.json recorded {e['shape']}")
+        out[(str(e["camera"]), int(e["exposure_index"]))] = data.astype(np.float32)
+    return out

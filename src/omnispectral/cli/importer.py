@@ -1,0 +1,48 @@
+"""``omnispectral import``: a session from images made elsewhere (:mod:`omnispectral.capture.importer`)."""
+
+from __future__ import annotations
+
+from omnispectral.capture.importer import RESPONSES, import_images, list_images, read_directions, read_exposure_table
+from omnispectral.cli._common import ProgressBars, console, print_json
+from omnispectral.cli.capture import add_rig_args, rig_from_args
+
+
+def cmd_import(args) -> int:
+    rig = rig_from_args(args)
+    images = list_images(args.images) if args.images else None
+    entries = read_directions(args.directions, images)
+    table = read_exposure_table(args.exposures) if args.exposures else None
+    with ProgressBars(enabled=not args.json, transient=True) as bars:
+        out = import_images(args.output, rig, args.camera, entries, exposure_table=table, response=args.response,
+                            progress=bars)
+    if args.json:
+        print_json(out)
+    else:
+        console.print(f"Imported {out['n_images']} images of camera {out['camera']} ({out['n_directions']} "
+                      f"directions x {out['n_exposures']} exposures) into {out['session']}; cameras in the session: "
+                      f"{', '.join(out['cameras_imported'])}"
+                      + ("" if len(out["cameras_imported"]) == len(rig.cameras) else
+                         " (import the other camera with --camera before 'omnispectral process')"))
+    return 0
+
+
+def add_commands(sub) -> None:
+    """Register ``import``."""
+    p = sub.add_parser("import", help="build a session from images made elsewhere (Papywizard, Hugin, CSV)",
+                       description="Build a capture session from existing images (TIFF, PNG, JPEG) of one camera of "
+                                   "the rig: directions from a CSV (file,pan_deg,tilt_deg), a Papywizard XML or a "
+                                   "Hugin .pto; exposure times from the CSV, a table or EXIF. Run once per camera "
+                                   "into the same session; 'omnispectral process' works on it as on a capture.")
+    add_rig_args(p)
+    p.add_argument("--camera", default="A", choices=["A", "B"], help="the rig camera the images are from (default A)")
+    p.add_argument("--directions", required=True, metavar="FILE.csv|FILE.xml|FILE.pto",
+                   help="where each image looked: CSV file,pan_deg,tilt_deg; Papywizard XML; Hugin project")
+    p.add_argument("--images", default=None, metavar="DIR",
+                   help="the images (name order = Papywizard picture order; CSV names are looked up here)")
+    p.add_argument("--exposures", default=None, metavar="TABLE",
+                   help="exposure times: CSV file,exposure_s or 'name seconds' lines (default: EXIF ExposureTime)")
+    p.add_argument("--response", default="auto", choices=list(RESPONSES),
+                   help="how values relate to light: linear (raw, 16-bit), srgb (JPEG/PNG); auto: srgb for 8-bit")
+    p.add_argument("-o", "--output", required=True, metavar="SESSION", help="session directory (created or added to)")
+    p.add_argument("--json", action="store_true", help="print a JSON summary")
+    p.set_defaults(func=cmd_import)

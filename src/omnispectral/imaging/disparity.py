@@ -81,6 +81,9 @@ SWEEP_MIN_NCC = 0.5
 SWEEP_ZERO_MARGIN = 0.03
 #: Steps searched beyond the range of a pixel's neighbouring blocks.
 SWEEP_MARGIN_STEPS = 4
+#: Neighbourhood (blocks) whose range of estimates a pixel searches: a near object narrower than a block
+#: (a post at 1.5 m) is measured mixed with its background by every block that holds it.
+SWEEP_RANGE_BLOCKS = 5
 #: Minimum POC peak height of a block measurement.
 PARALLAX_MIN_CONFIDENCE = 0.3
 #: Inverse depth change (1/m) used for the finite difference of the epipolar field.
@@ -431,9 +434,10 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
     """Step 3: per-pixel inverse depth by a sweep along the epipolar lines (plane sweep, Collins 1996).
 
     Inverse depths ``w_k`` every ``step_px`` of parallax span the range of the block estimates; at each
-    level B's resampled image is moved by ``w_k · e(p)`` and compared with A by normalised
-    cross-correlation over a ``window``; each pixel keeps the best level within the range of its 3 × 3
-    neighbouring blocks (± 4 steps: a block larger than an object mixes it with its background), refined
+    level B's resampled image is moved by ``w_k · e(p)`` and compared with A (:class:`LocalLinearScore`
+    over a ``window``; :func:`local_ncc` for one-channel inputs); each pixel keeps the best level within
+    the range of its 5 × 5 neighbouring blocks (± 4 steps: a block larger than an object mixes it with its
+    background), refined
     by a parabola through the
     neighbouring levels.  Where nothing correlates (best correlation below :data:`SWEEP_MIN_NCC`: flat
     areas, noise) or no neighbouring block was measured, the pixel keeps its own block's value.  A prior
@@ -453,8 +457,8 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
         return w_blocks[by[:, None], bx[None, :]].astype(np.float32), np.zeros((h, w), np.float32)
     dw = step_px / float(np.median(valid))
     # blocks larger than an object measure a mixture of its depth and its background's: search beyond
-    lo_b = ndimage.minimum_filter(w_blocks, size=3, mode="nearest") - SWEEP_MARGIN_STEPS * dw
-    hi_b = ndimage.maximum_filter(w_blocks, size=3, mode="nearest") + SWEEP_MARGIN_STEPS * dw
+    lo_b = ndimage.minimum_filter(w_blocks, size=SWEEP_RANGE_BLOCKS, mode="nearest") - SWEEP_MARGIN_STEPS * dw
+    hi_b = ndimage.maximum_filter(w_blocks, size=SWEEP_RANGE_BLOCKS, mode="nearest") + SWEEP_MARGIN_STEPS * dw
     lo, hi = lo_b[by[:, None], bx[None, :]], hi_b[by[:, None], bx[None, :]]
     own = w_blocks[by[:, None], bx[None, :]]
     w_lo, w_hi = float(lo_b.min()), float(hi_b.max())

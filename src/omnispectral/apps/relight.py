@@ -188,34 +188,72 @@ class Relighter:
             self._maps[key] = (w, mu - w @ (sys @ mu))
         return self._maps[key]
 
-    def relight(self, signals: np.ndarray, rays: np.ndarray, bands: np.ndarray | None = None
-                ) -> tuple[np.ndarray, np.ndarray]:
-        """Relit signals ``(N, n)`` and the light-source flag ``(N,)`` of pixels at directions ``rays`` (their
-        estimated signals, and their bands for the Wiener reflectance)."""
-        wts = self.weights_at(rays)
-        if wts.shape[1] == 1:
-            combos, inverse = wts[:1], np.zeros(wts.shape[0], np.int64)
+    def _groups(self, rays: np.ndarray | None, n: int):
+        """``(selection, E, E_new scaled to E's luminance, Y of E)`` per combination of reference weights among ``n``
+        pixels at ``rays`` (``None`` with a single reference: every pixel under the one illuminant)."""
+        if len(self.illuminants) == 1:
+            e = self.illuminants[0]
+            y_e = float(luminance(e[None], self.wavelength_nm)[0])
+            yield slice(None), e, self.new_illuminant * (y_e / self._y_new), y_e
+            return
         else:  # weights are multiples of 1/20: one integer key per combination
+            wts = self.weights_at(rays)
             key = np.rint(wts * 20).astype(np.int64) @ (21 ** np.arange(wts.shape[1]))
             _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
             combos = wts[first]
-        relit = np.empty(signals.shape, np.float32)
-        bright = np.empty(signals.shape[0], bool)
-        y_signal = luminance(np.asarray(signals, np.float32), self.wavelength_nm)
         for j, combo in enumerate(combos):  # one illuminant (and one linear map) per combination of weights
-            sel = inverse == j
             e = combo @ self.illuminants
             y_e = float(luminance(e[None], self.wavelength_nm)[0])
-            new = (self.new_illuminant * (y_e / self._y_new)).astype(np.float32)
+            yield inverse == j, e, self.new_illuminant * (y_e / self._y_new), y_e
+
+    def _luminance_factor_map(self, e: np.ndarray) -> tuple[np.ndarray, float]:
+        """``(v (m,), v0)``: luminance of the Wiener colour signal ``ρ̂ E`` of bands ``b`` is ``b·v + v0``."""
+        w, c = self._reflectance_map(e)
+        y = luminance(np.eye(self.wavelength_nm.size), self.wavelength_nm)  # (n,) luminance weights
+        return (w.T * e) @ y, float((c * e) @ y)
+
+    def relight(self, signals: np.ndarray, rays: np.ndarray | None, bands: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """Relit signals ``(N, n)`` and the light-source flag ``(N,)`` of pixels at directions ``rays`` (their
+        estimated signals, and their bands for the Wiener reflectance)."""
+        relit = np.empty(signals.shape, np.float32)
+        bright = np.empty(signals.shape[0], bool)
+        y_signal = luminance(np.asarray(signals, np.float32), self.wavelength_nm) if self.method == "ratio" else None
+        for sel, e, new, y_e in self._groups(rays, signals.shape[0]):
+            new = new.astype(np.float32)
             if self.method == "ratio":
                 relit[sel] = signals[sel] * (new / e).astype(np.float32)
+                bright[sel] = y_signal[sel] > y_e
             else:
                 w, c = self._reflectance_map(e)
-                relit[sel] = (np.asarray(bands[sel], np.float32) @ (w.T * new[None, :]).astype(np.float32)
-                              + (c * new).astype(np.float32))
-            bright[sel] = y_signal[sel] > y_e
+                b = np.asarray(bands[sel], np.float32)
+                relit[sel] = b @ (w.T * new[None, :]).astype(np.float32) + (c * new).astype(np.float32)
+                v, v0 = self._luminance_factor_map(e)
+                bright[sel] = b @ v.astype(np.float32) + v0 > y_e
         if self.sources == "keep":
             relit[bright] = signals[bright]
+        return relit, bright
+
+    def relight_bands(self, bands: np.ndarray, rays: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """Wiener method straight on the six bands ``(N, m)`` → relit bands ``(N, m)`` and the flag ``(N,)``.
+
+        The relit spectrum ``(W b + c) · E_new`` projected back on the bands is one ``m × m`` map plus an offset
+        per illuminant, so no spectrum is formed (what :func:`relight_product` writes at level 0); equal to
+        ``relight(...)[0] @ R.T`` except that kept light sources keep their captured bands exactly."""
+        if self.method != "wiener":
+            raise ConfigurationError("relighting the bands directly needs method='wiener'")
+        R = np.asarray(self.system_matrix, float)
+        b = np.asarray(bands, np.float32)
+        relit = np.empty(b.shape, np.float32)
+        bright = np.empty(b.shape[0], bool)
+        for sel, e, new, y_e in self._groups(rays, b.shape[0]):
+            w, c = self._reflectance_map(e)
+            v, v0 = self._luminance_factor_map(e)
+            bs = b[sel]
+            relit[sel] = bs @ ((R * new) @ w).T.astype(np.float32) + (R @ (c * new)).astype(np.float32)
+            bright[sel] = bs @ v.astype(np.float32) + v0 > y_e
+        if self.sources == "keep":
+            relit[bright] = b[bright]
         return relit, bright
 
     def describe(self) -> dict:
@@ -271,9 +309,26 @@ def relight_block(bands: np.ndarray, estimator, relighter: Relighter, rows: slic
     relit = np.full_like(flat, np.nan)
     flag = np.zeros(flat.shape[0], bool)
     if ok.any():
-        rays = pixel_rays(rows, cols, *shape)[ok]
+        rays = pixel_rays(rows, cols, *shape)[ok] if len(relighter.illuminants) > 1 else None
         relit[ok], flag[ok] = relighter.relight(flat[ok], rays, bands.reshape(-1, bands.shape[2])[ok])
     return relit.reshape(h, w, -1), spectra, flag.reshape(h, w)
+
+
+def relight_bands_block(bands: np.ndarray, relighter: Relighter, rows: slice, cols: slice, shape: tuple[int, int]
+                        ) -> tuple[np.ndarray, dict]:
+    """Relit six bands of a block of level 0 (Wiener method, :meth:`Relighter.relight_bands`) and its count of
+    light-source pixels; pixels without finite bands stay NaN."""
+    h, w, m = bands.shape
+    flat = bands.reshape(-1, m)
+    ok = np.isfinite(flat).all(axis=1)
+    out = np.full(flat.shape, np.nan, np.float32)
+    n_flag = 0
+    if ok.any():
+        rays = pixel_rays(rows, cols, *shape)[ok] if len(relighter.illuminants) > 1 else None
+        rel, flag = relighter.relight_bands(flat[ok] if not ok.all() else flat, rays)
+        out[ok] = rel
+        n_flag = int(flag.sum())
+    return out.reshape(h, w, m), {"light_source_pixels": n_flag}
 
 
 def relight_product(product: str | Path, output: str | Path, whites: list[WhiteReference], to: str = "A",
@@ -300,6 +355,8 @@ def relight_product(product: str | Path, output: str | Path, whites: list[WhiteR
 
     def tile(r0, r1, c0, c1):
         bands = store.read(0, slice(r0, r1), slice(c0, c1))
+        if method == "wiener":  # one m x m map per illuminant: no spectra needed
+            return relight_bands_block(bands, relighter, slice(r0, r1), slice(c0, c1), (h, w))
         parts = relight_tile(bands, estimator, relighter, r0, c0, (h, w), lambda rel, _, flag: (rel @ R.T, flag.sum()))
         return np.concatenate([p[0] for p in parts]), {"light_source_pixels": int(sum(p[1] for p in parts))}
 

@@ -256,3 +256,25 @@ def test_indoor_painting_from_a_reflectance_cube(tmp_path, est):
     np.savez(tmp_path / "short.npz", cube=cube[..., :10], wavelength_nm=wl10[:10])
     with pytest.raises(InputFileError, match=r"short\.npz.*do not cover"):
         IndoorScene("A", painting=str(tmp_path / "short.npz"))
+
+
+def test_band_path_equals_spectral_path_with_two_references(tmp_path, est):
+    """Level 0 is relit on the bands (one 6 × 6 map per illuminant); that equals relighting the spectra and
+    projecting them on the bands, for every mix of the two references, and kept light sources keep their bands."""
+    from omnispectral.apps.relight import measure_relighter, pixel_rays
+
+    src, _, boxes = _product(tmp_path, est, "FL11", "D65", "mixed")
+    whites = [WhiteReference(*_centre_lonlat(*boxes[(h, "white")]), radius_deg=3.0) for h in ("west", "east")]
+    _, store, e = open_product(src)
+    bands = store.read(0).reshape(-1, 6)
+    rays = pixel_rays(slice(0, H), slice(0, W), H, W)
+    for sources in ("relight", "keep"):
+        rl = measure_relighter(store, e, whites, "A", sources=sources)
+        relit_bands, flag = rl.relight_bands(bands, rays)
+        relit_spectra, flag2 = rl.relight(e.estimate(bands), rays, bands)
+        assert np.array_equal(flag, flag2) and flag[:6 * W].all() and flag.sum() < 7 * W
+        lit = ~flag
+        assert np.allclose(relit_bands[lit], relit_spectra[lit] @ e.system_matrix.T, rtol=1e-4, atol=1e-3)
+        if sources == "keep":
+            assert np.array_equal(relit_bands[flag], bands[flag])
+    assert len({tuple(np.round(rl.weights_at(rays[k:k + 1])[0], 2)) for k in range(0, H * W, 97)}) > 5

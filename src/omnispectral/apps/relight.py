@@ -16,10 +16,13 @@ luminance of ``E`` (the white keeps its brightness; only the light's colour chan
   (``1/(θ² + 1°²)``, normalised; weights rounded to 1/20 so that one Wiener matrix serves many pixels),
   and ``E_new`` is scaled to that mix's luminance.
 - **Light sources and sky.** A pixel brighter (in luminance) than a perfect white diffuser under its
-  illuminant cannot be a reflection of it: lamps, windows, sky, specular highlights.  Those pixels are
+  illuminant cannot be a reflection of it: lamps, windows, sky, specular highlights.  (Wiener method: the
+  luminance of ``ρ̂ E``, linear in the bands; ratio method: of the estimated signal.)  Those pixels are
   flagged and by default kept as captured (``sources="keep"``), or relit like the rest (``"relight"``).
-- **Any size.** Level 0 is processed tile by tile (the store's chunks, Dask tasks on threads); each tile
-  is estimated, relit and projected back on the six bands through the system matrix, and the result is a
+- **Any size.** Level 0 is processed tile by tile (the store's chunks, Dask tasks on threads).  With the
+  Wiener method the relit spectrum projected back on the six bands, ``R diag(E_new) (W b + c)``, is one
+  6 × 6 map plus an offset per illuminant, applied to the bands directly (no spectra are formed: 100 Mpx
+  in minutes); the ratio method estimates each tile's spectra, relights and projects them.  The result is a
   product-like directory (``product.json`` + ``panorama.zarr`` with the same estimator), so ``export``,
   ``spectrum``, ``view`` and ``render`` work on it.  Previews (captured and relit, same exposure, and the
   flagged pixels) are written at a level ≤ 2048 px wide from the relit spectra directly.

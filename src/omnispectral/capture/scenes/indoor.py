@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 
 from omnispectral.capture.scenes.base import (
@@ -63,8 +64,6 @@ def synthetic_painting(height: int = 48, width: int = 64, wavelength_nm=None, se
     (:data:`~omnispectral.spectral.library.CALIBRATION_REFLECTANCE_SETS`), which the relighting's
     reflectance prior does not contain; the weights are low-frequency random fields (``seed``) sharpened so
     that one or two pigments dominate each region."""
-    import cv2
-
     wl = DEFAULT_WAVELENGTH_NM if wavelength_nm is None else np.asarray(wavelength_nm, float)
     pigments = np.vstack([load_reflectances(n).resample(wl).values for n in CALIBRATION_REFLECTANCE_SETS])
     log_p = np.log(np.clip(pigments, 0.01, 1.0))

@@ -278,3 +278,28 @@ def test_band_path_equals_spectral_path_with_two_references(tmp_path, est):
         if sources == "keep":
             assert np.array_equal(relit_bands[flag], bands[flag])
     assert len({tuple(np.round(rl.weights_at(rays[k:k + 1])[0], 2)) for k in range(0, H * W, 97)}) > 5
+
+
+def test_bright_reflections_are_relit_and_emitters_kept(est):
+    """A grey wall lit 1.6× more than the white reference (luminance factor 1.12) is a reflection and is relit;
+    a lamp (40×) is kept. With ``source_factor=1`` the bright wall would be taken for a light source."""
+    from omnispectral.apps.relight import luminance, target_illuminant
+
+    wl = np.asarray(est.wavelength_nm)
+    R = np.asarray(est.system_matrix, float)
+    fl11 = load_illuminant("FL11").resample(wl).values[0]
+    e = fl11 / fl11.mean()
+    signals = np.array([0.7 * 1.6 * e, 40 * e, 0.3 * e])
+    bands = signals @ R.T
+    a = target_illuminant("A", wl)
+    new = a * luminance(e[None], wl)[0] / luminance(a[None], wl)[0]
+    rl = Relighter(wl, np.array([[0.0, 0.0, 1.0]]), e[None], a, R)
+    relit, flag = rl.relight_bands(bands, None)
+    assert flag.tolist() == [False, True, False]
+    assert np.allclose(relit[0], (0.7 * 1.6 * new) @ R.T, rtol=0.03)  # Wiener reflectance of a grey: <= 2.5 %
+    assert np.allclose(relit[2], (0.3 * new) @ R.T, rtol=0.03)
+    assert np.array_equal(relit[1], bands[1].astype(np.float32))
+    strict = Relighter(wl, np.array([[0.0, 0.0, 1.0]]), e[None], a, R, source_factor=1.0)
+    assert strict.relight_bands(bands, None)[1].tolist() == [True, True, False]
+    with pytest.raises(ConfigurationError, match="source_factor"):
+        Relighter(wl, np.array([[0.0, 0.0, 1.0]]), e[None], a, R, source_factor=0.0)

@@ -16,9 +16,11 @@ luminance of ``E`` (the white keeps its brightness; only the light's colour chan
   (``1/(θ² + 1°²)``, normalised; weights rounded to 1/20 so that one Wiener matrix serves many pixels),
   and ``E_new`` is scaled to that mix's luminance.
 - **Light sources and sky.** A pixel brighter (in luminance) than a perfect white diffuser under its
-  illuminant cannot be a reflection of it: lamps, windows, sky, specular highlights.  (Wiener method: the
-  luminance of ``ρ̂ E``, linear in the bands; ratio method: of the estimated signal.)  Those pixels are
-  flagged and by default kept as captured (``sources="keep"``), or relit like the rest (``"relight"``).
+  illuminant cannot be a diffuse reflection of it: lamps, windows, sky.  The illuminance varies over a room,
+  so the test has a margin: flagged above ``source_factor`` (default 2) times the perfect white's luminance
+  at the reference (the indoor scene's walls next to its panels reach 1.2, the panels 53).  (Wiener method:
+  the luminance of ``ρ̂ E``, linear in the bands; ratio method: of the estimated signal.)  Flagged pixels
+  are by default kept as captured (``sources="keep"``), or relit like the rest (``"relight"``).
 - **Any size.** Level 0 is processed tile by tile (the store's chunks, Dask tasks on threads).  With the
   Wiener method the relit spectrum projected back on the six bands, ``R diag(E_new) (W b + c)``, is one
   6 × 6 map plus an offset per illuminant, applied to the bands directly (no spectra are formed: 100 Mpx
@@ -56,6 +58,8 @@ from omnispectral.spectral.prior import exclude_near
 
 DEFAULT_WHITE_REFLECTANCE = 0.95
 DEFAULT_RADIUS_DEG = 1.0
+#: A pixel is a light source above this many times a perfect white's luminance under its illuminant.
+DEFAULT_SOURCE_FACTOR = 2.0
 PREVIEW_MAX_WIDTH = 2048
 
 
@@ -152,12 +156,15 @@ class Relighter:
     sources: str = "keep"
     method: str = "wiener"
     sigma2_relative: float = 2e-5
+    source_factor: float = DEFAULT_SOURCE_FACTOR
 
     def __post_init__(self):
         if self.sources not in ("keep", "relight"):
             raise ConfigurationError(f"sources must be 'keep' or 'relight', got {self.sources!r}")
         if self.method not in ("wiener", "ratio") or (self.method == "wiener" and self.system_matrix is None):
             raise ConfigurationError(f"method must be 'wiener' (with a system matrix) or 'ratio', got {self.method!r}")
+        if not self.source_factor > 0:
+            raise ConfigurationError(f"source_factor must be positive, got {self.source_factor}")
         if np.any(self.illuminants <= 0):
             bad = np.argwhere(self.illuminants <= 0)[0]
             raise ConfigurationError(f"white reference {bad[0] + 1} measures no light at "
@@ -226,13 +233,13 @@ class Relighter:
             new = new.astype(np.float32)
             if self.method == "ratio":
                 relit[sel] = signals[sel] * (new / e).astype(np.float32)
-                bright[sel] = y_signal[sel] > y_e
+                bright[sel] = y_signal[sel] > self.source_factor * y_e
             else:
                 w, c = self._reflectance_map(e)
                 b = np.asarray(bands[sel], np.float32)
                 relit[sel] = b @ (w.T * new[None, :]).astype(np.float32) + (c * new).astype(np.float32)
                 v, v0 = self._luminance_factor_map(e)
-                bright[sel] = b @ v.astype(np.float32) + v0 > y_e
+                bright[sel] = b @ v.astype(np.float32) + v0 > self.source_factor * y_e
         if self.sources == "keep":
             relit[bright] = signals[bright]
         return relit, bright
@@ -254,7 +261,7 @@ class Relighter:
             v, v0 = self._luminance_factor_map(e)
             bs = b[sel]
             relit[sel] = bs @ ((R * new) @ w).T.astype(np.float32) + (R @ (c * new)).astype(np.float32)
-            bright[sel] = bs @ v.astype(np.float32) + v0 > y_e
+            bright[sel] = bs @ v.astype(np.float32) + v0 > self.source_factor * y_e
         if self.sources == "keep":
             relit[bright] = b[bright]
         return relit, bright
@@ -262,12 +269,14 @@ class Relighter:
     def describe(self) -> dict:
         return {"wavelength_nm": self.wavelength_nm.tolist(), "measured_illuminants": self.illuminants.tolist(),
                 "new_illuminant": self.new_illuminant.tolist(), "sources": self.sources, "method": self.method,
+                "source_factor": self.source_factor,
                 "sigma2_relative": self.sigma2_relative,
                 "interpolation": "inverse squared angular distance, 1/(theta^2 + 1 deg^2), weights in 1/20"}
 
 
 def measure_relighter(store, estimator, whites: list[WhiteReference], to: str, reflectance=None, level: int = 0,
-                      sources: str = "keep", method: str = "wiener") -> Relighter:
+                      sources: str = "keep", method: str = "wiener",
+                      source_factor: float = DEFAULT_SOURCE_FACTOR) -> Relighter:
     """Measure each white reference's illuminant and build the relighter for the new illuminant ``to``."""
     if not whites:
         raise ConfigurationError("relighting needs at least one white reference (--white LON,LAT[,RADIUS_DEG])")
@@ -278,7 +287,7 @@ def measure_relighter(store, estimator, whites: list[WhiteReference], to: str, r
         signal = estimator.estimate(disk_mean_bands(store, level, wref)[None])[0]
         ill.append(signal / rho_w)
     return Relighter(wl, np.array([w.ray for w in whites]), np.array(ill), target_illuminant(to, wl),
-                     np.asarray(estimator.system_matrix, float), sources, method)
+                     np.asarray(estimator.system_matrix, float), sources, method, source_factor=source_factor)
 
 
 def pixel_rays(rows: slice, cols: slice, height: int, width: int) -> np.ndarray:
@@ -336,6 +345,7 @@ def relight_bands_block(bands: np.ndarray, relighter: Relighter, rows: slice, co
 
 def relight_product(product: str | Path, output: str | Path, whites: list[WhiteReference], to: str = "A",
                     reflectance=None, sources: str = "keep", method: str = "wiener", workers: int | None = None,
+                    source_factor: float = DEFAULT_SOURCE_FACTOR,
                     progress: Callable[[str], None] | None = None) -> dict:
     """Relight a whole product into a product-like directory ``output`` (module docstring)."""
 
@@ -343,7 +353,7 @@ def relight_product(product: str | Path, output: str | Path, whites: list[WhiteR
     if Path(output).resolve() == Path(product).resolve():
         raise ConfigurationError(f"{output}: the relit product needs its own directory (it would replace the input)")
     index, store, estimator = open_product(product)
-    relighter = measure_relighter(store, estimator, whites, to, reflectance, 0, sources, method)
+    relighter = measure_relighter(store, estimator, whites, to, reflectance, 0, sources, method, source_factor)
     R = np.asarray(estimator.system_matrix, np.float32)  # (6, n): relit spectra back to six bands
     h, w = store.shapes[0]
     attrs = dict(store.attrs().get("omnispectral", {}))

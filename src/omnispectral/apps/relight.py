@@ -206,11 +206,10 @@ class Relighter:
             y_e = float(luminance(e[None], self.wavelength_nm)[0])
             yield slice(None), e, self.new_illuminant * (y_e / self._y_new), y_e
             return
-        else:  # weights are multiples of 1/20: one integer key per combination
-            wts = self.weights_at(rays)
-            key = np.rint(wts * 20).astype(np.int64) @ (21 ** np.arange(wts.shape[1]))
-            _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-            combos = wts[first]
+        wts = self.weights_at(rays)  # multiples of 1/20: one integer key per combination
+        key = np.rint(wts * 20).astype(np.int64) @ (21 ** np.arange(wts.shape[1]))
+        _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+        combos = wts[first]
         for j, combo in enumerate(combos):  # one illuminant (and one linear map) per combination of weights
             e = combo @ self.illuminants
             y_e = float(luminance(e[None], self.wavelength_nm)[0])

@@ -59,9 +59,9 @@ PAINTING_MAX_HEIGHT_M = 1.6
 def synthetic_painting(height: int = 48, width: int = 64, wavelength_nm=None, seed: int = 0
                        ) -> tuple[np.ndarray, np.ndarray]:
     """A reflectance cube ``(height, width, n)`` that looks like a painting: smooth regions of pigments mixed
-    subtractively (weighted geometric mean of reflectances, the limit of Kubelka-Munk mixing for strongly
-    absorbing pigments).  The pigments are the CIE 13.3 test colour samples and the NIST CQS 9.0 samples
-    (:data:`~omnispectral.spectral.library.CALIBRATION_REFLECTANCE_SETS`), which the relighting's
+    subtractively (weighted geometric mean of reflectances: absorbances add, as for transparent glazes
+    layered over a white ground, Beer-Lambert).  The pigments are the CIE 13.3 test colour samples and the
+    NIST CQS 9.0 samples (:data:`~omnispectral.spectral.library.CALIBRATION_REFLECTANCE_SETS`), which the relighting's
     reflectance prior does not contain; the weights are low-frequency random fields (``seed``) sharpened so
     that one or two pigments dominate each region."""
     wl = DEFAULT_WAVELENGTH_NM if wavelength_nm is None else np.asarray(wavelength_nm, float)

@@ -185,19 +185,23 @@ def test_indoor_ground_truth_fl11_to_a(tmp_path, est):
     out = relight_product(src, tmp_path / "relit", [white], to="A")
     assert out["light_source_pixels"] > 0  # the ceiling panels
 
-    def lab(product):
+    def lab(product, patches):
         from omnispectral.apps.relight import disk_mean_bands
 
         _, store, e = open_product(product)
         sig = e.estimate(np.array([disk_mean_bands(store, 0, WhiteReference(p["lon_deg"], p["lat_deg"],
                                                                              0.6 * p["half_size_deg"]))
-                                   for p in scene.colorchecker_patches()]))
+                                   for p in patches]))
         w = e.estimate(disk_mean_bands(store, 0, white)[None])[0] / 0.95
         return signals_to_lab(sig, w, WL)
 
-    de = delta_e_ab(lab(tmp_path / "relit"), lab(ref))
-    print(f"indoor FL11 -> A, exact bands: mean {de.mean():.2f}, max {de.max():.2f}")
-    assert de.mean() < 2.0
+    for what, patches, bound in (("chart", scene.colorchecker_patches(), 2.0), ("painting", scene.painting_cells(),
+                                                                                  2.0)):
+        de = delta_e_ab(lab(tmp_path / "relit", patches), lab(ref, patches))
+        de_src = delta_e_ab(lab(src, patches), lab(ref, patches))
+        print(f"indoor FL11 -> A, exact bands, {what}: mean {de.mean():.2f}, max {de.max():.2f} "
+              f"(not relit {de_src.mean():.2f})")
+        assert de.mean() < bound and de_src.mean() > 2 * de.mean()
 
 
 def test_simulate_scene_choice():
@@ -214,3 +218,88 @@ def test_simulate_scene_choice():
         build_scene("procedural", None, when, light="A")
     with pytest.raises(ConfigurationError, match="unknown illuminant"):
         build_scene("indoor", None, when, light="no-such-light")
+
+
+def test_indoor_painting_from_a_reflectance_cube(tmp_path, est):
+    """``simulate --scene indoor --cube FILE``: the cube is the painting; a texel's radiance is its reflectance
+    (resampled from the cube's 10 nm grid) × the illuminance there × S(λ)/π, computed here from the geometry."""
+    import datetime as dt
+
+    from omnispectral.capture.scenes import IndoorScene, lonlat_to_direction
+    from omnispectral.capture.scenes.build import build_scene
+    from omnispectral.errors import InputFileError
+
+    wl10 = np.arange(400.0, 701.0, 10.0)
+    rng = np.random.default_rng(3)
+    cube = rng.uniform(0.05, 0.9, (3, 4, wl10.size)).astype(np.float32)
+    np.savez(tmp_path / "paint.npz", cube=cube, wavelength_nm=wl10)
+    scene = build_scene("indoor", str(tmp_path / "paint.npz"), dt.datetime(2017, 6, 21, tzinfo=dt.UTC), light="A")
+    assert isinstance(scene, IndoorScene) and scene.describe()["painting"]["texels"] == [3, 4]
+    cells = scene.painting_cells(rows=3, cols=4)
+    for cell in (cells[0], cells[6], cells[11]):  # top-left, middle, bottom-right texels
+        r, c = divmod(cell["index"], 4)
+        p = np.array(cell["centre_m"])
+        e = scene.irradiance_lx(p[None], np.array([[0.0, 0.0, -1.0]]))[0]
+        expected = np.interp(WL, wl10, cube[r, c]) * e * scene.spectrum / np.pi
+        got = scene.spectral_radiance(lonlat_to_direction(cell["lon_deg"], cell["lat_deg"])[None])[0]
+        assert np.allclose(got, expected, rtol=1e-5), cell["name"]
+        assert np.allclose(cell["reflectance"], np.interp(WL, wl10, cube[r, c]))
+    # the top-left texel is up and to the right of the chart's centre as seen from the rig (longitude grows right)
+    assert cells[0]["lon_deg"] > 0 and cells[0]["lat_deg"] > cells[11]["lat_deg"] and cells[11]["lon_deg"] > cells[0][
+        "lon_deg"]
+    # the built-in painting: reflectances in 0..1, varied (many distinct colours), and its bands through the scene
+    default = IndoorScene("FL11")
+    refl = default.painting_reflectance
+    assert refl.shape == (48, 64, WL.size) and refl.min() >= 0 and refl.max() <= 1
+    assert np.ptp(refl.reshape(-1, WL.size) @ est.system_matrix.T, axis=0).min() > 0.05 * np.abs(
+        est.system_matrix).sum(axis=1).min()
+    np.savez(tmp_path / "short.npz", cube=cube[..., :10], wavelength_nm=wl10[:10])
+    with pytest.raises(InputFileError, match=r"short\.npz.*do not cover"):
+        IndoorScene("A", painting=str(tmp_path / "short.npz"))
+
+
+def test_band_path_equals_spectral_path_with_two_references(tmp_path, est):
+    """Level 0 is relit on the bands (one 6 × 6 map per illuminant); that equals relighting the spectra and
+    projecting them on the bands, for every mix of the two references, and kept light sources keep their bands."""
+    from omnispectral.apps.relight import measure_relighter, pixel_rays
+
+    src, _, boxes = _product(tmp_path, est, "FL11", "D65", "mixed")
+    whites = [WhiteReference(*_centre_lonlat(*boxes[(h, "white")]), radius_deg=3.0) for h in ("west", "east")]
+    _, store, e = open_product(src)
+    bands = store.read(0).reshape(-1, 6)
+    rays = pixel_rays(slice(0, H), slice(0, W), H, W)
+    for sources in ("relight", "keep"):
+        rl = measure_relighter(store, e, whites, "A", sources=sources)
+        relit_bands, flag = rl.relight_bands(bands, rays)
+        relit_spectra, flag2 = rl.relight(e.estimate(bands), rays, bands)
+        assert np.array_equal(flag, flag2) and flag[:6 * W].all() and flag.sum() < 7 * W
+        lit = ~flag
+        assert np.allclose(relit_bands[lit], relit_spectra[lit] @ e.system_matrix.T, rtol=1e-4, atol=1e-3)
+        if sources == "keep":
+            assert np.array_equal(relit_bands[flag], bands[flag])
+    assert len({tuple(np.round(rl.weights_at(rays[k:k + 1])[0], 2)) for k in range(0, H * W, 97)}) > 5
+
+
+def test_bright_reflections_are_relit_and_emitters_kept(est):
+    """A grey wall lit 1.6× more than the white reference (luminance factor 1.12) is a reflection and is relit;
+    a lamp (40×) is kept. With ``source_factor=1`` the bright wall would be taken for a light source."""
+    from omnispectral.apps.relight import luminance, target_illuminant
+
+    wl = np.asarray(est.wavelength_nm)
+    R = np.asarray(est.system_matrix, float)
+    fl11 = load_illuminant("FL11").resample(wl).values[0]
+    e = fl11 / fl11.mean()
+    signals = np.array([0.7 * 1.6 * e, 40 * e, 0.3 * e])
+    bands = signals @ R.T
+    a = target_illuminant("A", wl)
+    new = a * luminance(e[None], wl)[0] / luminance(a[None], wl)[0]
+    rl = Relighter(wl, np.array([[0.0, 0.0, 1.0]]), e[None], a, R)
+    relit, flag = rl.relight_bands(bands, None)
+    assert flag.tolist() == [False, True, False]
+    assert np.allclose(relit[0], (0.7 * 1.6 * new) @ R.T, rtol=0.03)  # Wiener reflectance of a grey: <= 2.5 %
+    assert np.allclose(relit[2], (0.3 * new) @ R.T, rtol=0.03)
+    assert np.array_equal(relit[1], bands[1].astype(np.float32))
+    strict = Relighter(wl, np.array([[0.0, 0.0, 1.0]]), e[None], a, R, source_factor=1.0)
+    assert strict.relight_bands(bands, None)[1].tolist() == [True, True, False]
+    with pytest.raises(ConfigurationError, match="source_factor"):
+        Relighter(wl, np.array([[0.0, 0.0, 1.0]]), e[None], a, R, source_factor=0.0)

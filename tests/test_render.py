@@ -351,3 +351,59 @@ def test_bad_inputs_name_the_file(tmp_path):
         load_metal(str(tmp_path / "nk.csv"))
     with pytest.raises(ConfigurationError, match="is tabulated on"):
         load_metal("silver").eta_k(np.array([300.0]))
+
+
+@pytest.mark.slow
+def test_render_series_on_a_simulated_time_lapse(tmp_path):
+    """Four times of day simulated with a tiny rig (``timelapse``), processed (``process-series``) and rendered
+    (``render-series``): one frame per slot in time order, each slot's render equal to rendering its product
+    alone, and the mirror-ball scene brighter at 13:00 than at 07:00 (frames on one common exposure)."""
+    import cv2
+
+    from omnispectral.apps.render import render_product
+    from omnispectral.capture.devices import FakeClock
+    from omnispectral.capture.scenes import ProceduralOutdoorScene
+    from omnispectral.capture.simulate import simulate_session
+    from omnispectral.capture.timelapse import run_timelapse, slot_times
+    from omnispectral.cli import main
+    from omnispectral.imaging.imageio import read_image
+    from tests.test_product import NOON, tiny_rig
+
+    rig = tiny_rig()
+    slots = slot_times(NOON.replace(hour=7), NOON.replace(hour=16), 3 * 3600)
+    clock = FakeClock(slots[0])
+
+    def capture(session_dir, t):
+        res = simulate_session(session_dir, rig, ProceduralOutdoorScene(time_hhmm=f"{t:%H:%M}"), start=clock.now(),
+                               ground_truth_width=64, progress=False)
+        clock.sleep(res["simulated_s"])
+        return res
+
+    run_timelapse(tmp_path / "series", slots, clock, capture)
+    assert main(["process-series", str(tmp_path / "series"), "-o", str(tmp_path / "processed")]) == 0
+    opts = {"width": 24, "height": 24, "spp": 4, "wavelength_step_nm": 50.0}
+    assert main(["render-series", str(tmp_path / "processed"), "-o", str(tmp_path / "render"), "--width", "24",
+                 "--height", "24", "--spp", "4", "--wavelength-step", "50", "--exposure", "common"]) == 0
+    summary = json.loads((tmp_path / "render" / "render_series.json").read_text())
+    labels = [s["label"] for s in summary["slots"]]
+    assert [lab[11:16] for lab in labels] == ["07:00", "10:00", "13:00", "16:00"]
+    assert sorted((tmp_path / "render" / "frames").glob("frame_*.png"))[-1].name == "frame_0003.png"
+    assert cv2.imread(str(tmp_path / "render" / "contact_sheet.png")).shape == (24, 96, 3)
+    rgb = [read_image(s["files"]["srgb_exr"]) for s in summary["slots"]]
+    alone = render_product(summary["slots"][2]["environment"]["source"], tmp_path / "alone", **opts)
+    assert np.allclose(read_image(alone["files"]["srgb_exr"]), rgb[2], rtol=1e-5, atol=1e-7)
+    assert rgb[2].mean() > 1.5 * rgb[0].mean()
+    frames = [cv2.imread(str(tmp_path / "render" / "frames" / f"frame_000{k}.png")).mean() for k in range(4)]
+    assert frames[2] > frames[0]
+
+
+def test_variant_choice_avoids_an_llvm_too_old_for_mitsuba():
+    """LLVM 15 aborts the process compiling Mitsuba's kernels (X86 ``fminimum``): only 17+ picks llvm_ad_rgb."""
+    from omnispectral.apps.render import auto_variant
+
+    both = ["scalar_rgb", "llvm_ad_rgb", "scalar_spectral"]
+    assert auto_variant(both, (19, 1, 7)) == "llvm_ad_rgb"
+    assert auto_variant(both, (17, 0, 0)) == "llvm_ad_rgb"
+    assert auto_variant(both, (15, 0, 6)) == "scalar_rgb"
+    assert auto_variant(both, None) == "scalar_rgb"
+    assert auto_variant(["scalar_rgb"], (19, 1, 7)) == "scalar_rgb"

@@ -21,8 +21,9 @@ Mitsuba scene file whose spectral parameters are given as CSV files (``<spectrum
 filename="paint.csv"/>``; for conductors ``name="eta"`` / ``name="k"`` with a ``wavelength_nm,n,k`` file);
 its environment emitter, if any, is replaced by the product's map (its ``to_world`` and ``scale`` kept).
 
-**Variant.** ``llvm_ad_rgb`` when Dr.Jit finds an LLVM library (Debian ``libllvm19``), else
-``scalar_rgb``; ``OMNISPECTRAL_MITSUBA_VARIANT`` or ``variant=`` overrides.  Same images up to Monte
+**Variant.** ``llvm_ad_rgb`` when Dr.Jit finds an LLVM library of version 17 or later (Debian
+``libllvm19``; older ones abort the process while compiling Mitsuba's kernels), else ``scalar_rgb``;
+``OMNISPECTRAL_MITSUBA_VARIANT`` or ``variant=`` overrides.  Same images up to Monte
 Carlo noise (different random number streams).
 """
 
@@ -59,6 +60,27 @@ FAST_PATH_NOTE = ("six-band fast path: exact only for wavelength-flat materials 
 
 
 # ------------------------------------------------------------------------------------------ Mitsuba
+#: Oldest LLVM whose X86 back end lowers ``llvm.minimum``/``llvm.maximum`` on f32, which Dr.Jit's kernels use
+#: (llvm/llvm-project#53353); with LLVM 15 the JIT aborts the process ("Cannot select ... fminimum").
+MIN_LLVM_VERSION = (17, 0, 0)
+
+
+def auto_variant(variants, llvm_version: tuple | None) -> str:
+    """``llvm_ad_rgb`` when Mitsuba has it and Dr.Jit found an LLVM library at least ``MIN_LLVM_VERSION``
+    (``llvm_version``, ``None`` when none was found), else ``scalar_rgb``."""
+    ok = llvm_version is not None and tuple(llvm_version) >= MIN_LLVM_VERSION
+    return "llvm_ad_rgb" if "llvm_ad_rgb" in variants and ok else "scalar_rgb"
+
+
+def _llvm_version(dr) -> tuple | None:
+    if not dr.has_backend(dr.JitBackend.LLVM):
+        return None
+    try:
+        return tuple(dr.detail.llvm_version())
+    except (AttributeError, RuntimeError):  # a Dr.Jit without the query: trust the library it found
+        return MIN_LLVM_VERSION
+
+
 def mitsuba(variant: str | None = None):
     """The ``mitsuba`` module with a variant set (see the module docstring)."""
     try:
@@ -70,12 +92,15 @@ def mitsuba(variant: str | None = None):
     if wanted is None and mi.variant() is not None:
         return mi
     if wanted is None:
-        llvm = "llvm_ad_rgb" in mi.variants() and dr.has_backend(dr.JitBackend.LLVM)
-        wanted = "llvm_ad_rgb" if llvm else "scalar_rgb"
+        wanted = auto_variant(mi.variants(), _llvm_version(dr))
     if wanted not in ("scalar_rgb", "llvm_ad_rgb"):
         raise ConfigurationError(f"Mitsuba variant {wanted!r} is not supported here; use scalar_rgb or llvm_ad_rgb")
-    if wanted == "llvm_ad_rgb" and not dr.has_backend(dr.JitBackend.LLVM):
-        raise ConfigurationError("Mitsuba's llvm_ad_rgb variant needs an LLVM library (apt-get install libllvm19)")
+    if wanted == "llvm_ad_rgb":
+        version = _llvm_version(dr)
+        if version is None or version < MIN_LLVM_VERSION:
+            found = "none" if version is None else ".".join(map(str, version))
+            raise ConfigurationError(f"Mitsuba's llvm_ad_rgb variant needs LLVM >= {MIN_LLVM_VERSION[0]} (found: "
+                                     f"{found}; apt-get install libllvm19, or use scalar_rgb)")
     if mi.variant() != wanted:
         mi.set_variant(wanted)
     return mi

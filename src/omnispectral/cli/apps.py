@@ -63,13 +63,14 @@ def cmd_relight(args) -> int:
 
     whites = [parse_white(w) for w in args.white]
     out = relight_product(args.product, args.output, whites, to=args.to, reflectance=args.white_reflectance,
-                          sources=args.sources, method=args.method, progress=_progress(not args.json))
+                          sources=args.sources, method=args.method, source_factor=args.source_factor,
+                          progress=_progress(not args.json))
     if args.json:
         print_json(out)
         return 0
     console.print(f"Relit {out['width']}×{out['height']} px to {escape(args.to)} from {len(whites)} white "
                   f"reference(s) in {out['seconds']:.1f} s ({out['tiles']} tiles); {out['light_source_pixels']} "
-                  f"pixels brighter than the lit white (light sources, sky) "
+                  f"pixels brighter than {args.source_factor:g}× the lit white (light sources, sky) "
                   f"{'kept' if args.sources == 'keep' else 'relit'} and flagged.")
     console.print(f"Product: {out['output']} (export / view / render it like any product)")
     for k, v in out["previews"].items():
@@ -134,6 +135,9 @@ def add_commands(sub) -> None:
                    help="the white reference's reflectance (default flat 0.95)")
     e.add_argument("--sources", choices=["keep", "relight"], default="keep",
                    help="pixels brighter than the lit white (lamps, sky): keep as captured (default) or relight")
+    e.add_argument("--source-factor", type=float, default=2.0, metavar="FACTOR",
+                   help="a pixel is a light source above FACTOR times a perfect white's luminance under its light "
+                        "(default 2: the illuminance varies over a room)")
     e.add_argument("--method", choices=["wiener", "ratio"], default="wiener",
                    help="reflectance by Wiener estimation under the measured light (default) or the paper's signal / "
                         "illuminant ratio")

@@ -130,7 +130,8 @@ def _add_scene_args(p) -> None:
     p.add_argument("--light", default=None, metavar="FL11|LED-B3|D65|A|FILE.csv",
                    help="light source of --scene indoor (default FL11)")
     p.add_argument("--cube", default=None, metavar="FILE.npz|FILE.hdr",
-                   help="hyperspectral reflectance cube mounted on a wall of the procedural scene")
+                   help="hyperspectral reflectance cube mounted on a wall of the procedural scene, or the "
+                        "painting of --scene indoor")
     p.add_argument("--date", default=None, metavar="YYYY-MM-DD", help=f"day of the capture (default {DEFAULT_DATE})")
     p.add_argument("--noise", choices=["on", "off"], default="on", help="CMV2000 sensor noise")
     p.add_argument("--seed", type=int, default=0,

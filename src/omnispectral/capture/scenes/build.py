@@ -19,12 +19,10 @@ def build_scene(scene: str, cube: str | None, when: _dt.datetime, wavelength_nm=
                 chart_distance_m: float | None = None, chart_patch_m: float | None = None, light: str | None = None):
     """``procedural`` (sun and sky at ``when``), ``indoor`` (a room lit by ``light``), or an HDR
     equirectangular panorama file; with ``cube``, a hyperspectral reflectance cube mounted on a wall of
-    the procedural scene."""
+    the procedural scene (or the indoor room's painting)."""
     kwargs = {} if wavelength_nm is None else {"wavelength_nm": wavelength_nm}
-    if scene == "indoor":
-        if cube:
-            raise ConfigurationError("--cube mounts the cube on a wall of the procedural scene; use --scene procedural")
-        return IndoorScene(light or "FL11", **kwargs)
+    if scene == "indoor":  # the cube, if any, is the room's painting
+        return IndoorScene(light or "FL11", painting=cube or None, **kwargs)
     if light:
         raise ConfigurationError("--light chooses the light source of --scene indoor")
     if scene == "procedural":
@@ -34,6 +32,6 @@ def build_scene(scene: str, cube: str | None, when: _dt.datetime, wavelength_nm=
                                       seed=seed, **chart, **kwargs)
     else:
         if cube:
-            raise ConfigurationError("--cube mounts the cube on a wall of the procedural scene; use --scene procedural")
+            raise ConfigurationError("--cube mounts the cube on a wall of the procedural or the indoor scene")
         return PanoramaScene(scene, **kwargs)
     return CubeOnWallScene(cube, base=base) if cube else base

@@ -4,8 +4,12 @@ A room 6 m × 3.2 m × 6 m (x, y, z; the head 1.5 m above the floor, 2.5 m from 
 Lambertian walls (0.7), ceiling (0.8) and floor (0.25).  Two ceiling panels (0.6 m × 1.2 m, luminance
 ``lamp_cd_m2``) light it; their spectrum is the chosen light source (``FL11``, ``LED-B3``, ``D65``, ``A``,
 any colour-science light source, or a CSV), normalised to unit luminous quantity so radiances are absolute.
-On the north wall (longitude 0) hangs the "painting": a ColorChecker with 10 cm patches (N. Ohta's
-reflectances), and beside it a flat 0.95 white reference 25 cm square (``describe()["white_reference"]``).
+On the north wall (longitude 0) hang a ColorChecker with 10 cm patches (N. Ohta's reflectances), beside it
+a flat 0.95 white reference 25 cm square (``describe()["white_reference"]``), and to the chart's right
+(longitude ≈ +25°) a 1.2 m wide "painting" from a reflectance cube: any ``.npz`` / ENVI cube
+(:func:`~omnispectral.capture.scenes.cube.load_reflectance_cube`; ``simulate --scene indoor --cube FILE``),
+by default :func:`synthetic_painting` (pigments not in the relighting prior, mixed subtractively).  Each
+texel is a Lambertian square (nearest texel, no interpolation: a texel is one row of the material table).
 
 Light: a surface point of normal ``n`` receives ``E = Σ_lamps L A cos θ_p cos θ_lamp / d²`` from each
 panel (small-source approximation, no shadows: nothing stands in the room) plus a uniform ambient
@@ -19,6 +23,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 
 from omnispectral.capture.scenes.base import (
@@ -28,13 +33,15 @@ from omnispectral.capture.scenes.base import (
     as_directions,
     as_origin,
     direction_to_lonlat,
+    resample_matrix,
 )
+from omnispectral.capture.scenes.cube import check_cube, load_reflectance_cube
 from omnispectral.capture.scenes.materials import colorchecker_reflectances
 from omnispectral.capture.scenes.procedural import ChartBoard, chart_patches
-from omnispectral.errors import ConfigurationError
+from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.spectral.colour import cmfs_on_grid
 from omnispectral.spectral.curves import DEFAULT_WAVELENGTH_NM
-from omnispectral.spectral.library import load_illuminant
+from omnispectral.spectral.library import CALIBRATION_REFLECTANCE_SETS, load_illuminant, load_reflectances
 
 ROOM_LO_M = (-3.0, -1.5, -2.5)
 ROOM_HI_M = (3.0, 1.7, 3.5)
@@ -44,6 +51,29 @@ WHITE_CENTRE_M = (0.9, 0.0)  # (x, y) on the north wall
 WHITE_HALF_M = 0.125
 WHITE_REFLECTANCE = 0.95
 LIGHTS = ("FL11", "LED-B3", "D65", "A")
+PAINTING_CENTRE_M = (-1.6, 0.1)  # (x, y) on the north wall: right of the chart as seen from the rig
+PAINTING_WIDTH_M = 1.2
+PAINTING_MAX_HEIGHT_M = 1.6
+
+
+def synthetic_painting(height: int = 48, width: int = 64, wavelength_nm=None, seed: int = 0
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """A reflectance cube ``(height, width, n)`` that looks like a painting: smooth regions of pigments mixed
+    subtractively (weighted geometric mean of reflectances: absorbances add, as for transparent glazes
+    layered over a white ground, Beer-Lambert).  The pigments are the CIE 13.3 test colour samples and the
+    NIST CQS 9.0 samples (:data:`~omnispectral.spectral.library.CALIBRATION_REFLECTANCE_SETS`), which the relighting's
+    reflectance prior does not contain; the weights are low-frequency random fields (``seed``) sharpened so
+    that one or two pigments dominate each region."""
+    wl = DEFAULT_WAVELENGTH_NM if wavelength_nm is None else np.asarray(wavelength_nm, float)
+    pigments = np.vstack([load_reflectances(n).resample(wl).values for n in CALIBRATION_REFLECTANCE_SETS])
+    log_p = np.log(np.clip(pigments, 0.01, 1.0))
+    rng = np.random.default_rng(seed)
+    coarse = rng.standard_normal((pigments.shape[0], 4, 5)).astype(np.float32)
+    fields = np.stack([cv2.resize(c, (width, height), interpolation=cv2.INTER_CUBIC) for c in coarse], axis=-1)
+    wts = np.exp(4.0 * (fields - fields.max(axis=-1, keepdims=True)))
+    wts /= wts.sum(axis=-1, keepdims=True)
+    cube = np.exp(wts @ log_p)
+    return np.clip(cube, 0.0, 1.0).astype(np.float32), wl.copy()
 
 
 def light_spectrum(light: str, wavelength_nm: np.ndarray) -> np.ndarray:
@@ -64,7 +94,7 @@ class IndoorScene(Scene):
     kind = "indoor"
 
     def __init__(self, light: str = "FL11", wavelength_nm=None, lamp_cd_m2: float = 3000.0,
-                 ambient_lx: float = 60.0, chart_patch_m: float = 0.10):
+                 ambient_lx: float = 60.0, chart_patch_m: float = 0.10, painting=None):
         super().__init__(DEFAULT_WAVELENGTH_NM if wavelength_nm is None else wavelength_nm)
         self.light = str(light)
         self.spectrum = light_spectrum(self.light, self.wavelength_nm)
@@ -74,14 +104,76 @@ class IndoorScene(Scene):
         self.chart = ChartBoard(np.array([0.0, 0.0, self.hi[2]]), np.array([0.0, 0.0, -1.0]), np.array([-1.0, 0, 0]),
                                 np.array([0.0, 1.0, 0.0]), chart_patch_m, 0.2 * chart_patch_m)
         n = self.wavelength_nm.size
-        # rows: 0 lamp, 1 wall, 2 ceiling, 3 floor, 4 white reference, 5 chart frame, 6.. patches
+        self._set_painting(painting)
+        # rows: 0 lamp, 1 wall, 2 ceiling, 3 floor, 4 white reference, 5 chart frame, 6.. patches, then texels
         refl = np.vstack([np.zeros(n), np.full(n, 0.7), np.full(n, 0.8), np.full(n, 0.25),
-                          np.full(n, WHITE_REFLECTANCE), self.patch_reflectance[-1], self.patch_reflectance])
+                          np.full(n, WHITE_REFLECTANCE), self.patch_reflectance[-1], self.patch_reflectance,
+                          self.painting_reflectance.reshape(-1, n)])
+        self._painting_row0 = 6 + len(self.patch_reflectance)
         table = refl * self.spectrum / math.pi
         table[0] = self.spectrum
         self._table64 = table
         self._table32 = table.astype(np.float32)
         self._bands = BandProjectionCache()
+
+    def _set_painting(self, painting) -> None:
+        """The painting's cube on the scene's grid (``painting``: ``None``, a cube file or ``(cube, wl_nm)``)."""
+        if painting is None:
+            cube, wl = synthetic_painting(wavelength_nm=self.wavelength_nm)
+            source, where = "synthetic_painting (CIE 13.3 + NIST CQS pigments)", None
+        elif isinstance(painting, (tuple, list)):
+            (cube, wl), source, where = check_cube(*painting), "<array>", None
+        else:
+            (cube, wl), source, where = load_reflectance_cube(painting), str(painting), painting
+        try:
+            m = resample_matrix(wl, self.wavelength_nm)
+        except ConfigurationError as exc:
+            msg = f"the painting's bands do not cover the scene's wavelength grid: {exc}"
+            raise (InputFileError(where, msg) if where is not None else ConfigurationError(msg)) from None
+        h, w = cube.shape[:2]
+        self.painting_reflectance = (cube.reshape(-1, cube.shape[2]).astype(np.float64) @ m.T).reshape(h, w, -1)
+        self.painting_source = source
+        width_m = min(PAINTING_WIDTH_M, PAINTING_MAX_HEIGHT_M * w / h)
+        self.painting_half_m = (0.5 * width_m, 0.5 * width_m * h / w)  # (half width, half height)
+        self.painting_centre_m = np.array([PAINTING_CENTRE_M[0], PAINTING_CENTRE_M[1], ROOM_HI_M[2]])
+
+    def painting_texel(self, p: np.ndarray) -> np.ndarray:
+        """Texel index (row-major) of points ``(N, 3)`` on the north wall, -1 off the painting.  Row 0 is the top,
+        column 0 the left as seen from the rig (+x is to the left)."""
+        h, w = self.painting_reflectance.shape[:2]
+        hw, hh = self.painting_half_m
+        u = self.painting_centre_m[0] - p[:, 0]  # to the right as seen from the room
+        v = p[:, 1] - self.painting_centre_m[1]
+        inside = (np.abs(u) < hw) & (np.abs(v) < hh)
+        col = np.clip(np.floor((u + hw) / (2 * hw) * w), 0, w - 1).astype(np.int64)
+        row = np.clip(np.floor((hh - v) / (2 * hh) * h), 0, h - 1).astype(np.int64)
+        return np.where(inside, row * w + col, -1)
+
+    def painting_cells(self, rows: int = 6, cols: int = 8, origin_m=(0.0, 0.0, 0.0)) -> list[dict]:
+        """The painting cut into ``rows × cols`` cells, like chart patches: centre direction, angular half-size (of
+        the cell's shorter side) and the mean reflectance of the texels whose centres lie in the cell."""
+        h, w = self.painting_reflectance.shape[:2]
+        hw, hh = self.painting_half_m
+        o = as_origin(origin_m)
+        tr = (np.arange(h) + 0.5) / h * rows  # texel centre in cell units
+        tc = (np.arange(w) + 0.5) / w * cols
+        out = []
+        for i in range(rows):
+            for j in range(cols):
+                sel = self.painting_reflectance[(tr >= i) & (tr < i + 1)][:, (tc >= j) & (tc < j + 1)]
+                if sel.size == 0:
+                    raise ConfigurationError(f"the painting ({h}×{w} texels) is too small for {rows}×{cols} cells")
+                c = self.painting_centre_m + np.array([-(-hw + (j + 0.5) * 2 * hw / cols),
+                                                       hh - (i + 0.5) * 2 * hh / rows, 0.0])
+                rel = c - o
+                dist = float(np.linalg.norm(rel))
+                lon, lat = direction_to_lonlat(rel)
+                out.append({"index": i * cols + j, "name": f"cell r{i} c{j}", "lon_deg": float(lon),
+                            "lat_deg": float(lat), "distance_m": dist, "centre_m": [float(x) for x in c],
+                            "half_size_deg": math.degrees(math.atan(min(hw / cols, hh / rows) / dist)),
+                            "wavelength_nm": self.wavelength_nm.tolist(),
+                            "reflectance": sel.reshape(-1, sel.shape[-1]).mean(axis=0).tolist()})
+        return out
 
     # -- the interface ----------------------------------------------------------------------------
     def spectral_radiance(self, directions, origin_m=(0.0, 0.0, 0.0)) -> np.ndarray:
@@ -129,6 +221,8 @@ class IndoorScene(Scene):
         on_white = (np.abs(p[idx, 0] - WHITE_CENTRE_M[0]) <= WHITE_HALF_M) & (
             np.abs(p[idx, 1] - WHITE_CENTRE_M[1]) <= WHITE_HALF_M)
         row[idx[on_white]] = 4
+        texel = self.painting_texel(p[idx])
+        row[idx[texel >= 0]] = self._painting_row0 + texel[texel >= 0]
         weight = self.irradiance_lx(p, normal)
         ceiling = (axis == 1) & positive
         for cx, cz in LAMPS_M:
@@ -169,6 +263,9 @@ class IndoorScene(Scene):
                 "chart": {"reflectances": "ColorChecker N Ohta", "centre_m": self.chart.centre_m.tolist(),
                           "patch_m": self.chart.patch_m},
                 "white_reference": self.white_reference(),
+                "painting": {"source": self.painting_source, "texels": list(self.painting_reflectance.shape[:2]),
+                             "centre_m": self.painting_centre_m.tolist(),
+                             "size_m": [2 * self.painting_half_m[0], 2 * self.painting_half_m[1]]},
                 "wavelength_nm": {"start": float(self.wavelength_nm[0]), "stop": float(self.wavelength_nm[-1]),
                                   "count": int(self.wavelength_nm.size)},
                 "radiance_units": self.radiance_units}

@@ -387,9 +387,11 @@ class LocalLinearScore:
         trace = np.maximum(np.trace(cov, axis1=-2, axis2=-1), 0.0)
         # a ridge: windows where A's channels are (nearly) collinear or flat stay solvable
         cov += (ridge * trace + 1e-12)[..., None, None] * np.eye(n, dtype=np.float32)
-        inv = np.linalg.inv(cov.astype(np.float64)).astype(np.float32)
+        inv = _inverse_3x3(cov) if n == 3 else np.linalg.inv(cov.astype(np.float64)).astype(np.float32)
         self.mean_a = mean
-        self.inv_cov_a = [[np.ascontiguousarray(inv[..., i, j]) for j in range(n)] for i in range(n)]
+        # the quadratic form cᵀ Σ⁻¹ c over the upper triangle, off-diagonal terms doubled
+        self.form = [(i, j, np.ascontiguousarray(inv[..., i, j] * np.float32(1 if i == j else 2)))
+                     for i in range(n) for j in range(i, n)]
         self.var_floor = np.float32(1e-6 * max(float(np.mean(trace)) / n, 1e-24))
 
     def centred(self, image: np.ndarray) -> np.ndarray:
@@ -404,21 +406,42 @@ class LocalLinearScore:
         return self.centred(as_channels(image_b) * np.float32(self.scale))
 
     def __call__(self, moved_b: np.ndarray) -> np.ndarray:
-        """The score of B (:meth:`prepare_b`-ed, then moved) against A at every pixel, ``(H, W)`` float32."""
+        """The score of B (:meth:`prepare_b`-ed, then moved) against A at every pixel, ``(H, W)`` float32.
+        B's channels are filtered together (one box filter call per statistic for up to four channels)."""
         b = moved_b if moved_b.ndim == 3 else moved_b[..., None]
-        n = len(self.a)
-        total = np.zeros(b.shape[:2], np.float32)
-        for c in range(b.shape[-1]):
-            bc = np.ascontiguousarray(b[..., c])
-            mb = cv2.blur(bc, self.k)
-            var_b = cv2.blur(bc * bc, self.k) - mb * mb
-            cross = [cv2.blur(self.a[i] * bc, self.k) - self.mean_a[i] * mb for i in range(n)]
-            explained = np.zeros_like(var_b)
-            for i in range(n):
-                explained += cross[i] * sum(self.inv_cov_a[i][j] * cross[j] for j in range(n))
-            ok = var_b > self.var_floor
-            total += np.where(ok, np.sqrt(np.clip(explained / np.where(ok, var_b, 1.0), 0.0, 1.0)), 0.0)
-        return total / np.float32(b.shape[-1])
+        if b.shape[-1] > 4:  # OpenCV filters at most four channels at once
+            return np.mean([self(b[..., k]) for k in range(b.shape[-1])], axis=0).astype(np.float32)
+        b = np.ascontiguousarray(b)
+        mb = _blur3(b, self.k)
+        var_b = _blur3(b * b, self.k) - mb * mb
+        cross = [_blur3(self.a[i][..., None] * b, self.k) - self.mean_a[i][..., None] * mb for i in range(len(self.a))]
+        explained = np.zeros_like(var_b)
+        for i, j, coef in self.form:
+            explained += coef[..., None] * cross[i] * cross[j]
+        ok = var_b > self.var_floor
+        r = np.where(ok, np.sqrt(np.clip(explained / np.where(ok, var_b, 1.0), 0.0, 1.0)), 0.0)
+        return r.mean(axis=-1).astype(np.float32)
+
+
+def _blur3(x: np.ndarray, k: tuple[int, int]) -> np.ndarray:
+    """Box filter of ``(H, W, C)`` keeping the channel axis (OpenCV drops it for one channel)."""
+    return cv2.blur(x, k).reshape(x.shape)
+
+
+def _inverse_3x3(m: np.ndarray) -> np.ndarray:
+    """Inverses of symmetric 3 × 3 matrices ``(..., 3, 3)`` by their adjugate (float32; a batched LAPACK
+    inverse costs ten times as much at this size)."""
+    a, b, c = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
+    d, e, f = m[..., 1, 1], m[..., 1, 2], m[..., 2, 2]
+    c00, c01, c02 = d * f - e * e, c * e - b * f, b * e - c * d
+    det = a * c00 + b * c01 + c * c02
+    inv_det = np.where(det != 0, 1.0 / np.where(det != 0, det, 1.0), 0.0).astype(np.float32)
+    out = np.empty(m.shape, np.float32)
+    out[..., 0, 0], out[..., 0, 1], out[..., 0, 2] = c00 * inv_det, c01 * inv_det, c02 * inv_det
+    out[..., 1, 1], out[..., 1, 2] = (a * f - c * c) * inv_det, (b * c - a * e) * inv_det
+    out[..., 2, 2] = (a * d - b * b) * inv_det
+    out[..., 1, 0], out[..., 2, 0], out[..., 2, 1] = out[..., 0, 1], out[..., 0, 2], out[..., 1, 2]
+    return out
 
 
 def as_channels(image: np.ndarray) -> np.ndarray:

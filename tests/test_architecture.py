@@ -34,7 +34,7 @@ SIMULATOR = ("omnispectral.capture.simulate", "omnispectral.capture.scenes")
 SIMULATOR_USERS = {"omnispectral.product.report"}
 #: Function-level imports kept lazy on purpose: heavy dependencies a code path needs only sometimes.
 LAZY_OK = ("matplotlib", "zarr", "dask", "distributed", "scipy.signal", "numba", "uvicorn", "spectral.io.envi",
-           "mitsuba", "drjit",
+           "mitsuba", "drjit", "xarray",
            "omnispectral.capture.drivers.gentl")  # the last loads harvesters/genicam and the GenTL native libraries
 #: Modules whose function-level imports are not checked yet: camera B's rig calibration and alignment
 #: call each other (product.align <-> product.rigcal), which needs a change of their code, not of imports.

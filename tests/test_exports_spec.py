@@ -150,10 +150,12 @@ def sun_product(tmp_path_factory):
     rig = load_preset("small")
     clip = 0.99 * rig.camera_a.max_dn / min(rig.bracket.exposures_s)
     h, w = 64, 128
-    bands = np.full((h, w, 6), 200.0, np.float32) * np.linspace(0.5, 1.5, 6, dtype=np.float32)
+    grey = rig.system(WL).matrix @ np.ones(WL.size)  # a flat spectrum seen by the six bands
+    bands = np.broadcast_to((200.0 * grey / grey.mean()).astype(np.float32), (h, w, 6)).copy()
     bands[20:24, 40:46, :3] = clip  # camera A clipped in every exposure, camera B not: a wild estimate
     bands[20:24, 40:46, 3:] = 0.02 * clip
     bands[60:, :10] = np.nan
+    bands[40, 60, :3], bands[40, 60, 3:] = 5000.0, 1.0  # bands no spectrum explains, far below clipping
     root = tmp_path_factory.mktemp("sun") / "product"
     write_band_product(root, bands, {"bands": ["A:R", "A:G", "A:B", "B:R", "B:G", "B:B"], "units": "DN/s",
                                      "estimator": {"params": estimator_params(rig)}},
@@ -177,11 +179,13 @@ def test_spectral_export_of_the_sun_is_finite_non_negative_with_its_mask_and_no_
     mask = cv2.imread(str(tmp_path / "pano_saturated.png"), cv2.IMREAD_UNCHANGED)
     expected = np.zeros((32, 64), np.uint8)
     expected[4:8, 8:14] = 255  # rows 20-24, cols 40-46 of level 0, in the region's frame
+    expected[24, 28] = 128  # row 40, col 60: not saturated, but its estimate was clipped
     np.testing.assert_array_equal(mask, expected)
-    assert out["saturation"]["saturated_px"] == 24
+    assert out["saturation"]["saturated_px"] == 24 and out["saturation"]["clipped_estimate_px"] == 1
     # at level 1 a pixel is saturated when a level-0 pixel under it is: rows 10-12, cols 20-23
     export_product(root, "envi", tmp_path / "coarse.hdr", level=1)
     coarse = cv2.imread(str(tmp_path / "coarse_saturated.png"), cv2.IMREAD_UNCHANGED)
-    assert np.argwhere(coarse).min(axis=0).tolist() == [10, 20] and np.argwhere(coarse).max(axis=0).tolist() == [11, 22]
+    sat = np.argwhere(coarse == 255)
+    assert sat.min(axis=0).tolist() == [10, 20] and sat.max(axis=0).tolist() == [11, 22]
     for value in _header(tmp_path / "pano.exr").values():
         assert str(tmp_path.parent) not in str(value) and str(root.parent) not in str(value)

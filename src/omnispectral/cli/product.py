@@ -106,8 +106,10 @@ def cmd_export(args) -> int:
         console.print(f"Wrote {out['output']} ({out['format']}, {out['width']}×{out['height']} px of level "
                       f"{out['level']})")
         sat = out.get("saturation")
-        if sat and sat["known"]:
-            console.print(f"{sat['saturated_px']} px saturated in every exposure (lower bounds): {sat['mask']}")
+        if sat:
+            console.print(f"{sat['saturated_px'] if sat['known'] else 'unknown:'} px saturated in every exposure "
+                          f"(lower bounds), {sat['clipped_estimate_px']} px more whose estimate was clipped at 0: "
+                          f"{sat['mask']}")
     return 0
 
 

@@ -255,19 +255,33 @@ def export_product(product: str | Path, fmt: str, output: str | Path, region: tu
         else:
             path = write_envi(output, light_values(spectra), wl,
                               description=f"omnispectral {attrs['omnispectral_region']}")
-        extra["saturation"] = _write_saturation_mask(Path(output), store, level, bands, (r0, c0))
+        extra["saturation"] = _write_saturation_mask(Path(output), store, level, bands, (r0, c0), spectra)
     return {"output": str(path), "format": fmt, "level": level, "region": [r0, r1, c0, c1],
             "width": c1 - c0, "height": r1 - r0, **extra}
 
 
-def _write_saturation_mask(output: Path, store, level: int, bands: np.ndarray, origin: tuple[int, int]) -> dict:
-    """``OUTPUT_saturated.png`` beside an export (255 = saturated in every exposure); what was found."""
+#: An estimate counts as clipped (unreliable) when its most negative value exceeds this share of its peak.
+CLIPPED_ESTIMATE_FRACTION = 0.1
+
+
+def _write_saturation_mask(output: Path, store, level: int, bands: np.ndarray, origin: tuple[int, int],
+                           spectra: np.ndarray) -> dict:
+    """``OUTPUT_saturated.png`` beside an export: 255 where saturated in every exposure (a lower bound), 128
+    where not saturated but the estimate went negative by more than ``CLIPPED_ESTIMATE_FRACTION`` of its
+    peak before it was clipped to 0 (bands no spectrum explains: around the sun, where one camera clipped or
+    the views disagree); what was found."""
+    finite = np.isfinite(spectra).all(axis=2)
+    values = np.where(finite[..., None], spectra, 0.0)  # uncovered pixels (NaN) are not clipped estimates
+    clipped = finite & (-values.min(axis=2) > CLIPPED_ESTIMATE_FRACTION * np.abs(values).max(axis=2))
     clip = saturation_level_dn_s(store.attrs())
-    if clip is None:
-        return {"known": False, "reason": "the product has no rig snapshot saying where clipping starts"}
-    mask = saturated_mask(store, level, bands, clip, origin)
+    sat = saturated_mask(store, level, bands, clip, origin) if clip is not None else np.zeros_like(clipped)
+    mask = np.where(sat, 255, np.where(clipped, 128, 0)).astype(np.uint8)
     path = output.with_name(f"{output.stem}_saturated.png")
     with atomic_path(path) as tmp:
-        if not cv2.imwrite(str(tmp), mask.astype(np.uint8) * 255):
+        if not cv2.imwrite(str(tmp), mask):
             raise ConfigurationError(f"{path}: OpenCV cannot write the saturation mask")
-    return {"known": True, "mask": str(path), "saturated_px": int(mask.sum()), "level_dn_s": clip}
+    out = {"mask": str(path), "saturated_px": int(sat.sum()), "clipped_estimate_px": int((clipped & ~sat).sum()),
+           "known": clip is not None, "level_dn_s": clip}
+    if clip is None:
+        out["reason"] = "the product has no rig snapshot saying where clipping starts: only clipped estimates marked"
+    return out

@@ -60,7 +60,7 @@ def test_exit_codes_usage_2_runtime_1_and_first_thing_wrong(tmp_path):
     assert r.returncode == 2 and "--lon: 400 is outside -180..180 degrees" in r.stderr
     # runtime: a missing input is "not found", before anything else about it (EXIF, product.json…)
     r = run("hdr", "merge", str(tmp_path / "a.tif"), str(tmp_path / "b.tif"), "-o", str(tmp_path / "o.exr"))
-    assert r.returncode == 1 and r.stderr.strip() == f"error: {tmp_path / 'a.tif'}: not found"
+    assert r.returncode == 1 and r.stderr.strip() == f"error: {tmp_path / 'a.tif'}: file not found"
     r = run("spectrum", str(tmp_path / "gone"), "--lon", "10", "--lat", "0")
     assert r.returncode == 1 and r.stderr.strip() == f"error: {tmp_path / 'gone'}: not found"
     r = run("session", "verify", str(tmp_path / "gone"))

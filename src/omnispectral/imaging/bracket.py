@@ -176,7 +176,7 @@ def load_bracket(paths: Sequence[str | Path], times: Sequence[str | float] | Non
         raise ConfigurationError("an exposure bracket needs at least two frames")
     for p in paths:  # the first thing wrong is said first: a missing frame, not its missing EXIF
         if not p.is_file():
-            raise InputFileError(p, "not found" if not p.exists() else "is not a file")
+            raise InputFileError(p, "file not found" if not p.exists() else "is not a file")
     table = read_times_list(times_list) if times_list is not None else None
     exposure_s, sources = exposure_times_for(paths, times, table)
     frames = []

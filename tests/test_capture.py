@@ -68,13 +68,14 @@ def _write_rig(tmp_path, old, new):
 
 
 @pytest.mark.parametrize(("old", "new", "msg"), [
-    ("width_px = 256", "width_px = -4", r"\[rig.cameras.A\] width_px: must be positive"),
+    ("width_px = 256", "width_px = -4", r"\[cameras.A\] width_px: must be positive"),
     ("bit_depth = 12", "bit_depth = 40", r"bit_depth: must be 8-16"),
     ('orientation = "portrait"      #', 'orientation = "sideways"      #', "orientation: expected one of"),
     ("hfov_deg = 95.0", "hfov_deg = 200.0", "below 180 deg"),
-    ("count = 15", "count = 0", r"\[rig.bracket\] count: must be positive"),
-    ('driver = "simulated"\nmodel', 'driver = "rodeon"\nmodel', r"\[rig.head\] port: the rodeon driver needs"),
+    ("count = 15", "count = 0", r"\[bracket\] count: must be positive"),
+    ('driver = "simulated"\nmodel', 'driver = "rodeon"\nmodel', r"\[head\] port: the rodeon driver needs"),
     ("yaw_deg = 0.15", "yaw_deg = 45.0", "not a small misalignment"),
+    ("count = 15", 'count = "fifteen"', r"rig.toml: \[bracket\] count: expected an integer, got 'fifteen'$"),
 ])
 def test_rig_errors_name_the_key(tmp_path, old, new, msg):
     with pytest.raises(ConfigurationError, match=msg):
@@ -151,10 +152,12 @@ def test_verify_names_missing_and_damaged_frames(tmp_path):
     with open(s.journal_path, "a") as fh:
         fh.write('{"direction": 1, "camera"')
     r = verify_session(s.path, check_pixels=True)
-    assert not r["complete"] and r["n_damaged"] == 2 and r["journal_partial_last_line"]
+    assert not r["complete"] and r["n_damaged"] == 1 and r["journal_partial_last_line"]
     problems = {d["file"]: d["problem"] for d in r["damaged"]}
     assert "checksum mismatch" in problems["frames/d0005/A_e03.tif"]
-    assert problems["frames/d0010/B_e14.tif"] == "file missing"
+    # a deleted frame is missing, not damaged (issue 14)
+    assert r["n_missing"] == 1 and r["missing"][0]["file"] == "frames/d0010/B_e14.tif"
+    assert r["missing"][0]["problem"] == "file missing"
 
 
 def test_head_that_stops_answering_stops_cleanly_and_resumes(tmp_path):
@@ -301,4 +304,4 @@ def test_cli_session_verify_exit_codes(tmp_path, capsys):
     clock = FakeClock(dt.datetime(2026, 6, 21, 9, 0, tzinfo=dt.UTC))
     run_capture(s, *devices(rig, clock), clock, progress=False)
     assert main(["session", "verify", str(s.path)]) == 0
-    assert main(["session", "verify", str(tmp_path / "nothing")]) == 2
+    assert main(["session", "verify", str(tmp_path / "nothing")]) == 1

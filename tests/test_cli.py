@@ -43,7 +43,7 @@ def test_bad_camera_csv_is_a_clear_error(tmp_path):
     bad = tmp_path / "cam.csv"
     bad.write_text("wavelength_nm,R,G,B\n400,0.1,0.2,0.3\n390,0.1,0.2,0.3\n")
     r = run("spectral", "evaluate", "--camera", str(bad), "--plot", "none")
-    assert r.returncode == 2
+    assert r.returncode == 1
     assert str(bad) in r.stderr and "line 3" in r.stderr and "Traceback" not in r.stderr
 
 

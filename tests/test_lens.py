@@ -231,8 +231,9 @@ def _unwrapped_errors(monkeypatch):
     monkeypatch.setattr(err_console, "_width", 10_000)
 
 
-def _run_error(argv, capsys) -> str:
-    assert main(argv) == 2
+def _run_error(argv, capsys, status: int = 1) -> str:
+    """Run the CLI expecting an error: 1 for bad inputs, 2 for a bad command line (README, issue 14)."""
+    assert main(argv) == status
     return capsys.readouterr().err
 
 

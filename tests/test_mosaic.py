@@ -338,7 +338,8 @@ def test_resume_after_an_interrupted_run(known, tmp_path):
     assert 3 <= len(done) < ref["tiles"]
     # a chunk cut in the middle of its write: file present but no marker -> recomputed, not trusted
     ty, tx = next(t for t in [(0, 0), (0, 1), (1, 0), (1, 1), (0, 2)] if t not in done)
-    chunk = tmp_path / "r.zarr" / "0" / "c" / str(ty) / str(tx) / "0"
+    chunk = store._chunk_file(0, ty, tx)
+    assert chunk == tmp_path / "r.zarr" / "0" / "c" / "0" / str(ty) / str(tx)  # format 2: chunks (6, tile, tile)
     chunk.parent.mkdir(parents=True, exist_ok=True)
     chunk.write_bytes(b"\x00garbage")
     s = mosaic(merged, tmp_path / "r.zarr", width=WIDTH, tile=64, workers=1)
@@ -393,14 +394,19 @@ def test_store_metadata_and_pyramid(known, tmp_path):
     assert len(meta["sensitivities"]) == 6 and len(meta["sensitivities"][0]) == len(meta["wavelength_nm"])
     assert meta["rig"]["name"] == "small" and meta["mosaic"]["interp"] == "spline" and meta["n_directions"] == 36
     assert meta["units"].startswith("DN per second")
-    assert [d["path"] for d in attrs["multiscales"][0]["datasets"]] == ["0", "1", "2"]
+    assert [d["path"] for d in attrs["ome"]["multiscales"][0]["datasets"]] == ["0", "1", "2"]
     assert s["levels"] == [[128, 256], [64, 128], [32, 64]] == [list(x) for x in pyramid_shapes(128, 256, 64)]
     level0, level1 = store.read(0), store.read(1)
     np.testing.assert_allclose(level1, level0.reshape(64, 2, 128, 2, 6).mean(axis=(1, 3)), rtol=1e-6)
     import zarr
 
     arr = zarr.open_array(str(tmp_path / "m.zarr" / "0"), mode="r")
-    assert arr.chunks == (64, 64, 6) and arr.dtype == np.float32 and arr.metadata.zarr_format == 3
+    assert arr.chunks == (6, 64, 64) and arr.dtype == np.float32 and arr.metadata.zarr_format == 3
+    assert arr.metadata.dimension_names == ("c", "y", "x")
+    # rig TOML, cameras, sensitivities live in the metadata group, not in the image group's zarr.json
+    assert (tmp_path / "m.zarr" / "zarr.json").stat().st_size < 4000 < (tmp_path / "m.zarr" / "omnispectral" /
+                                                                         "zarr.json").stat().st_size
+    np.testing.assert_array_equal(np.moveaxis(arr[:], 0, -1), level0)
 
 
 # ------------------------------------------------------------------------------------------ inputs

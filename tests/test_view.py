@@ -296,7 +296,7 @@ def test_view_slots_and_cli_errors(tiny_product, tmp_path, capsys):
     assert view_slots(tiny_product)[0] == "product"
     with pytest.raises(InputFileError, match="neither a product"):
         view_slots(tmp_path)
-    assert main(["view", str(tmp_path / "missing")]) == 2
+    assert main(["view", str(tmp_path / "missing")]) == 1
     assert "does not exist" in capsys.readouterr().err
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))

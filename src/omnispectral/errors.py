@@ -39,6 +39,14 @@ class ConfigurationError(OmnispectralError, ValueError):
     """A parameter or a combination of parameters makes no sense."""
 
 
+class InvalidFileContent(InputFileError, ConfigurationError):
+    """A file that was read but holds a value that makes no sense (e.g. a rig file's key).
+
+    Both an :class:`InputFileError` (the CLI exits 1: the input is bad, not the command line) and a
+    :class:`ConfigurationError` (what callers of the readers have always caught).
+    """
+
+
 _OS_PROBLEMS = {errno.ENOSPC: "disk full", errno.EDQUOT: "disk quota exceeded", errno.EACCES: "permission denied",
                 errno.EPERM: "permission denied", errno.EROFS: "read-only file system",
                 errno.ENOENT: "no such file or directory", errno.EISDIR: "is a directory",

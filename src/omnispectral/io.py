@@ -42,13 +42,35 @@ def clean_temp_files(directory: str | Path, recursive: bool = True) -> list[Path
     return removed
 
 
+def current_umask() -> int:
+    """The process's file-creation mask (``/proc/self/status`` on Linux; else set-and-restore, not thread-safe)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except OSError:
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def follow_umask(path: str | Path, directory: bool = False) -> None:
+    """Give ``path`` the mode an ordinary ``open``/``mkdir`` would: ``0o666`` (``0o777`` for a directory) minus
+    the umask.  :func:`tempfile.mkstemp` and :func:`tempfile.mkdtemp` create ``0o600``/``0o700`` whatever the
+    umask says; a file renamed from such a temporary name would otherwise stay private."""
+    os.chmod(path, (0o777 if directory else 0o666) & ~current_umask())
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` if the block succeeds.
 
     The temporary file lives in the same directory (so the rename is atomic on POSIX) and keeps
     the target's suffix (so libraries that choose a format by extension still work).  On error
-    the temporary file is removed and ``path`` is left untouched.
+    the temporary file is removed and ``path`` is left untouched.  The file gets the permissions the
+    umask gives new files (:func:`follow_umask`), not :func:`tempfile.mkstemp`'s ``0o600``.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -58,6 +80,7 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     tmp_path = Path(tmp)
     try:
         yield tmp_path
+        follow_umask(tmp_path)
         with open(tmp_path, "rb+") as fh:
             os.fsync(fh.fileno())
         os.replace(tmp_path, path)

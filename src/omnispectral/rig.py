@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import tomli_w
 
-from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.errors import ConfigurationError, InputFileError, InvalidFileContent
 from omnispectral.imaging.bayer import CFA_PATTERNS, DEMOSAIC_METHODS, ORDERS
 from omnispectral.imaging.geometry import CameraModel, Mounting
 from omnispectral.io import read_text_file
@@ -49,16 +49,22 @@ CAMERA_DRIVERS = ("simulated", "genicam")
 ORIENTATIONS = {"landscape": 0.0, "portrait": 90.0}
 
 
+#: How a rig-file error names the type it expected.
+KIND_NAMES = {int: "an integer", float: "a number", str: "a string", bool: "true or false", list: "a list",
+              dict: "a table"}
+
+
 class _Reader:
     """Typed access to one TOML table with errors that say where the bad value is."""
 
     def __init__(self, data: dict, where: str, source: str):
         if not isinstance(data, dict):
-            raise ConfigurationError(f"{source}: [{where}] must be a table")
-        self.data, self.where, self.source = data, where, source
+            raise InvalidFileContent(source, f"[{where}] must be a table, got {data!r}")
+        self.data, self.where, self.source = data, where, source  # where: "" for the top level, or "bracket"…
 
     def fail(self, key: str, problem: str):
-        raise ConfigurationError(f"{self.source}: [{self.where}] {key}: {problem}")
+        """``FILE: [table] key: problem`` (top-level keys without a table)."""
+        raise InvalidFileContent(self.source, f"[{self.where}] {key}: {problem}" if self.where else f"{key}: {problem}")
 
     def get(self, key: str, kind: type, default: Any = ..., positive: bool = False, minimum: float | None = None):
         if key not in self.data:
@@ -69,7 +75,7 @@ class _Reader:
         if kind is float and isinstance(v, int) and not isinstance(v, bool):
             v = float(v)
         if not isinstance(v, kind) or (isinstance(v, bool) and kind is not bool):
-            self.fail(key, f"expected {kind.__name__}, got {v!r}")
+            self.fail(key, f"expected {KIND_NAMES.get(kind, kind.__name__)}, got {v!r}")
         if kind in (int, float):
             if not math.isfinite(v):
                 self.fail(key, f"{v!r} is not finite")
@@ -80,11 +86,12 @@ class _Reader:
         return v
 
     def table(self, key: str, default: dict | None = None) -> _Reader:
+        where = f"{self.where}.{key}" if self.where else key
         if key not in self.data and default is not None:
-            return _Reader(default, f"{self.where}.{key}", self.source)
+            return _Reader(default, where, self.source)
         if key not in self.data:
             self.fail(key, "missing table")
-        return _Reader(self.data[key], f"{self.where}.{key}", self.source)
+        return _Reader(self.data[key], where, self.source)
 
 
 @dataclass(frozen=True)
@@ -380,7 +387,7 @@ def _bracket(r: _Reader) -> BracketSpec:
 
 def rig_from_dict(data: dict, source: str = "<rig>", toml_text: str = "") -> Rig:
     """Validate a parsed rig description (see the module docstring for the layout)."""
-    top = _Reader(data, "rig", source)
+    top = _Reader(data, "", source)
     cams = top.table("cameras")
     for key in cams.data:
         if key not in ("A", "B"):

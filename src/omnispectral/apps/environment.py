@@ -21,7 +21,6 @@ applied per pixel (mixture prior, per-pixel posterior weights) at one pyramid le
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -29,11 +28,9 @@ import numpy as np
 
 from omnispectral.capture.scenes.base import resample_matrix
 from omnispectral.errors import ConfigurationError
+from omnispectral.product.saturation import saturated_mask, saturation_level_dn_s
 from omnispectral.product.spectra import estimate_image, open_product
-from omnispectral.rig import rig_from_dict
 
-#: A level-0 pixel counts as saturated from this fraction of the shortest exposure's clipping level.
-SATURATION_FRACTION = 0.95
 #: Default largest environment width picked when no level is given (px).
 DEFAULT_MAX_WIDTH = 1024
 
@@ -115,44 +112,6 @@ def fill_uncovered(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     out[bad & ok] = values[src[bad & ok], cols[bad & ok]]
     out[bad & ~ok] = 0.0
     return out, bad
-
-
-def saturation_level_dn_s(attrs: dict) -> float | None:
-    """The shortest exposure's clipping level (DN/s) from the store's rig snapshot, or ``None``."""
-
-    text = ((attrs.get("omnispectral") or {}).get("rig") or {}).get("toml")
-    if not text:
-        return None
-    try:
-        rig = rig_from_dict(tomllib.loads(text), "panorama rig snapshot", text)
-    except Exception:  # a snapshot this version cannot read: no saturation information, said in describe()
-        return None
-    return 0.99 * rig.camera_a.max_dn / min(rig.bracket.exposures_s)
-
-
-def saturated_mask(store, level: int, bands: np.ndarray, level_dn_s: float) -> np.ndarray:
-    """Pixels of ``level`` over at least one level-0 pixel at ≥ ``SATURATION_FRACTION`` of ``level_dn_s``.
-
-    A level-``L`` pixel is a mean of ``4^L`` level-0 pixels, so only those at ≥ threshold/4^L can hold one;
-    their level-0 footprints are read row by row.
-    """
-    thr = SATURATION_FRACTION * level_dn_s
-    f = 2 ** level
-    peak = np.nan_to_num(bands, nan=0.0).max(axis=2)
-    cand = peak >= thr / (f * f)
-    if level == 0 or not cand.any():
-        return peak >= thr if level == 0 else cand
-    out = np.zeros_like(cand)
-    h0, w0 = store.shapes[0]
-    for r in np.flatnonzero(cand.any(axis=1)):
-        cols = np.flatnonzero(cand[r])
-        c0, c1 = int(cols.min()), int(cols.max()) + 1
-        full = store.read(0, slice(r * f, min(h0, (r + 1) * f)), slice(c0 * f, min(w0, c1 * f)))
-        hit = np.nan_to_num(full, nan=0.0).max(axis=2) >= thr
-        pad = np.zeros((f, (c1 - c0) * f), bool)
-        pad[:hit.shape[0], :hit.shape[1]] = hit
-        out[r, c0:c1] = pad.reshape(f, c1 - c0, f).any(axis=(0, 2)) & cand[r, c0:c1]
-    return out
 
 
 def choose_level(shapes: list[tuple[int, int]], level: int | None, max_width: int = DEFAULT_MAX_WIDTH) -> int:

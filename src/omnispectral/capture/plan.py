@@ -184,8 +184,10 @@ def plot_tradeoff(rig: Rig, rows: list[dict], path) -> None:
     fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)
     o = [100 * r["overlap"] for r in rows]
     ax.plot(o, [r["relative_time"] for r in rows], "-", color="k", label="relative acquisition time")
-    ax.plot([100 * ref.overlap], [1.0], "o", color="red", label=f"rig grid ({ref.n_directions} directions, "
-                                                                 f"{format_duration(ref.estimated_s)})")
+    ax.axvline(100 * ref.overlap, color="red", lw=0.8, ls="--")
+    ax.plot([100 * ref.overlap], [1.0], "o", color="red",
+            label=f"this rig: {100 * ref.overlap:.1f} % overlap (pan {100 * ref.overlap_pan:.1f} %, tilt "
+                  f"{100 * ref.overlap_tilt:.1f} %), {ref.n_directions} directions, {format_duration(ref.estimated_s)}")
     for r in rows:
         if r["overlap"] in (0.0, 0.12):
             ax.plot([100 * r["overlap"]], [r["relative_time"]], "o", color="blue" if r["overlap"] == 0 else "green",

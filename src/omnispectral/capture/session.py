@@ -213,7 +213,8 @@ class Session:
     def open(cls, path: str | Path) -> Session:
         s = cls(path)
         if not (s.path / "session.json").is_file():
-            raise InputFileError(s.path, "not a session directory (no session.json)")
+            raise InputFileError(s.path, "not found" if not s.path.exists() else
+                                 "not a session directory (no session.json)")
         return s
 
     def metadata(self) -> dict:
@@ -338,6 +339,9 @@ class Session:
 def verify_session(path: str | Path, check_pixels: bool = False, checksums: bool = True) -> dict:
     """Completeness and integrity of a session against its plan; names every missing or damaged frame.
 
+    Missing: no journal line, or a journalled file that no longer exists.  Damaged: a file whose size,
+    checksum or (``check_pixels``) decoding disagrees with its journal line.
+
     Checks: every planned frame has a journal line, its file exists and its SHA-256 matches; journal
     lines that do not parse; a cut last line.  ``check_pixels`` also decodes each TIFF.  With
     ``checksums=False`` only the file size recorded in the journal is compared (catches truncation;
@@ -357,9 +361,11 @@ def verify_session(path: str | Path, check_pixels: bool = False, checksums: bool
             continue
         p = s.path / rel
         problem = None
-        if not p.exists():
-            problem = "file missing"
-        elif "bytes" in rec and p.stat().st_size != rec["bytes"]:  # the plainer message when sizes differ
+        if not p.exists():  # journalled, then deleted: missing (there is nothing to be damaged)
+            missing.append({"direction": key[0], "camera": key[1], "exposure_index": key[2], "file": rel,
+                            "problem": "file missing"})
+            continue
+        if "bytes" in rec and p.stat().st_size != rec["bytes"]:  # the plainer message when sizes differ
             problem = (f"size {p.stat().st_size} bytes, the journal recorded {rec['bytes']} (truncated or changed"
                        + ("; checksum mismatch)" if checksums else ")"))
         elif (checksums or "bytes" not in rec) and sha256_of(p) != rec.get("sha256"):

@@ -1,24 +1,39 @@
 """Command-line interface: thin argument parsing over the library.
 
 Every command has ``--help``; commands that report numbers have ``--json``.  Errors derived from
-:class:`~omnispectral.errors.OmnispectralError` are printed as one line (exit status 2).  Each area
-of the package registers its commands from its own module (``add_commands(subparsers)``).
+:class:`~omnispectral.errors.OmnispectralError` are printed as one line.  Exit status (README): 0 success;
+2 the command line is wrong (argparse's usage errors, and :class:`~omnispectral.errors.ConfigurationError`:
+a value or combination of options that makes no sense); 1 the work failed (a missing, unreadable or
+invalid file, a device, a lock, the disk); 130 interrupted.  Progress bars go to standard error, only when
+it is a terminal and ``--quiet`` is not given.  ``--version`` answers before any command module (and
+colour-science, NumPy…) is imported.  Each area of the package registers its commands from its own module
+(``add_commands(subparsers)``).
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import sys
 
 from rich.markup import escape
 
 from omnispectral import __version__
-from omnispectral.cli._common import err_console
-from omnispectral.errors import OmnispectralError, describe_os_error
+from omnispectral.cli import _common
+from omnispectral.errors import ConfigurationError, InputFileError, OmnispectralError, describe_os_error
+
+#: Exit status of a command line that is wrong (argparse uses it too) and of work that failed.
+EXIT_USAGE, EXIT_FAILURE = 2, 1
 
 #: Modules of ``omnispectral.cli`` that register sub-commands, in the order ``--help`` lists them.
 COMMAND_MODULES = ("spectral", "hdr", "lens", "capture", "register", "simulate", "devices", "importer", "mosaic",
                    "product", "view", "apps")
+
+
+def exit_status(exc: OmnispectralError) -> int:
+    """1 for a bad input (file, device, lock…), 2 for a command line that makes no sense (module docstring)."""
+    usage = isinstance(exc, ConfigurationError) and not isinstance(exc, InputFileError)
+    return EXIT_USAGE if usage else EXIT_FAILURE
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -28,6 +43,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="HDR spectral imaging of omnidirectional scenes with a six-band two-camera rig "
                     "(Hirai et al. 2018).")
     parser.add_argument("--version", action="version", version=f"omnispectral {__version__}")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMAND_MODULES:
         importlib.import_module(f"omnispectral.cli.{name}").add_commands(sub)
@@ -35,16 +51,21 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    words = sys.argv[1:] if argv is None else list(argv)
+    if words[:1] == ["--version"]:  # fast path: no command module (colour-science, NumPy, …) imported
+        sys.stdout.write(f"omnispectral {__version__}\n")
+        return 0
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(words)
+    _common.QUIET = bool(getattr(args, "quiet", False))
     try:
         return args.func(args)
     except OmnispectralError as exc:
-        err_console.print(f"[bold red]error:[/bold red] {escape(str(exc))}")  # user text is not markup
-        return 2
+        _common.err_console.print(f"[bold red]error:[/bold red] {escape(str(exc))}")  # user text is not markup
+        return exit_status(exc)
     except OSError as exc:  # disk full, read-only or unwritable output, vanished input: one line, no traceback
-        err_console.print(f"[bold red]error:[/bold red] {escape(describe_os_error(exc))}")
-        return 1
+        _common.err_console.print(f"[bold red]error:[/bold red] {escape(describe_os_error(exc))}")
+        return EXIT_FAILURE
     except KeyboardInterrupt:
-        err_console.print("interrupted")
+        _common.err_console.print("interrupted")
         return 130

@@ -8,7 +8,18 @@ import sys
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-console = Console(stderr=False)
+#: Set by ``main`` from ``--quiet``: no progress bars.
+QUIET = False
+#: Width of tables and text when standard output is not a terminal (a pipe, a file): wide enough that
+#: nothing is cut or wrapped at Rich's default of 80 columns; a table takes only the width it needs.
+PIPE_WIDTH = 4000
+
+
+def _stdout_console() -> Console:
+    return Console(stderr=False) if sys.stdout.isatty() else Console(stderr=False, width=PIPE_WIDTH)
+
+
+console = _stdout_console()
 err_console = Console(stderr=True, soft_wrap=True)  # one-line errors stay one line
 
 
@@ -17,16 +28,23 @@ def print_json(data) -> None:
     sys.stdout.write(json.dumps(data, indent=2) + "\n")
 
 
+def progress_wanted(enabled: bool = True) -> bool:
+    """Whether to draw progress: asked for, no ``--quiet``, and standard error is a terminal."""
+    return enabled and not QUIET and err_console.is_terminal
+
+
 class ProgressBars:
     """Rich progress bars on standard error for the library's ``progress(stage, done, total)`` callbacks.
 
     Use as a context manager and pass the object itself as the callback; one bar per stage, created
-    on the stage's first report.  ``enabled=False`` draws nothing (e.g. with ``--json``).
+    on the stage's first report.  Nothing is drawn with ``enabled=False`` (e.g. with ``--json``), with
+    ``--quiet``, or when standard error is not a terminal (a log file gets no bar frames).
     """
 
     def __init__(self, enabled: bool = True, transient: bool = False):
+        self.enabled = progress_wanted(enabled)
         self.bar = Progress(TextColumn("{task.description:>16}"), BarColumn(), MofNCompleteColumn(),
-                            TimeElapsedColumn(), console=err_console, disable=not enabled, transient=transient)
+                            TimeElapsedColumn(), console=err_console, disable=not self.enabled, transient=transient)
         self.tasks: dict[str, int] = {}
 
     def __enter__(self) -> ProgressBars:

@@ -33,7 +33,11 @@ def cmd_plan(args) -> int:
         png = args.tradeoff if args.tradeoff.endswith(".png") else args.tradeoff + ".png"
         plot_tradeoff(rig, rows, png)
         js = png[:-4] + ".json"
-        atomic_write_json(js, {"rig": rig.name, "reference": {k: out[k] for k in ("n_directions", "estimated_s")},
+        ref = make_plan(rig)  # the rig's own grid (marked on the plot), whatever --overlap asked for
+        atomic_write_json(js, {"rig": rig.name,
+                               "reference": {"overlap": ref.overlap, "overlap_pan": ref.overlap_pan,
+                                             "overlap_tilt": ref.overlap_tilt, "n_directions": ref.n_directions,
+                                             "estimated_s": ref.estimated_s},
                                "curve": rows})
         out["tradeoff"] = {"png": png, "json": js}
     if args.json:
@@ -51,7 +55,8 @@ def cmd_plan(args) -> int:
                                                     "total")))
     console.print(table)
     if args.tradeoff:
-        console.print(f"Overlap trade-off (paper Fig. 15a): {out['tradeoff']['png']} and {out['tradeoff']['json']}")
+        console.print(f"Overlap trade-off (paper Fig. 15a; the rig's own grid marked at "
+                      f"{100 * make_plan(rig).overlap:.1f} %): {out['tradeoff']['png']} and {out['tradeoff']['json']}")
     return 0
 
 

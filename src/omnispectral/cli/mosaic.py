@@ -7,19 +7,22 @@ from pathlib import Path
 
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-from omnispectral.cli._common import console, err_console, print_json
+from omnispectral.cli._common import console, err_console, print_json, progress_wanted
+from omnispectral.errors import InputFileError
 from omnispectral.mosaic import mosaic
 from omnispectral.mosaic.blending import BLENDS, DEFAULT_MULTIBAND_LEVELS
-from omnispectral.mosaic.engine import DEFAULT_INTERP, DEFAULT_TILE
+from omnispectral.mosaic.engine import DEFAULT_TILE
 from omnispectral.mosaic.interp import METHODS
 from omnispectral.product.merge import merge_session
+from omnispectral.product.process import DEFAULT_INTERP
 
 
 def cmd_mosaic(args) -> int:
     region = tuple(args.region) if args.region else None
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                TimeRemainingColumn())
-    with Progress(*columns, console=err_console, disable=args.no_progress, transient=False) as bar:
+    with Progress(*columns, console=err_console, disable=not progress_wanted(not args.no_progress),
+                  transient=False) as bar:
         tasks = {}
         labels = {"merge": "HDR merge (directions)", "tiles": "tiles", "pyramid": "pyramid chunks"}
 
@@ -32,6 +35,8 @@ def cmd_mosaic(args) -> int:
             bar.update(tasks[stage], completed=done, total=total, description=description)
 
         source = Path(args.input)
+        if not source.exists():
+            raise InputFileError(source, "not found")
         if (source / "session.json").is_file():  # a raw session: merge it into directions first
             merged_dir = Path(args.merged_dir) if args.merged_dir is not None else source / "merged"
             source = merge_session(source, merged_dir, progress=lambda d, n: progress("merge", {}, d, n))

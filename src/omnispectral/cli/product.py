@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import argparse
+import math
+import sys
 from pathlib import Path
 
 from rich.markup import escape
@@ -10,8 +13,9 @@ from rich.table import Table
 from omnispectral.apps.demo import run_demo
 from omnispectral.cli._common import ProgressBars, console, print_json
 from omnispectral.cli.lens import calibrate_group
+from omnispectral.mosaic.interp import METHODS
 from omnispectral.product.exports import FORMATS, export_product
-from omnispectral.product.process import process
+from omnispectral.product.process import DEFAULT_INTERP, process
 from omnispectral.product.report import write_report
 from omnispectral.product.rigcal import calibrate_session
 from omnispectral.product.series import DEFAULT_REGIONS, parse_region, process_series
@@ -61,6 +65,11 @@ def cmd_spectrum(args) -> int:
     if args.json:
         print_json(out)
         return 0
+    if args.csv:
+        sys.stdout.write("wavelength_nm,spectrum,std\n")
+        for wl, v, s in zip(out["wavelength_nm"], out["spectrum"], out["std"], strict=True):
+            sys.stdout.write(f"{wl:g},{v:.9g},{s:.9g}\n")
+        return 0
     console.print(f"lon {out['lon_deg']:.3f}°, lat {out['lat_deg']:.3f}° (pixel {out['pixel'][0]:.1f}, "
                   f"{out['pixel'][1]:.1f} of level {out['level']}); bands "
                   + ", ".join(f"{k} {v:.4g}" for k, v in out["bands"].items()))
@@ -73,14 +82,34 @@ def cmd_spectrum(args) -> int:
     return 0
 
 
+def degrees_in(low: float, high: float):
+    """argparse type: a finite angle in ``[low, high]`` degrees (out of range is a usage error, never wrapped)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number of degrees") from None
+        if not (math.isfinite(value) and low <= value <= high):
+            raise argparse.ArgumentTypeError(f"{text} is outside {low:g}..{high:g} degrees")
+        return value
+
+    return parse
+
+
 def cmd_export(args) -> int:
     out = export_product(args.product, args.format, args.output,
-                         tuple(args.region) if args.region else None, args.level)
+                         tuple(args.region) if args.region else None, args.level, half=args.half)
     if args.json:
         print_json(out)
     else:
         console.print(f"Wrote {out['output']} ({out['format']}, {out['width']}×{out['height']} px of level "
                       f"{out['level']})")
+        sat = out.get("saturation")
+        if sat:
+            console.print(f"{sat['saturated_px'] if sat['known'] else 'unknown:'} px saturated in every exposure "
+                          f"(lower bounds), {sat['clipped_estimate_px']} px more whose estimate was clipped at 0: "
+                          f"{sat['mask']}")
     return 0
 
 
@@ -185,8 +214,9 @@ def add_commands(sub) -> None:
     p.add_argument("-o", "--output", required=True, metavar="PRODUCT", help="product directory")
     p.add_argument("--width", type=int, default=None, help="panorama width in px (default: the sensor's resolution)")
     p.add_argument("--tile", type=int, default=None, help="tile side in px")
-    p.add_argument("--interp", default=None, choices=["linear", "cubic", "spline", "lanczos"],
-                   help="interpolation (default linear: no overshoot on small targets)")
+    p.add_argument("--interp", default=DEFAULT_INTERP, choices=METHODS,
+                   help=f"interpolation (default {DEFAULT_INTERP}: no overshoot on small targets; also the "
+                        f"default of 'mosaic')")
     p.add_argument("--hdr-weight", default="noise", choices=["noise", "triangle"],
                    help="HDR weight (default inverse variance; 'triangle' is the paper's Eq. (2))")
     p.add_argument("--registration", default="parallax", choices=["parallax", "paper"],
@@ -222,10 +252,13 @@ def add_commands(sub) -> None:
     s = sub.add_parser("spectrum", help="the estimated spectrum at a direction of a product",
                        description="Six bands, Wiener spectrum and its posterior std at a longitude/latitude.")
     s.add_argument("product", metavar="PRODUCT")
-    s.add_argument("--lon", type=float, required=True, help="longitude in degrees (-180..180, 0 = +Z)")
-    s.add_argument("--lat", type=float, required=True, help="latitude in degrees (-90..90)")
+    s.add_argument("--lon", type=degrees_in(-180, 180), required=True, help="longitude in degrees (-180..180, 0 = +Z)")
+    s.add_argument("--lat", type=degrees_in(-90, 90), required=True, help="latitude in degrees (-90..90)")
     s.add_argument("--level", type=int, default=0, help="pyramid level")
-    s.add_argument("--json", action="store_true")
+    fmt = s.add_mutually_exclusive_group()
+    fmt.add_argument("--json", action="store_true")
+    fmt.add_argument("--csv", action="store_true",
+                     help="print CSV: one row per wavelength (wavelength_nm, spectrum, std: the posterior σ)")
     s.set_defaults(func=cmd_spectrum)
 
     e = sub.add_parser("export", help="standard files from a product",
@@ -237,6 +270,7 @@ def add_commands(sub) -> None:
     e.add_argument("--region", type=int, nargs=4, default=None, metavar=("ROW0", "ROW1", "COL0", "COL1"),
                    help="pixel window of the chosen level")
     e.add_argument("--level", type=int, default=0, help="pyramid level (0 = full size)")
+    e.add_argument("--half", action="store_true", help="spectral EXR in 16-bit floats (half the size)")
     e.add_argument("--json", action="store_true")
     e.set_defaults(func=cmd_export)
 
@@ -250,7 +284,8 @@ def add_commands(sub) -> None:
     d = sub.add_parser("demo", help="simulate, process, export and report in one go",
                        description="Simulate the paper's time-lapse geometry on the procedural scene (reduced "
                                    "sensor unless --full), process it, export, and print the accuracy table.")
-    d.add_argument("--out", default="demo-output", help="output directory (default demo-output/)")
+    d.add_argument("-o", "--output", "--out", dest="out", default="demo-output",
+                   help="output directory (default demo-output/)")
     d.add_argument("--full", action="store_true", help="the paper's full scale (2048×1088 sensors)")
     d.add_argument("--time", default="12:00", metavar="HH:MM", help="time of day of the scene")
     d.add_argument("--seed", type=int, default=0)

@@ -174,6 +174,9 @@ def load_bracket(paths: Sequence[str | Path], times: Sequence[str | float] | Non
     paths = tuple(Path(p) for p in paths)
     if len(paths) < 2:
         raise ConfigurationError("an exposure bracket needs at least two frames")
+    for p in paths:  # the first thing wrong is said first: a missing frame, not its missing EXIF
+        if not p.is_file():
+            raise InputFileError(p, "file not found" if not p.exists() else "is not a file")
     table = read_times_list(times_list) if times_list is not None else None
     exposure_s, sources = exposure_times_for(paths, times, table)
     frames = []

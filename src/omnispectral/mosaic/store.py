@@ -1,19 +1,29 @@
-"""The panorama store: a Zarr (v3) group with a multiscale pyramid, per-chunk atomic writes and resume.
+"""The panorama store: an OME-Zarr 0.5 image (Zarr v3 group) with a multiscale pyramid, per-chunk atomic writes
+and resume.
 
-Layout::
+Layout (format version 2, docs/product.md)::
 
     PANO.zarr/
-      zarr.json          group; attributes "omnispectral" (bands, sensitivities, wavelengths, estimator,
-                         rig, session, geometry, how it was made) and "multiscales" (the levels)
-      0/                 (H, W, 6) float32, chunks (tile, tile, 6): the panorama, DN/s, NaN where uncovered
+      zarr.json          group; attributes "ome" (OME-NGFF 0.5: version, multiscales with axes c, y, x and each
+                         level's scale/translation in degrees) and "omnispectral" (a small summary: format,
+                         bands, units, tile, levels, the name of the metadata file)
+      omnispectral/zarr.json  a child group without arrays; its attributes hold everything else: sensitivities,
+                         wavelengths, estimator, rig, session, cameras, geometry, how it was made, and the run's
+                         fingerprint (kept out of the image's zarr.json: it is ~250 kB)
+      0/                 (6, H, W) float32, dimension names (c, y, x), chunks (6, tile, tile): DN/s, NaN uncovered
       1/ 2/ …            levels halved by 2 × 2 box averages (ceil sizes) until the long side ≤ tile
+      quality/           (2, H, W) float32, (c, y, x): camera B's registration quality (level 0 only, optional)
       k/.done/TY_TX.json a chunk's completion marker, with the statistics of the tile
+
+In memory nothing changed: :meth:`PanoramaStore.read` and :meth:`PanoramaStore.array` give ``(H, W, C)``
+(:class:`ChannelLast` transposes per request).  Stores of format version 1 (``(H, W, 6)`` on disk, metadata in
+``zarr.json``) are still read; resuming one is refused with a message (rerun with ``--overwrite``).
 
 Writes.  A chunk is computed whole and written with one Zarr store call (the local store writes a
 temporary file and renames it), then the chunk file is fsynced, then its marker is written
 atomically (temporary name, fsync, rename).  A chunk without a marker is therefore recomputed on
 resume, whatever state its file is in, and a marker never exists for a chunk not fully on disk.
-``state.json``-like parameters of the run (``fingerprint``) are kept in the group attributes; a
+``state.json``-like parameters of the run (``fingerprint``) are kept in ``omnispectral/zarr.json``; a
 resume with other parameters is refused unless the store is overwritten.
 """
 
@@ -31,10 +41,18 @@ from pathlib import Path
 import numpy as np
 
 from omnispectral.errors import InputFileError
-from omnispectral.io import TEMP_MARK, atomic_write_json
+from omnispectral.io import TEMP_MARK, atomic_write_json, follow_umask
 
 FORMAT = "omnispectral-panorama"
-FORMAT_VERSION = 1
+#: 2: OME-Zarr 0.5, arrays (c, y, x), metadata in ``omnispectral.json``; 1: arrays (y, x, band), all in zarr.json.
+FORMAT_VERSION = 2
+#: The store's own metadata: a child Zarr group (no arrays) whose attributes hold everything too large for the
+#: image group's attributes.  A Zarr node, so that Zarr readers listing the store meet nothing foreign.
+METADATA = "omnispectral"
+#: OME-NGFF version written under ``attributes.ome``.
+OME_VERSION = "0.5"
+#: Dimension names of every array (OME-NGFF: channel before space).
+DIMENSIONS = ("c", "y", "x")
 DONE_DIR = ".done"
 MARKER_NAME = re.compile(r"^(\d+)_(\d+)\.json$")
 
@@ -49,17 +67,73 @@ def pyramid_shapes(height: int, width: int, tile: int) -> list[tuple[int, int]]:
 
 
 def multiscales_attr(shapes: list[tuple[int, int]], name: str) -> list[dict]:
-    """OME-NGFF-style ``multiscales`` for axes (y, x, band): each level's pixel size in degrees."""
-    h0, w0 = shapes[0]
+    """OME-NGFF 0.5 ``multiscales`` for axes (c, y, x).
+
+    Space is angular: ``x`` is longitude and ``y`` the polar angle from the zenith (90° − latitude), both in
+    degrees (a UDUNITS-2 unit; the spec's list of recommended units holds lengths only).  Level ``k``'s pixel is
+    ``s_k = 180·2^k / H_0`` degrees on both axes and its pixel 0 is centred at ``(s_k/2, −180 + s_k/2)``: pixel
+    ``(col, row)`` of level ``k`` is at ``lon = −180 + (col + ½) s_k``, ``lat = 90 − (row + ½) s_k``.
+    """
+    h0, _ = shapes[0]
     datasets = []
     for k in range(len(shapes)):
+        step = 180.0 * 2 ** k / h0
         datasets.append({"path": str(k), "coordinateTransformations": [
-            {"type": "scale", "scale": [180.0 * 2 ** k / h0, 360.0 * 2 ** k / w0, 1.0]}]})
-    return [{"version": "0.5-omnispectral", "name": name, "type": "2x2 box average (NaN ignored)",
-             "axes": [{"name": "y", "type": "space", "unit": "degree"},
-                      {"name": "x", "type": "space", "unit": "degree"},
-                      {"name": "band", "type": "channel"}],
-             "datasets": datasets}]
+            {"type": "scale", "scale": [1.0, step, step]},
+            {"type": "translation", "translation": [0.0, step / 2, -180.0 + step / 2]}]})
+    return [{"name": name, "type": "2x2 box average (NaN ignored)",
+             "axes": [{"name": "c", "type": "channel"},
+                      {"name": "y", "type": "space", "unit": "degree", "longName": "polar angle from the zenith"},
+                      {"name": "x", "type": "space", "unit": "degree", "longName": "longitude"}],
+             "datasets": datasets,
+             "metadata": {"description": "equirectangular; y = 90 - latitude, x = longitude (Mitsuba's envmap "
+                                         "orientation); values DN/s per band, NaN where uncovered"}}]
+
+
+class ChannelLast:
+    """A Zarr array seen as ``(H, W, C)`` whatever its order on disk (``(C, H, W)`` in format 2).
+
+    Supports what the package does with arrays: ``shape``, ``dtype``, basic slicing ``a[rows, cols, bands]``
+    for reading and ``a[rows, cols, :] = data`` for writing (integer indices keep their axis out, as NumPy).
+    """
+
+    def __init__(self, array):
+        self.zarr = array
+        names = tuple(getattr(array.metadata, "dimension_names", None) or ())
+        self.channel_first = bool(names) and names[0] == DIMENSIONS[0]
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        s = self.zarr.shape
+        return (s[1], s[2], s[0]) if self.channel_first else tuple(s)
+
+    @property
+    def dtype(self):
+        return self.zarr.dtype
+
+    @staticmethod
+    def _key(key) -> tuple:
+        key = key if isinstance(key, tuple) else (key,)
+        if any(k is Ellipsis for k in key):
+            raise IndexError("ChannelLast takes explicit (rows, cols[, bands]) indices")
+        return key + (slice(None),) * (3 - len(key))
+
+    def __getitem__(self, key):
+        if not self.channel_first:
+            return self.zarr[key]
+        rows, cols, bands = self._key(key)
+        data = np.asarray(self.zarr[bands, rows, cols])
+        return data if isinstance(bands, (int, np.integer)) else np.moveaxis(data, 0, -1)
+
+    def __setitem__(self, key, value) -> None:
+        if not self.channel_first:
+            self.zarr[key] = value
+            return
+        rows, cols, bands = self._key(key)
+        value = np.asarray(value)
+        if not isinstance(bands, (int, np.integer)):
+            value = np.moveaxis(value, -1, 0) if value.ndim == 3 else value
+        self.zarr[bands, rows, cols] = np.ascontiguousarray(value)
 
 
 def _compressors(name: str):
@@ -76,6 +150,8 @@ def _compressors(name: str):
 
 #: Name of the registration-quality array (level 0 only).
 QUALITY = "quality"
+#: Entries of the metadata also kept in the (small) group attributes, for readers that look only there.
+SUMMARY_KEYS = ("bands", "units", "camera_bands")
 
 
 @dataclass
@@ -86,6 +162,7 @@ class PanoramaStore:
     tile: int
     shapes: list[tuple[int, int]]
     n_bands: int
+    format_version: int = FORMAT_VERSION
 
     # ------------------------------------------------------------------ create / open
     @classmethod
@@ -111,6 +188,10 @@ class PanoramaStore:
                     raise InputFileError(path, "exists and is not a panorama store; choose another output or "
                                                "overwrite it") from None
             if existing is not None and not overwrite:
+                if existing.format_version < FORMAT_VERSION:
+                    raise InputFileError(path, f"was written by an older omnispectral (panorama format "
+                                               f"{existing.format_version}: channel-last, not OME-Zarr); it can "
+                                               f"still be read, but to resume or rebuild it rerun with --overwrite")
                 if existing.attrs().get("fingerprint") != _jsonable(fingerprint):
                     raise InputFileError(path, "holds a panorama made with other inputs or parameters; rerun with "
                                                "--overwrite or choose another output")
@@ -122,26 +203,30 @@ class PanoramaStore:
             shutil.rmtree(stale, ignore_errors=True)
         path.parent.mkdir(parents=True, exist_ok=True)
         final, path = path, Path(tempfile.mkdtemp(prefix=f".{path.name}{TEMP_MARK}", dir=path.parent))
+        follow_umask(path, directory=True)  # mkdtemp makes it 0o700 whatever the umask
         shapes = pyramid_shapes(height, width, tile)
         group = zarr.open_group(str(path), mode="w", zarr_format=3)
         for k, (h, w) in enumerate(shapes):
-            group.create_array(str(k), shape=(h, w, n_bands), chunks=(tile, tile, n_bands), dtype="float32",
+            group.create_array(str(k), shape=(n_bands, h, w), chunks=(n_bands, tile, tile), dtype="float32",
                                fill_value=np.nan, compressors=_compressors(compression),
-                               dimension_names=("y", "x", "band"), config={"write_empty_chunks": True})
+                               dimension_names=DIMENSIONS, config={"write_empty_chunks": True})
         if quality_bands:
-            group.create_array(QUALITY, shape=(*shapes[0], quality_bands), chunks=(tile, tile, quality_bands),
+            group.create_array(QUALITY, shape=(quality_bands, *shapes[0]), chunks=(quality_bands, tile, tile),
                                dtype="float32", fill_value=np.nan, compressors=_compressors(compression),
-                               dimension_names=("y", "x", "quality"), config={"write_empty_chunks": True})
+                               dimension_names=DIMENSIONS, config={"write_empty_chunks": True})
             attrs = {**attrs, "quality": {"array": QUALITY, "layers": ["registration_confidence", "occluded"],
                                           "description": "camera B's registration confidence (0..1, feather-"
                                           "weighted over directions) and 1 where B's view of the pixel is "
                                           "hidden by a nearer surface in every direction that sees it"}}
-        meta = {"omnispectral": {**attrs, "format": FORMAT, "format_version": FORMAT_VERSION, "tile": tile,
-                                 "levels": [list(s) for s in shapes], "compression": compression},
-                "multiscales": multiscales_attr(shapes, final.name), "fingerprint": fingerprint}
-        group.attrs.update(_jsonable(meta))
+        summary = {"format": FORMAT, "format_version": FORMAT_VERSION, "metadata": METADATA, "tile": tile,
+                   "levels": [list(s) for s in shapes], "compression": compression,
+                   **{k: attrs[k] for k in SUMMARY_KEYS if k in attrs}}
+        group.attrs.update(_jsonable({"ome": {"version": OME_VERSION,
+                                              "multiscales": multiscales_attr(shapes, final.name)},
+                                      "omnispectral": summary}))
+        _write_metadata(path, {"omnispectral": {**attrs, **summary}, "fingerprint": fingerprint})
         os.replace(path, final)
-        return cls(final, tile, shapes, n_bands)
+        return cls(final, tile, shapes, n_bands, FORMAT_VERSION)
 
     @classmethod
     def open(cls, path: str | Path) -> PanoramaStore:
@@ -155,22 +240,67 @@ class PanoramaStore:
         meta = group.attrs.asdict().get("omnispectral", {})
         if meta.get("format") != FORMAT:
             raise InputFileError(path, "not an omnispectral panorama store")
-        return cls(path, int(meta["tile"]), [tuple(s) for s in meta["levels"]], int(group["0"].shape[2]))
+        version = int(meta.get("format_version", 1))
+        if version > FORMAT_VERSION:
+            raise InputFileError(path, f"panorama format {version} is newer than this omnispectral reads "
+                                       f"({FORMAT_VERSION}); update omnispectral")
+        n_bands = ChannelLast(group["0"]).shape[2]
+        return cls(path, int(meta["tile"]), [tuple(s) for s in meta["levels"]], n_bands, version)
 
     def attrs(self) -> dict:
+        """All metadata as one dict: ``omnispectral`` (full), ``fingerprint``, and the group's ``ome``.
+
+        Format 2 keeps the large part in ``omnispectral/zarr.json``; format 1 had everything in ``zarr.json``.
+        """
         import zarr
 
-        return zarr.open_group(str(self.path), mode="r", zarr_format=3).attrs.asdict()
+        root = zarr.open_group(str(self.path), mode="r", zarr_format=3).attrs.asdict()
+        if self.format_version < 2:
+            return root
+        extra = _read_metadata(self.path)
+        return {**root, **extra, "omnispectral": {**root.get("omnispectral", {}), **extra.get("omnispectral", {})}}
 
     def update_attrs(self, values: dict) -> None:
+        """Replace top-level metadata entries (``omnispectral``, ``fingerprint``, …) atomically."""
         import zarr
 
-        zarr.open_group(str(self.path), mode="r+", zarr_format=3).attrs.update(_jsonable(values))
+        if self.format_version < 2:
+            zarr.open_group(str(self.path), mode="r+", zarr_format=3).attrs.update(_jsonable(values))
+            return
+        _write_metadata(self.path, {**_read_metadata(self.path), **values})
 
-    def array(self, level: int = 0, mode: str = "r"):
+    def array(self, level: int = 0, mode: str = "r") -> ChannelLast:
+        """Level ``level`` as an ``(H, W, C)`` array (:class:`ChannelLast`; ``.zarr`` is the array on disk)."""
         import zarr
 
-        return zarr.open_array(str(self.path / str(level)), mode=mode, zarr_format=3)
+        return ChannelLast(zarr.open_array(str(self.path / str(level)), mode=mode, zarr_format=3))
+
+    def to_xarray(self, level: int = 0):
+        """Level ``level`` as a lazy (Dask) ``xarray.DataArray`` with dimensions ``(band, lat, lon)``.
+
+        Read by xarray's own Zarr backend (dimension names from the arrays' ``dimension_names``); the
+        coordinates are the pixel centres of docs/product.md (``lat`` descending from the zenith, ``lon``
+        from −180°) and the band names; attributes: ``units``.  Format-1 stores come back in the same shape.
+        """
+        import xarray as xr  # lazy: xarray is only needed by this reader
+
+        others = [str(k) for k in range(len(self.shapes)) if k != level]
+        if (self.path / QUALITY / "zarr.json").is_file():
+            others.append(QUALITY)
+        ds = xr.open_dataset(self.path, engine="zarr", drop_variables=others, chunks={}, consolidated=False,
+                             zarr_format=3)
+        da = ds[str(level)]
+        if self.format_version < 2:
+            da = da.rename({"band": "c"}).transpose("c", "y", "x")
+        h, w = self.shapes[level]
+        step = 180.0 * 2 ** level / self.shapes[0][0]
+        meta = self.attrs().get("omnispectral", {})
+        bands = list(meta.get("bands") or [f"band{i}" for i in range(self.n_bands)])
+        da = da.rename({"c": "band", "y": "lat", "x": "lon"}).assign_coords(
+            band=bands, lat=90.0 - (np.arange(h) + 0.5) * step, lon=-180.0 + (np.arange(w) + 0.5) * step)
+        da.lat.attrs["units"] = da.lon.attrs["units"] = "degree"
+        da.attrs = {"units": meta.get("units", "")}
+        return da.rename(f"level{level}")
 
     # ------------------------------------------------------------------ chunks
     def n_chunks(self, level: int) -> tuple[int, int]:
@@ -186,7 +316,9 @@ class PanoramaStore:
         return self.path / str(level) / DONE_DIR / f"{ty}_{tx}.json"
 
     def _chunk_file(self, level: int, ty: int, tx: int) -> Path:
-        return self.path / str(level) / "c" / str(ty) / str(tx) / "0"
+        if self.format_version < 2:
+            return self.path / str(level) / "c" / str(ty) / str(tx) / "0"
+        return self.path / str(level) / "c" / "0" / str(ty) / str(tx)
 
     def is_done(self, level: int, ty: int, tx: int) -> bool:
         return self._marker(level, ty, tx).is_file()
@@ -232,20 +364,20 @@ class PanoramaStore:
 
     def write_quality(self, ty: int, tx: int, data: np.ndarray) -> None:
         """Write one chunk of the quality layer (before the chunk of bands and its marker)."""
+        r0, r1, c0, c1 = self.chunk_rect(0, ty, tx)
+        self._quality("r+")[r0:r1, c0:c1, :] = np.asarray(data, dtype=np.float32)
+
+    def _quality(self, mode: str = "r") -> ChannelLast:
         import zarr
 
-        r0, r1, c0, c1 = self.chunk_rect(0, ty, tx)
-        arr = zarr.open_array(str(self.path / QUALITY), mode="r+", zarr_format=3)
-        arr[r0:r1, c0:c1, :] = np.ascontiguousarray(data, dtype=np.float32)
+        return ChannelLast(zarr.open_array(str(self.path / QUALITY), mode=mode, zarr_format=3))
 
     def has_quality(self) -> bool:
         return (self.path / QUALITY / "zarr.json").is_file()
 
     def read_quality(self, rows: slice = slice(None), cols: slice = slice(None)) -> np.ndarray:
         """The quality layer ``(h, w, 2)`` (registration confidence, occluded); NaN where not computed."""
-        import zarr
-
-        return np.asarray(zarr.open_array(str(self.path / QUALITY), mode="r", zarr_format=3)[rows, cols, :])
+        return np.asarray(self._quality()[rows, cols, :])
 
     def read(self, level: int = 0, rows: slice = slice(None), cols: slice = slice(None)) -> np.ndarray:
         return np.asarray(self.array(level)[rows, cols, :])
@@ -273,6 +405,22 @@ def box_average_2x2(src: np.ndarray, out_shape: tuple[int, int]) -> np.ndarray:
     ok = count > 0
     out[ok] = (total[ok] / count[ok]).astype(np.float32)
     return out
+
+
+def _read_metadata(store: Path) -> dict:
+    """The attributes of the store's metadata group (format 2)."""
+    path = store / METADATA / "zarr.json"
+    try:
+        return dict(json.loads(path.read_text(encoding="utf-8")).get("attributes") or {})
+    except (OSError, ValueError, AttributeError) as exc:
+        raise InputFileError(path, f"unreadable ({exc})") from None
+
+
+def _write_metadata(store: Path, attributes: dict) -> None:
+    """Write the metadata group's ``zarr.json`` (a Zarr v3 group, no arrays) atomically."""
+    (store / METADATA).mkdir(exist_ok=True)
+    atomic_write_json(store / METADATA / "zarr.json", {"zarr_format": 3, "node_type": "group",
+                                                       "attributes": _jsonable(attributes)})
 
 
 def _jsonable(x):

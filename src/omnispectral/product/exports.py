@@ -5,18 +5,23 @@ and renames into place.
 
 - :func:`write_spectral_exr`: the spectral OpenEXR layout of Fichet, Pacanowski & Wilkie, "An OpenEXR
   Layout for Spectral Images", JCGT 10(3), 2021: emissive channels ``S0.<λ>nm`` (decimal comma, e.g.
-  ``S0.550,0nm``), ``spectralLayoutVersion = "1.0"``, ``emissiveUnits``, an sRGB preview in ``R,G,B``,
-  tiled, one level (the OpenEXR Python package writes corrupt mip-maps).  Readable by colour-science's
-  ``read_spectral_image_Fichet2021``.
+  ``S0.550,0nm``), ``spectralLayoutVersion = "1.0"``, ``emissiveUnits = "W.m^-2.sr^-1"`` (the layout's one
+  defined unit; the values' real unit, e.g. DN/s per unit of the system matrix, in ``omnispectral_units``),
+  no ``polarisationHandedness`` (unpolarised: S0 only), an sRGB preview in ``R,G,B``, tiled, one level (the
+  OpenEXR Python package writes corrupt mip-maps), float32 or half.  Values are finite and ≥ 0 (NaN,
+  ±inf and negative estimates → 0).  Readable by colour-science's ``read_spectral_image_Fichet2021``.
 - :func:`write_envi`: ENVI via Spectral Python, band names and ``wavelength`` in nm.
 - :func:`write_rgb_exr` / :func:`write_radiance_hdr`: linear Rec.709/sRGB-primaries RGB for
-  image-based lighting (Blender, Mitsuba), from the spectra through the CIE 1931 observer.
+  image-based lighting (Blender, Mitsuba), from the spectra through the CIE 1931 observer; finite and ≥ 0
+  (out-of-gamut channels clipped); the EXR declares ``chromaticities`` (Rec.709 primaries, D65 white) and
+  ``envmap = latlong``.
 - :func:`tone_map_srgb` / :func:`write_preview`: an 8-bit sRGB preview (exposure to put the 99th
   luminance percentile at 1, Reinhard 2002 global operator ``L/(1+L)`` rescaled, sRGB encoding).
 """
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Mapping
 from pathlib import Path
@@ -30,10 +35,30 @@ from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.bracket import FLOAT_IMAGE_SUFFIXES, write_float_image
 from omnispectral.io import atomic_path
 from omnispectral.product.layout import open_product
+from omnispectral.product.saturation import saturated_mask, saturation_level_dn_s
 from omnispectral.product.spectra import bands_to_linear_srgb, estimate_image
 from omnispectral.spectral.colour import spectra_to_linear_srgb, srgb_encode
 
 SPECTRAL_LAYOUT_VERSION = "1.0"
+#: The one ``emissiveUnits`` value the Fichet 2021 layout defines (spectral radiance per nm, written per channel).
+FICHET_EMISSIVE_UNITS = "W.m^-2.sr^-1"
+#: Rec.709 / sRGB primaries and D65 white as OpenEXR's ``chromaticities`` (red, green, blue, white xy).
+REC709_CHROMATICITIES = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
+#: Largest finite half-float.
+HALF_MAX = 65504.0
+
+
+def light_values(values: np.ndarray) -> np.ndarray:
+    """``values`` as light: float32, NaN/±inf → 0, negative → 0 (a radiance is never negative; an estimate
+    undershoots on noisy or saturated pixels, a colour outside the sRGB gamut has a negative channel)."""
+    return np.maximum(np.nan_to_num(np.asarray(values, np.float32), nan=0.0, posinf=0.0, neginf=0.0), 0.0)
+
+
+def _write_exr_channels(path: Path, header: dict, channels: dict[str, np.ndarray]) -> Path:
+    """One-part OpenEXR written atomically (``header`` holds typed OpenEXR attributes)."""
+    with atomic_path(path) as tmp, OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION, **header}, channels) as f:
+        f.write(str(tmp))
+    return path
 
 
 def spectral_channel_name(wavelength_nm: float, stokes: int = 0) -> str:
@@ -76,31 +101,35 @@ def write_spectral_exr(path: str | Path, spectra: np.ndarray, wavelength_nm: np.
                        attributes: Mapping[str, str] | None = None, tile: int = 64, half: bool = False) -> Path:
     """Spectral OpenEXR (Fichet et al. 2021 layout, emissive), tiled, with an sRGB preview in R, G, B.
 
-    ``units`` is recorded in ``emissiveUnits`` (the layout's attribute; e.g. ``"W.m^-2.sr^-1"``, or the
-    product's relative unit) and the extra ``attributes`` as strings.
+    ``emissiveUnits`` is the layout's ``W.m^-2.sr^-1``; when ``units`` (the values' real unit) is another,
+    it is recorded in ``omnispectral_units``.  Values are written finite and ≥ 0 (:func:`light_values`).
+    ``half``: 16-bit floats; values above the half range (65504) are scaled by a power of two recorded in
+    ``omnispectral_scale`` (stored value × scale = value in ``units``).  Extra ``attributes`` as strings.
     """
 
-    spectra = np.asarray(spectra, np.float32)
+    spectra = light_values(spectra)
     wl = np.asarray(wavelength_nm, float)
     if spectra.ndim != 3 or spectra.shape[2] != wl.size:
         raise ConfigurationError(f"spectra of shape {spectra.shape} do not match {wl.size} wavelengths")
+    rgb = light_values(spectra_to_linear_srgb(spectra, wl))
+    extra = {str(k): str(v) for k, v in (attributes or {}).items()}
+    if units != FICHET_EMISSIVE_UNITS:
+        extra["omnispectral_units"] = units
     dtype = np.float16 if half else np.float32
+    if half:
+        peak = float(max(spectra.max(initial=0.0), rgb.max(initial=0.0)))
+        scale = 2.0 ** max(0, math.ceil(math.log2(peak / HALF_MAX))) if peak > HALF_MAX else 1.0
+        spectra, rgb = spectra / np.float32(scale), rgb / np.float32(scale)
+        extra["omnispectral_scale"] = repr(scale)
     channels = {spectral_channel_name(w): np.ascontiguousarray(spectra[..., i].astype(dtype)) for i, w in
                 enumerate(wl)}
-    rgb = spectra_to_linear_srgb(spectra, wl)
     for i, c in enumerate("RGB"):
         channels[c] = np.ascontiguousarray(rgb[..., i].astype(dtype))
     tiles = OpenEXR.TileDescription()
     tiles.xSize, tiles.ySize, tiles.mode = tile, tile, OpenEXR.ONE_LEVEL  # no mip-maps (see module docstring)
-    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.tiledimage, "tiles": tiles,
-              "spectralLayoutVersion": SPECTRAL_LAYOUT_VERSION, "emissiveUnits": units,
-              "polarisationHandedness": "right"}
-    for k, v in (attributes or {}).items():
-        header[k] = str(v)
-    path = Path(path)
-    with atomic_path(path) as tmp, OpenEXR.File(header, channels) as f:
-        f.write(str(tmp))
-    return path
+    header = {"type": OpenEXR.tiledimage, "tiles": tiles, "spectralLayoutVersion": SPECTRAL_LAYOUT_VERSION,
+              "emissiveUnits": FICHET_EMISSIVE_UNITS, "chromaticities": REC709_CHROMATICITIES, **extra}
+    return _write_exr_channels(Path(path), header, channels)
 
 
 def write_envi(path: str | Path, cube: np.ndarray, wavelength_nm: np.ndarray | None = None,
@@ -127,15 +156,21 @@ def write_envi(path: str | Path, cube: np.ndarray, wavelength_nm: np.ndarray | N
 
 
 def write_rgb_exr(path: str | Path, rgb_linear: np.ndarray, attributes: Mapping[str, str] | None = None) -> Path:
-    """Linear RGB OpenEXR (float32) for image-based lighting."""
+    """Linear RGB OpenEXR (float32) for image-based lighting: Rec.709 primaries and D65 white declared in
+    ``chromaticities``, ``envmap = latlong`` (equirectangular), values finite and ≥ 0."""
 
-    return write_float_image(path, rgb_linear, ["R", "G", "B"], attributes)
+    rgb = light_values(rgb_linear)
+    if rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ConfigurationError(f"an RGB image has shape (H, W, 3), not {rgb.shape}")
+    header = {"type": OpenEXR.scanlineimage, "chromaticities": REC709_CHROMATICITIES,
+              "envmap": OpenEXR.ENVMAP_LATLONG, **{str(k): str(v) for k, v in (attributes or {}).items()}}
+    return _write_exr_channels(Path(path), header, {c: np.ascontiguousarray(rgb[..., i]) for i, c in enumerate("RGB")})
 
 
 def write_radiance_hdr(path: str | Path, rgb_linear: np.ndarray) -> Path:
-    """Radiance RGBE ``.hdr`` (negative values clipped to 0)."""
+    """Radiance RGBE ``.hdr`` (values finite and ≥ 0: RGBE has no sign)."""
 
-    return write_float_image(path, np.clip(np.nan_to_num(rgb_linear), 0, None), ["R", "G", "B"])
+    return write_float_image(path, light_values(rgb_linear), ["R", "G", "B"])
 
 
 FORMATS = ("spectral-exr", "envi", "rgb-exr", "hdr", "png", "jpg", "uncertainty")
@@ -165,12 +200,16 @@ EXPORT_SUFFIXES = {"png": (".png",), "jpg": (".jpg", ".jpeg"), "rgb-exr": (".exr
 
 
 def export_product(product: str | Path, fmt: str, output: str | Path, region: tuple[int, int, int, int] | None = None,
-                   level: int = 0, max_bytes: int | None = None) -> dict:
+                   level: int = 0, max_bytes: int | None = None, half: bool = False) -> dict:
     """Write one standard file from a processed product (a region and/or a pyramid level of it).
 
     ``region`` is ``(row0, row1, col0, col1)`` in pixels of ``level``.  Spectral formats hold ``n``
     float32 values per pixel; an export whose array would exceed ``max_bytes`` (default: half the
     machine's memory) is refused before anything is computed, naming the size and the way out.
+    ``half``: 16-bit floats in a spectral EXR.  Light formats (spectral EXR, ENVI, RGB EXR, HDR) hold finite
+    values ≥ 0; beside a spectral EXR or ENVI file, ``NAME_saturated.png`` marks (255) the pixels saturated
+    in every exposure (:mod:`omnispectral.product.saturation`: their values are lower bounds), when the
+    product's rig snapshot says where clipping starts.  No path of this machine goes into the files.
     """
 
     if fmt not in FORMATS:
@@ -192,9 +231,10 @@ def export_product(product: str | Path, fmt: str, output: str | Path, region: tu
         raise ConfigurationError(f"a {fmt} export of {c1 - c0}x{r1 - r0} px needs about {need / 2**30:.1f} GiB of "
                                  f"memory (limit {limit / 2**30:.1f} GiB): use --level (e.g. {level + 1}) or --region")
     bands = store.read(level, slice(r0, r1), slice(c0, c1))
+    extra: dict = {}
     wl = np.asarray(estimator.wavelength_nm)
     units = f"{index['units']} per unit of the system matrix"
-    attrs = {"omnispectral_product": str(Path(product).resolve()), "omnispectral_units": units,
+    attrs = {"omnispectral_product": Path(product).resolve().name, "omnispectral_units": units,
              "omnispectral_region": f"level {level} rows {r0}-{r1} cols {c0}-{c1}",
              "omnispectral_geometry": "equirectangular; row 0 at latitude +90 of the full panorama, column 0 at -180"}
     if fmt in ("png", "jpg"):
@@ -211,8 +251,37 @@ def export_product(product: str | Path, fmt: str, output: str | Path, region: tu
     else:
         spectra = estimate_image(bands, estimator)
         if fmt == "spectral-exr":
-            path = write_spectral_exr(output, spectra, wl, units=units, attributes=attrs)
+            path = write_spectral_exr(output, spectra, wl, units=units, attributes=attrs, half=half)
         else:
-            path = write_envi(output, spectra, wl, description=f"omnispectral {attrs['omnispectral_region']}")
+            path = write_envi(output, light_values(spectra), wl,
+                              description=f"omnispectral {attrs['omnispectral_region']}")
+        extra["saturation"] = _write_saturation_mask(Path(output), store, level, bands, (r0, c0), spectra)
     return {"output": str(path), "format": fmt, "level": level, "region": [r0, r1, c0, c1],
-            "width": c1 - c0, "height": r1 - r0}
+            "width": c1 - c0, "height": r1 - r0, **extra}
+
+
+#: An estimate counts as clipped (unreliable) when its most negative value exceeds this share of its peak.
+CLIPPED_ESTIMATE_FRACTION = 0.1
+
+
+def _write_saturation_mask(output: Path, store, level: int, bands: np.ndarray, origin: tuple[int, int],
+                           spectra: np.ndarray) -> dict:
+    """``OUTPUT_saturated.png`` beside an export: 255 where saturated in every exposure (a lower bound), 128
+    where not saturated but the estimate went negative by more than ``CLIPPED_ESTIMATE_FRACTION`` of its
+    peak before it was clipped to 0 (bands no spectrum explains: around the sun, where one camera clipped or
+    the views disagree); what was found."""
+    finite = np.isfinite(spectra).all(axis=2)
+    values = np.where(finite[..., None], spectra, 0.0)  # uncovered pixels (NaN) are not clipped estimates
+    clipped = finite & (-values.min(axis=2) > CLIPPED_ESTIMATE_FRACTION * np.abs(values).max(axis=2))
+    clip = saturation_level_dn_s(store.attrs())
+    sat = saturated_mask(store, level, bands, clip, origin) if clip is not None else np.zeros_like(clipped)
+    mask = np.where(sat, 255, np.where(clipped, 128, 0)).astype(np.uint8)
+    path = output.with_name(f"{output.stem}_saturated.png")
+    with atomic_path(path) as tmp:
+        if not cv2.imwrite(str(tmp), mask):
+            raise ConfigurationError(f"{path}: OpenCV cannot write the saturation mask")
+    out = {"mask": str(path), "saturated_px": int(sat.sum()), "clipped_estimate_px": int((clipped & ~sat).sum()),
+           "known": clip is not None, "level_dn_s": clip}
+    if clip is None:
+        out["reason"] = "the product has no rig snapshot saying where clipping starts: only clipped estimates marked"
+    return out

@@ -35,7 +35,8 @@ def read_index(product: str | Path) -> dict:
     try:
         return json.loads(paths["index"].read_text(encoding="utf-8"))
     except FileNotFoundError:
-        raise InputFileError(paths["root"], "not a processed product (no product.json)") from None
+        raise InputFileError(paths["root"], "not found" if not paths["root"].exists() else
+                             "not a processed product (no product.json)") from None
     except (OSError, ValueError) as exc:
         raise InputFileError(paths["index"], f"unreadable ({exc})") from None
 

@@ -55,6 +55,9 @@ from omnispectral.threads import ordered_thread_map
 ProgressCallback = Callable[[str, int, int], None]
 
 
+#: Interpolation of ``process`` and of the ``mosaic`` command: bilinear never overshoots (module docstring).
+DEFAULT_INTERP = "linear"
+
 def _stage(progress: ProgressCallback | None, name: str) -> Callable[[int, int], None] | None:
     """A ``(done, total)`` callback reporting as stage ``name`` (``None`` when there is no progress)."""
     return None if progress is None else (lambda done, total: progress(name, done, total))
@@ -251,7 +254,7 @@ def _process_locked(session_path: Path, paths: dict, calibration, *, width, tile
         alignments = []
     t1 = time.perf_counter()
     kwargs = {k: v for k, v in (("width", width), ("tile", tile)) if v is not None}
-    kwargs["interp"] = interp or "linear"
+    kwargs["interp"] = interp or DEFAULT_INTERP
     summary = engine.mosaic(merged, paths["panorama"], scheduler=scheduler, workers=workers,
                             progress=None if progress is None else
                             (lambda stage, _result, done, total: progress(stage, done, total)),

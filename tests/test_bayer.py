@@ -71,7 +71,7 @@ def test_correct_raw_subtracts_dark_and_keeps_clipping_visible():
 def test_rig_raw_table_is_validated():
     text = load_preset("small").toml_text
     bad = text.replace("[cameras.B]", '[cameras.A.raw]\ncfa_pattern = "RGBX"\n\n[cameras.B]')
-    with pytest.raises(ConfigurationError, match=r"bad.toml: \[rig.cameras.A.raw\] cfa_pattern: expected one of"):
+    with pytest.raises(ConfigurationError, match=r"bad.toml: \[cameras.A.raw\] cfa_pattern: expected one of"):
         rig_from_dict(tomllib.loads(bad), "bad.toml", bad)
     bad = text.replace("[cameras.B]", '[cameras.A.raw]\ndemosaic = "opencv-ea"\n\n[cameras.B]')
     with pytest.raises(ConfigurationError, match="opencv-ea demosaics integer codes only"):

@@ -37,7 +37,8 @@ def test_process_on_separate_scheduler_and_worker_processes_matches_the_local_ru
 
         return {"package": omnispectral.__file__, "cv2_threads": cv2.getNumThreads(),
                 "blas_threads": [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"],
-                "executed": dask_worker.state.executed_count}
+                "executed": dask_worker.state.executed_count,
+                "malloc_trim": __import__("os").environ.get("MALLOC_TRIM_THRESHOLD_")}
 
     simulate_tiny(tmp_path / "s")
     local = process(tmp_path / "s", tmp_path / "local", tile=32, progress=False, report=False)
@@ -65,5 +66,6 @@ def test_process_on_separate_scheduler_and_worker_processes_matches_the_local_ru
     assert all(s["executed"] > 0 for s in states.values())
     assert sum(s["executed"] for s in states.values()) >= remote["mosaic"]["tiles"]
     assert {s["package"] for s in states.values()} == {omnispectral.__file__}
+    assert all(s["malloc_trim"] is None for s in states.values())  # glibc's default (the nanny's slows tiles)
     assert all(s["cv2_threads"] == 1 and s["blas_threads"] and set(s["blas_threads"]) == {1}
                for s in states.values())

@@ -363,7 +363,9 @@ def run_tasks(fn, shared, items: list[tuple], scheduler, workers: int | None,
 
     client = scheduler if isinstance(scheduler, Client) else Client(scheduler)
     try:
-        remote = client.scatter(shared, broadcast=True)
+        # hash=False: a new key each time; with the value's hash as key, a client that has just closed (the
+        # previous pyramid level) could release the same key under the new one ("lost dependencies")
+        remote = client.scatter(shared, broadcast=True, hash=False)
         futures = [client.submit(worker_call, fn, remote, *item, pure=False) for item in items]
         results = []
         for future in as_completed(futures):

@@ -70,11 +70,13 @@ import functools
 import math
 from dataclasses import asdict, dataclass
 
+import cv2
 import numpy as np
 import scipy.fft as sfft
 from scipy import ndimage
 
 from omnispectral.errors import ConfigurationError
+from omnispectral.threads import single_threaded_blas
 
 WINDOWS = ("hann", "tukey", "none")
 PREPROCESS = ("sqrt", "none", "log", "gradient")
@@ -245,6 +247,8 @@ def preprocess_image(gray: np.ndarray, kind: str = DEFAULT_PREPROCESS) -> np.nda
     if kind == "none":
         return gray
     if kind == "sqrt":
+        if gray.ndim == 2 and gray.dtype == np.float32:  # OpenCV's vectorised loops: 2x NumPy's here
+            return cv2.sqrt(cv2.max(gray, 0.0))
         return np.sqrt(np.maximum(gray, 0.0, dtype=np.float32))
     if kind == "log":
         pos = gray[gray > 0]
@@ -308,6 +312,8 @@ def _apply_window(x: np.ndarray, kind: str) -> np.ndarray:
     is identical in both images and would add a spurious peak at zero shift.
     """
     w = window_2d((x.shape[-2], x.shape[-1]), kind)
+    if x.ndim == 2 and kind != "none":
+        return _window_with(x, w)
     # einsum without BLAS: a threaded sgemv stalls for milliseconds when the cores are busy.
     mean = np.einsum("...ij,ij->...", x, w) / np.float32(w.sum(dtype=np.float64))
     centred = x - np.asarray(mean, dtype=np.float32)[..., None, None]
@@ -331,21 +337,62 @@ def band_limited_poc(f_ref: np.ndarray, f_mov: np.ndarray, shape: tuple[int, int
     that a perfect match peaks at 1, and the tuples ``L`` and ``M``.  The cross-phase spectrum is
     the conjugate of paper Eq. (3), ``G F* / |G F*|``, so that the peak is at ``+d * M / N``.
     """
-    n0, _ = shape
+    return _band_poc(_take_band(f_ref, shape[0], k), _take_band(f_mov, shape[0], k), k, upsample)
+
+
+def _take_band(f: np.ndarray, n0: int, k: tuple[int, int]) -> np.ndarray:
+    """Rows ``0..K0`` and ``N0-K0..N0-1``, columns ``0..K1`` of half spectra ``(..., N0, N1 // 2 + 1)``."""
+    k0, k1 = k
+    return np.concatenate([f[..., :k0 + 1, :k1 + 1], f[..., n0 - k0:, :k1 + 1]], axis=-2)
+
+
+def _band_spectrum(x: np.ndarray, k: tuple[int, int]) -> np.ndarray:
+    """The band of the real 2-D DFT of ``x`` (last two axes) that the correlation uses, as :func:`_take_band`.
+
+    A single image goes through OpenCV's real DFT, whose packed ("CCS") output is unpacked here: on the
+    2-core machine it took 2.4-3.6 ms for 1024 x 1024 float32 against 9-11 ms for ``scipy.fft.rfft2``
+    (one or two workers) when the cores were busy (docs/benchmarks.md, issue 17).  Batches (block
+    disparity) go through ``scipy.fft.rfft2``.  Layout of the packed output (OpenCV ``dft``): columns
+    ``j = 1 .. N1/2 - 1`` hold ``Re, Im`` of ``F[r, j]`` at ``2j - 1, 2j`` for every row ``r``; column 0
+    holds ``F[0, 0]`` and then ``Re, Im`` of ``F[m, 0]`` at rows ``2m - 1, 2m``, with
+    ``F[N0 - m, 0] = conj(F[m, 0])`` (a real input's column of row sums).
+    """
+    k0, k1 = k
+    n0 = x.shape[-2]
+    if x.ndim != 2:
+        return _take_band(sfft.rfft2(x, axes=(-2, -1), workers=-1), n0, k)
+    packed = cv2.dft(np.ascontiguousarray(x, dtype=np.float32))
+    out = np.empty((2 * k0 + 1, k1 + 1), dtype=np.complex64)
+    pairs = packed[:, 1:2 * k1 + 1]
+    out[:k0 + 1, 1:] = pairs[:k0 + 1].view(np.complex64)
+    out[k0 + 1:, 1:] = pairs[n0 - k0:].view(np.complex64)
+    column = packed[1:2 * k0 + 1, 0]
+    out[0, 0] = packed[0, 0]
+    out[1:k0 + 1, 0].real = column[0::2]
+    out[1:k0 + 1, 0].imag = column[1::2]
+    out[k0 + 1:, 0] = np.conj(out[k0:0:-1, 0])
+    return out
+
+
+def _band_poc(b_ref: np.ndarray, b_mov: np.ndarray, k: tuple[int, int],
+              upsample: float) -> tuple[np.ndarray, tuple[int, int], tuple[int, int]]:
+    """:func:`band_limited_poc` from the bands (:func:`_take_band` / :func:`_band_spectrum`) of the spectra."""
     k0, k1 = k
     l0, l1 = 2 * k0 + 1, 2 * k1 + 1
     m0 = sfft.next_fast_len(int(np.ceil(upsample * l0)), real=True)
     m1 = sfft.next_fast_len(int(np.ceil(upsample * l1)), real=True)
-    batch = f_ref.shape[:-2]
+    batch = b_ref.shape[:-2]
+    cross = b_mov * np.conj(b_ref)
+    mag = np.abs(cross)
+    mag += np.float32(1e-30)
+    cross /= mag
     band = np.zeros((*batch, m0, m1 // 2 + 1), dtype=np.complex64)
-    for dst, src in ((slice(0, k0 + 1), slice(0, k0 + 1)), (slice(m0 - k0, m0), slice(n0 - k0, n0))):
-        cross = f_mov[..., src, : k1 + 1] * np.conj(f_ref[..., src, : k1 + 1])
-        mag = np.abs(cross)
-        mag += np.float32(1e-30)
-        band[..., dst, : k1 + 1] = cross / mag
+    band[..., :k0 + 1, :k1 + 1] = cross[..., :k0 + 1, :]
+    band[..., m0 - k0:, :k1 + 1] = cross[..., k0 + 1:, :]
     # The phase of the DC term is undefined once the means are removed; its consistent value is 1.
     band[..., 0, 0] = 1.0
-    r = sfft.irfft2(band, s=(m0, m1), axes=(-2, -1), workers=-1)
+    # one image: one thread (a second FFT thread stalls for milliseconds when the cores are busy)
+    r = sfft.irfft2(band, s=(m0, m1), axes=(-2, -1), workers=-1 if batch else 1)
     r *= np.float32(m0 * m1 / (l0 * l1))
     return r, (l0, l1), (m0, m1)
 
@@ -424,9 +471,7 @@ def _poc_shift(ref_w: np.ndarray, mov_w: np.ndarray, band_limit: float, upsample
     """Windowed images (..., H, W) → (dx, dy, alpha) arrays over the leading axes."""
     shape = ref_w.shape[-2:]
     k = (band_size(shape[0], band_limit), band_size(shape[1], band_limit))
-    f_ref = sfft.rfft2(ref_w, axes=(-2, -1), workers=-1)
-    f_mov = sfft.rfft2(mov_w, axes=(-2, -1), workers=-1)
-    r, big_l, big_m = band_limited_poc(f_ref, f_mov, shape, k, upsample)
+    r, big_l, big_m = _band_poc(_band_spectrum(ref_w, k), _band_spectrum(mov_w, k), k, upsample)
     p0, p1, alpha = fit_peak(r, big_l, big_m, fit_radius)
     return p1 * (shape[1] / big_m[1]), p0 * (shape[0] / big_m[0]), alpha
 
@@ -449,9 +494,15 @@ def _window_at(n: int, kind: str, shift: float) -> np.ndarray:
 
 
 def _window_with(x: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Like :func:`_apply_window` with an explicit 2-D window."""
-    mean = np.einsum("ij,ij->", x, w) / np.float32(w.sum(dtype=np.float64))
-    return (x - np.float32(mean)) * w
+    """Like :func:`_apply_window` with an explicit 2-D window: ``(x - mean_w) * w = x w - mean_w w``.
+
+    Three passes of OpenCV's vectorised loops (product, its sum in double precision, scaled
+    subtraction); NumPy's ``einsum``, subtraction and product took about twice as long.
+    """
+    x = np.ascontiguousarray(x, dtype=np.float32)
+    xw = cv2.multiply(x, w)
+    mean = cv2.sumElems(xw)[0] / float(w.sum(dtype=np.float64))
+    return cv2.scaleAdd(w, -mean, xw)
 
 
 def _overlap(shape: tuple[int, int], sx: int, sy: int) -> tuple[slice, slice, slice, slice] | None:
@@ -501,19 +552,18 @@ def _refine(a: np.ndarray, b: np.ndarray, dx: float, dy: float, window: str, ban
             break
         ya, xa, yb, xb = sl
         ra, rb = a[ya, xa], b[yb, xb]
-        if cache is None or cache[0] != (sx, sy):
-            cache = ((sx, sy), sfft.rfft2(_apply_window(ra, window), workers=-1))
-        f_ref = cache[1]
-        wb = _window_at(rb.shape[0], window, dy - sy)[:, None] * _window_at(rb.shape[1], window, dx - sx)[None, :]
-        f_mov = sfft.rfft2(_window_with(rb, wb), workers=-1)
         shape = ra.shape
         k = (band_size(shape[0], band_limit), band_size(shape[1], band_limit))
-        rx, ry = _weighted_peak(f_ref, f_mov, shape, k, dx - sx, dy - sy, SPECTRAL_WEIGHT_POWER)
+        if cache is None or cache[0] != (sx, sy):
+            cache = ((sx, sy), _band_spectrum(_apply_window(ra, window), k))
+        wb = _window_at(rb.shape[0], window, dy - sy)[:, None] * _window_at(rb.shape[1], window, dx - sx)[None, :]
+        rx, ry = _weighted_peak(cache[1], _band_spectrum(_window_with(rb, wb), k), shape, k, dx - sx, dy - sy,
+                                SPECTRAL_WEIGHT_POWER)
         dx, dy = sx + rx, sy + ry
     return dx, dy
 
 
-def _weighted_peak(f_ref: np.ndarray, f_mov: np.ndarray, shape: tuple[int, int], k: tuple[int, int], dx: float,
+def _weighted_peak(b_ref: np.ndarray, b_mov: np.ndarray, shape: tuple[int, int], k: tuple[int, int], dx: float,
                    dy: float, power: float, iterations: int = 4) -> tuple[float, float]:
     """Newton maximisation of the weighted correlation over the band, at continuous ``d``.
 
@@ -523,8 +573,7 @@ def _weighted_peak(f_ref: np.ndarray, f_mov: np.ndarray, shape: tuple[int, int],
     """
     n0, n1 = shape
     k0, k1 = k
-    rows = np.r_[0:k0 + 1, n0 - k0:n0]
-    x = f_mov[rows, :k1 + 1] * np.conj(f_ref[rows, :k1 + 1])
+    x = b_mov * np.conj(b_ref)  # the bands (:func:`_band_spectrum`): rows 0..K0 and -K0..-1, columns 0..K1
     mag = np.abs(x)
     mag += np.float32(1e-30)
     if power == 0.5:
@@ -539,16 +588,13 @@ def _weighted_peak(f_ref: np.ndarray, f_mov: np.ndarray, shape: tuple[int, int],
     centre, q = None, None
     for _ in range(iterations):
         if centre is None or abs(dx - centre) > _TAYLOR_RADIUS_PX:
-            # Row sums q[:, m] = sum_j x_ij exp(i wx_j c) wx_j^m, once per centre c (no BLAS: a threaded
-            # gemv stalls for milliseconds on busy cores); exp(i wx dx) is then a Taylor series in dx - c.
+            # Row sums q[:, m] = sum_j x_ij exp(i wx_j c) wx_j^m, once per centre c, as one matrix product
+            # (BLAS held to one thread: a threaded product stalls for milliseconds on busy cores);
+            # exp(i wx dx) is then a Taylor series in dx - c.
             centre = dx
-            z = x * np.exp(1j * wx * centre).astype(np.complex64)[None, :]
-            wx32 = wx.astype(np.float32)
-            q = np.empty((z.shape[0], _TAYLOR_TERMS + 3), dtype=np.complex128)
-            for m in range(q.shape[1]):
-                q[:, m] = z.sum(axis=1)
-                if m + 1 < q.shape[1]:
-                    z *= wx32
+            moments = np.exp(1j * wx * centre)[:, None] * wx[:, None] ** np.arange(_TAYLOR_TERMS + 3)[None, :]
+            with single_threaded_blas():
+                q = (x @ moments.astype(np.complex64)).astype(np.complex128)
         delta = dx - centre
         coef = np.array([(1j * delta) ** m / math.factorial(m) for m in range(_TAYLOR_TERMS + 1)])
         # x @ (e^{i wx dx} wx^c), and the sums over rows below, element-wise: no BLAS call (see above)
@@ -663,8 +709,9 @@ def _invalid(valid, shape: tuple[int, int], name: str) -> np.ndarray | None:
 def _bin2(x: np.ndarray) -> np.ndarray:
     """Mean of 2 x 2 pixel blocks (an odd last row / column is dropped)."""
     h, w = x.shape[0] // 2 * 2, x.shape[1] // 2 * 2
-    v = x[:h, :w]
-    return np.float32(0.25) * (v[0::2, 0::2] + v[1::2, 0::2] + v[0::2, 1::2] + v[1::2, 1::2])
+    # OpenCV's area resampling at exactly half size is the 2 x 2 mean (6x faster than four NumPy slices)
+    return cv2.resize(np.ascontiguousarray(x[:h, :w], dtype=np.float32), (w // 2, h // 2),
+                      interpolation=cv2.INTER_AREA)
 
 
 def _union(a: np.ndarray | None, b: np.ndarray | None) -> np.ndarray:

@@ -248,7 +248,8 @@ def preprocess_image(gray: np.ndarray, kind: str = DEFAULT_PREPROCESS) -> np.nda
         return gray
     if kind == "sqrt":
         if gray.ndim == 2 and gray.dtype == np.float32:  # OpenCV's vectorised loops: 2x NumPy's here
-            return cv2.sqrt(cv2.max(gray, 0.0))
+            out = cv2.max(gray, 0.0)
+            return cv2.sqrt(out, dst=out)
         return np.sqrt(np.maximum(gray, 0.0, dtype=np.float32))
     if kind == "log":
         pos = gray[gray > 0]
@@ -311,9 +312,9 @@ def _apply_window(x: np.ndarray, kind: str) -> np.ndarray:
     Removing the weighted mean first matters: the window's own spectrum times a non-zero mean
     is identical in both images and would add a spurious peak at zero shift.
     """
-    w = window_2d((x.shape[-2], x.shape[-1]), kind)
     if x.ndim == 2 and kind != "none":
-        return _window_with(x, w)
+        return _window_separable(x, window_1d(x.shape[0], kind), window_1d(x.shape[1], kind))
+    w = window_2d((x.shape[-2], x.shape[-1]), kind)
     # einsum without BLAS: a threaded sgemv stalls for milliseconds when the cores are busy.
     mean = np.einsum("...ij,ij->...", x, w) / np.float32(w.sum(dtype=np.float64))
     centred = x - np.asarray(mean, dtype=np.float32)[..., None, None]
@@ -346,7 +347,7 @@ def _take_band(f: np.ndarray, n0: int, k: tuple[int, int]) -> np.ndarray:
     return np.concatenate([f[..., :k0 + 1, :k1 + 1], f[..., n0 - k0:, :k1 + 1]], axis=-2)
 
 
-def _band_spectrum(x: np.ndarray, k: tuple[int, int]) -> np.ndarray:
+def _band_spectrum(x: np.ndarray, k: tuple[int, int], overwrite: bool = False) -> np.ndarray:
     """The band of the real 2-D DFT of ``x`` (last two axes) that the correlation uses, as :func:`_take_band`.
 
     A single image goes through OpenCV's real DFT, whose packed ("CCS") output is unpacked here: on the
@@ -355,13 +356,15 @@ def _band_spectrum(x: np.ndarray, k: tuple[int, int]) -> np.ndarray:
     disparity) go through ``scipy.fft.rfft2``.  Layout of the packed output (OpenCV ``dft``): columns
     ``j = 1 .. N1/2 - 1`` hold ``Re, Im`` of ``F[r, j]`` at ``2j - 1, 2j`` for every row ``r``; column 0
     holds ``F[0, 0]`` and then ``Re, Im`` of ``F[m, 0]`` at rows ``2m - 1, 2m``, with
-    ``F[N0 - m, 0] = conj(F[m, 0])`` (a real input's column of row sums).
+    ``F[N0 - m, 0] = conj(F[m, 0])`` (a real input's column of row sums).  ``overwrite``: ``x`` (a
+    temporary) may hold the transform afterwards (in place: 3x faster than into a new array here).
     """
     k0, k1 = k
     n0 = x.shape[-2]
     if x.ndim != 2:
         return _take_band(sfft.rfft2(x, axes=(-2, -1), workers=-1), n0, k)
-    packed = cv2.dft(np.ascontiguousarray(x, dtype=np.float32))
+    packed = np.ascontiguousarray(x, dtype=np.float32)
+    packed = cv2.dft(packed, dst=packed) if overwrite or packed is not x else cv2.dft(packed)
     out = np.empty((2 * k0 + 1, k1 + 1), dtype=np.complex64)
     pairs = packed[:, 1:2 * k1 + 1]
     out[:k0 + 1, 1:] = pairs[:k0 + 1].view(np.complex64)
@@ -467,11 +470,13 @@ def fit_peak(r: np.ndarray, big_l: tuple[int, int], big_m: tuple[int, int], radi
 
 
 def _poc_shift(ref_w: np.ndarray, mov_w: np.ndarray, band_limit: float, upsample: float,
-               fit_radius: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Windowed images (..., H, W) → (dx, dy, alpha) arrays over the leading axes."""
+               fit_radius: int, overwrite: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Windowed images (..., H, W) → (dx, dy, alpha) arrays over the leading axes (``overwrite``: the
+    inputs are temporaries the transforms may overwrite)."""
     shape = ref_w.shape[-2:]
     k = (band_size(shape[0], band_limit), band_size(shape[1], band_limit))
-    r, big_l, big_m = _band_poc(_band_spectrum(ref_w, k), _band_spectrum(mov_w, k), k, upsample)
+    r, big_l, big_m = _band_poc(_band_spectrum(ref_w, k, overwrite), _band_spectrum(mov_w, k, overwrite), k,
+                                upsample)
     p0, p1, alpha = fit_peak(r, big_l, big_m, fit_radius)
     return p1 * (shape[1] / big_m[1]), p0 * (shape[0] / big_m[0]), alpha
 
@@ -493,16 +498,22 @@ def _window_at(n: int, kind: str, shift: float) -> np.ndarray:
     return w.astype(np.float32)
 
 
-def _window_with(x: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Like :func:`_apply_window` with an explicit 2-D window: ``(x - mean_w) * w = x w - mean_w w``.
+def _window_separable(x: np.ndarray, wy: np.ndarray, wx: np.ndarray) -> np.ndarray:
+    """:func:`_apply_window` for one image and a separable window ``wy wx^T``: ``(x - mean_w) * wy * wx``.
 
-    Three passes of OpenCV's vectorised loops (product, its sum in double precision, scaled
-    subtraction); NumPy's ``einsum``, subtraction and product took about twice as long.
+    The weighted mean is two matrix-vector products (one thread), the rest one new array and two
+    in-place products: no 2-D window is built and fewer large temporaries are touched (the time of
+    this step doubled when other work had just evicted the caches; docs/benchmarks.md, issue 17).
     """
     x = np.ascontiguousarray(x, dtype=np.float32)
-    xw = cv2.multiply(x, w)
-    mean = cv2.sumElems(xw)[0] / float(w.sum(dtype=np.float64))
-    return cv2.scaleAdd(w, -mean, xw)
+    wy32, wx32 = np.asarray(wy, dtype=np.float32), np.asarray(wx, dtype=np.float32)
+    with single_threaded_blas():
+        weighted = float(wy32 @ (x @ wx32))
+    mean = weighted / (float(wy32.sum(dtype=np.float64)) * float(wx32.sum(dtype=np.float64)))
+    out = np.subtract(x, np.float32(mean))
+    out *= wy32[:, None]
+    out *= wx32[None, :]
+    return out
 
 
 def _overlap(shape: tuple[int, int], sx: int, sy: int) -> tuple[slice, slice, slice, slice] | None:
@@ -555,9 +566,10 @@ def _refine(a: np.ndarray, b: np.ndarray, dx: float, dy: float, window: str, ban
         shape = ra.shape
         k = (band_size(shape[0], band_limit), band_size(shape[1], band_limit))
         if cache is None or cache[0] != (sx, sy):
-            cache = ((sx, sy), _band_spectrum(_apply_window(ra, window), k))
-        wb = _window_at(rb.shape[0], window, dy - sy)[:, None] * _window_at(rb.shape[1], window, dx - sx)[None, :]
-        rx, ry = _weighted_peak(cache[1], _band_spectrum(_window_with(rb, wb), k), shape, k, dx - sx, dy - sy,
+            cache = ((sx, sy), _band_spectrum(_apply_window(ra, window), k, overwrite=True))
+        moved = _window_separable(rb, _window_at(rb.shape[0], window, dy - sy),
+                                  _window_at(rb.shape[1], window, dx - sx))
+        rx, ry = _weighted_peak(cache[1], _band_spectrum(moved, k, overwrite=True), shape, k, dx - sx, dy - sy,
                                 SPECTRAL_WEIGHT_POWER)
         dx, dy = sx + rx, sy + ry
     return dx, dy
@@ -673,7 +685,8 @@ def phase_correlate(reference, moving, *, window: str = DEFAULT_WINDOW, band_lim
     # Pass 1 (integer-level accuracy is enough for the refinement): on 2x2-binned images when large.
     binned = refine > 0 and min(a.shape) >= COARSE_MIN_SIZE_PX
     pa, pb = (_bin2(fa), _bin2(fb)) if binned else (fa, fb)
-    dx, dy, alpha = _poc_shift(_apply_window(pa, window), _apply_window(pb, window), band_limit, upsample, fit_radius)
+    dx, dy, alpha = _poc_shift(_apply_window(pa, window), _apply_window(pb, window), band_limit, upsample, fit_radius,
+                               overwrite=True)
     dx, dy = (2.0 * float(dx), 2.0 * float(dy)) if binned else (float(dx), float(dy))
     if refine:
         if bad_a is not None or bad_b is not None:

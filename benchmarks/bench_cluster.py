@@ -21,7 +21,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import statistics
+import sys
 import time
 import warnings
 from contextlib import ExitStack
@@ -70,6 +72,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--json-out", type=Path, default=None)
     a = ap.parse_args(argv)
     warnings.simplefilter("ignore")  # distributed's version-mismatch notes (optional packages)
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(1))  # a killed run still stops its clusters (finally)
     a.work.mkdir(parents=True, exist_ok=True)
     merged = prepare(a.work, a.session)
     load_before = os.getloadavg()

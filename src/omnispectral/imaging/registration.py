@@ -352,7 +352,7 @@ def _band_spectrum(x: np.ndarray, k: tuple[int, int], overwrite: bool = False) -
 
     A single image goes through OpenCV's real DFT, whose packed ("CCS") output is unpacked here: on the
     2-core machine it took 2.4-3.6 ms for 1024 x 1024 float32 against 9-11 ms for ``scipy.fft.rfft2``
-    (one or two workers) when the cores were busy (docs/benchmarks.md, issue 17).  Batches (block
+    of 1000 x 1000 (one or two workers) when the cores were busy (docs/benchmarks.md, issue 17).  Batches (block
     disparity) go through ``scipy.fft.rfft2``.  Layout of the packed output (OpenCV ``dft``): columns
     ``j = 1 .. N1/2 - 1`` hold ``Re, Im`` of ``F[r, j]`` at ``2j - 1, 2j`` for every row ``r``; column 0
     holds ``F[0, 0]`` and then ``Re, Im`` of ``F[m, 0]`` at rows ``2m - 1, 2m``, with

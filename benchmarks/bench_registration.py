@@ -21,7 +21,9 @@ Pairs: same band (channel mean in both), cross band through filter-like mixes (c
 red vs blue (the extreme, with contrast reversal between sky and buildings).
 
 Methods: ours (``phase_correlate`` defaults, and ``preprocess="gradient"``), ``cv2.phaseCorrelate``
-with a Hann window, ``skimage.registration.phase_cross_correlation(upsample_factor=100)``.
+with a Hann window, ``skimage.registration.phase_cross_correlation(upsample_factor=100)`` without and
+with the same Hann window (``skimage_hann``).  Times: every method on the same pair in turn, 5 rounds,
+the median per pair, then the median over pairs; the machine's load average is recorded.
 Errors are Euclidean (px), over all crops and over the crops whose confidence (ours, defaults)
 passes ``DEFAULT_MIN_CONFIDENCE`` -- the same subset for every method.  Also: confidence of pure
 noise and flat sky (for the threshold) and block-wise disparity throughput.
@@ -31,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from pathlib import Path
 
@@ -47,6 +50,7 @@ PANORAMAS = Path(__file__).resolve().parents[2] / "shared" / "data" / "hdr_envma
 FILTER_A = np.array([0.45, 0.15, 0.40])
 FILTER_B = np.array([0.20, 0.60, 0.20])
 MARGIN_PX = 32
+PAIRS = ("same", "filters", "red_blue")
 EXPOSURES_S = 0.252 * 0.5 ** np.arange(15)  # 252 ms ... 0.015 ms (paper Sec. 4.2)
 
 
@@ -144,6 +148,20 @@ def method_skimage():
     return run
 
 
+def method_skimage_hann():
+    """skimage given the same Hann window as cv2 and ours (its documented remedy for non-periodic images)."""
+    from skimage.filters import window
+    from skimage.registration import phase_cross_correlation
+
+    windows = {}
+
+    def run(a, b, va=None, vb=None):
+        win = windows.setdefault(a.shape, window("hann", a.shape).astype(np.float32))
+        shift, _, _ = phase_cross_correlation(a * win, b * win, upsample_factor=100)
+        return -shift[1], -shift[0], np.nan
+    return run
+
+
 def evaluate(cases, key: str, methods: dict, repeat_time: int = 5) -> dict:
     """Errors of every method; times interleaved (method by method on the same pair), median of repeats."""
     results = {name: {"errors": [], "time_s": [], "confidence": []} for name in methods}
@@ -216,12 +234,18 @@ def main() -> None:
     ap.add_argument("--protocol", nargs="+", default=["hdr", "single"], choices=["hdr", "single"])
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", default=None, help="write all numbers to this file")
+    ap.add_argument("--methods", nargs="+", default=None, help="only these methods (the first must be 'ours')")
+    ap.add_argument("--pairs", nargs="+", default=list(PAIRS), choices=PAIRS)
+    ap.add_argument("--no-extras", action="store_true", help="skip the confidence and block-disparity measurements")
     args = ap.parse_args()
     panos = [read_image(p).astype(np.float64) for p in sorted(PANORAMAS.glob("*.hdr"))]
     methods = {"ours": method_ours(), "ours_nomask": method_ours(use_mask=False),
                "ours_gradient": method_ours("gradient"), "ours_norefine": method_ours(use_mask=False, refine=0),
-               "cv2": method_cv2(), "skimage_up100": method_skimage()}
-    report = {"n": args.n, "n_large": args.n_large, "min_confidence": DEFAULT_MIN_CONFIDENCE, "protocols": {}}
+               "cv2": method_cv2(), "skimage_up100": method_skimage(), "skimage_hann": method_skimage_hann()}
+    if args.methods:
+        methods = {k: v for k, v in methods.items() if k in args.methods}
+    report = {"load_before": os.getloadavg(),
+              "n": args.n, "n_large": args.n_large, "min_confidence": DEFAULT_MIN_CONFIDENCE, "protocols": {}}
     for protocol in args.protocol:
         rng = np.random.default_rng(args.seed)
         report["protocols"][protocol] = {}
@@ -231,7 +255,7 @@ def main() -> None:
             cases = make_cases(panos, size, n, rng, protocol)
             print(f"\n{protocol}, {size} px: {n} crops generated in {time.perf_counter() - t:.1f} s")
             report["protocols"][protocol][size] = {}
-            for key in ("same", "filters", "red_blue"):
+            for key in args.pairs:
                 res = evaluate(cases, key, methods)
                 accepted = res["ours"]["confidence"] >= DEFAULT_MIN_CONFIDENCE
                 summary = summarise(res, accepted)
@@ -245,15 +269,23 @@ def main() -> None:
                     print(f"    {name:15s} {s['mean_all']:7.4f} {s['median_all']:7.4f} {s['p95_all']:7.4f} "
                           f"{s['frac_over_0.1_all']:5.2f} | {s['mean_accepted']:7.4f} "
                           f"{s['frac_over_0.1_accepted']:5.2f} {s['gross_failures_all']:5d} {s['median_time_ms']:8.2f}")
+    report["load_after"] = os.getloadavg()
+    if args.no_extras:
+        _write(args.json, report)
+        return
     rng = np.random.default_rng(args.seed + 1)
     report["confidence_without_texture"] = noise_confidence(rng, panos)
     print("\nconfidence without texture:", json.dumps(report["confidence_without_texture"]))
     report["block_disparity_1024"] = block_throughput(rng)
     print("block_disparity 1024 px:", json.dumps(report["block_disparity_1024"]))
-    if args.json:
+    _write(args.json, report)
+
+
+def _write(path, report: dict) -> None:
+    if path:
         from omnispectral.io import atomic_write_json
 
-        atomic_write_json(args.json, report)
+        atomic_write_json(path, report)
 
 
 if __name__ == "__main__":

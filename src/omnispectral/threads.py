@@ -98,3 +98,17 @@ def ordered_thread_map(fn: Callable, items: Iterable, workers: int | None = None
                 yield pending.pop(0).result()
         for f in pending:
             yield f.result()
+
+
+def worker_call(fn: Callable, *args):
+    """``fn(*args)`` as a task on a Dask distributed worker, with the libraries' own pools at one thread.
+
+    The worker's threads (``dask worker --nthreads``) and processes are the parallelism: OpenCV's pool
+    is set to one thread for the rest of the worker's life (its setting is process-wide, so it is not
+    restored while other tasks may run), BLAS to one thread during the call (the nanny usually starts
+    workers with ``OPENBLAS_NUM_THREADS=1`` already; a worker started with ``--no-nanny`` does not).
+    """
+    if cv2.getNumThreads() != 1:
+        cv2.setNumThreads(1)
+    with single_threaded_blas():
+        return fn(*args)

@@ -70,11 +70,13 @@ import functools
 import math
 from dataclasses import asdict, dataclass
 
+import cv2
 import numpy as np
 import scipy.fft as sfft
 from scipy import ndimage
 
 from omnispectral.errors import ConfigurationError
+from omnispectral.threads import single_threaded_blas
 
 WINDOWS = ("hann", "tukey", "none")
 PREPROCESS = ("sqrt", "none", "log", "gradient")
@@ -245,6 +247,9 @@ def preprocess_image(gray: np.ndarray, kind: str = DEFAULT_PREPROCESS) -> np.nda
     if kind == "none":
         return gray
     if kind == "sqrt":
+        if gray.ndim == 2 and gray.dtype == np.float32:  # OpenCV's vectorised loops: 2x NumPy's here
+            out = cv2.max(gray, 0.0)
+            return cv2.sqrt(out, dst=out)
         return np.sqrt(np.maximum(gray, 0.0, dtype=np.float32))
     if kind == "log":
         pos = gray[gray > 0]
@@ -307,6 +312,8 @@ def _apply_window(x: np.ndarray, kind: str) -> np.ndarray:
     Removing the weighted mean first matters: the window's own spectrum times a non-zero mean
     is identical in both images and would add a spurious peak at zero shift.
     """
+    if x.ndim == 2 and kind != "none":
+        return _window_separable(x, window_1d(x.shape[0], kind), window_1d(x.shape[1], kind))
     w = window_2d((x.shape[-2], x.shape[-1]), kind)
     # einsum without BLAS: a threaded sgemv stalls for milliseconds when the cores are busy.
     mean = np.einsum("...ij,ij->...", x, w) / np.float32(w.sum(dtype=np.float64))
@@ -331,21 +338,64 @@ def band_limited_poc(f_ref: np.ndarray, f_mov: np.ndarray, shape: tuple[int, int
     that a perfect match peaks at 1, and the tuples ``L`` and ``M``.  The cross-phase spectrum is
     the conjugate of paper Eq. (3), ``G F* / |G F*|``, so that the peak is at ``+d * M / N``.
     """
-    n0, _ = shape
+    return _band_poc(_take_band(f_ref, shape[0], k), _take_band(f_mov, shape[0], k), k, upsample)
+
+
+def _take_band(f: np.ndarray, n0: int, k: tuple[int, int]) -> np.ndarray:
+    """Rows ``0..K0`` and ``N0-K0..N0-1``, columns ``0..K1`` of half spectra ``(..., N0, N1 // 2 + 1)``."""
+    k0, k1 = k
+    return np.concatenate([f[..., :k0 + 1, :k1 + 1], f[..., n0 - k0:, :k1 + 1]], axis=-2)
+
+
+def _band_spectrum(x: np.ndarray, k: tuple[int, int], overwrite: bool = False) -> np.ndarray:
+    """The band of the real 2-D DFT of ``x`` (last two axes) that the correlation uses, as :func:`_take_band`.
+
+    A single image goes through OpenCV's real DFT, whose packed ("CCS") output is unpacked here: on the
+    2-core machine it took 2.4-3.6 ms for 1024 x 1024 float32 against 9-11 ms for ``scipy.fft.rfft2``
+    of 1000 x 1000 (one or two workers) when the cores were busy (docs/benchmarks.md, issue 17).  Batches (block
+    disparity) go through ``scipy.fft.rfft2``.  Layout of the packed output (OpenCV ``dft``): columns
+    ``j = 1 .. N1/2 - 1`` hold ``Re, Im`` of ``F[r, j]`` at ``2j - 1, 2j`` for every row ``r``; column 0
+    holds ``F[0, 0]`` and then ``Re, Im`` of ``F[m, 0]`` at rows ``2m - 1, 2m``, with
+    ``F[N0 - m, 0] = conj(F[m, 0])`` (a real input's column of row sums).  ``overwrite``: ``x`` (a
+    temporary) may hold the transform afterwards (in place: 3x faster than into a new array here).
+    """
+    k0, k1 = k
+    n0 = x.shape[-2]
+    if x.ndim != 2:
+        return _take_band(sfft.rfft2(x, axes=(-2, -1), workers=-1), n0, k)
+    packed = np.ascontiguousarray(x, dtype=np.float32)
+    packed = cv2.dft(packed, dst=packed) if overwrite or packed is not x else cv2.dft(packed)
+    out = np.empty((2 * k0 + 1, k1 + 1), dtype=np.complex64)
+    pairs = packed[:, 1:2 * k1 + 1]
+    out[:k0 + 1, 1:] = pairs[:k0 + 1].view(np.complex64)
+    out[k0 + 1:, 1:] = pairs[n0 - k0:].view(np.complex64)
+    column = packed[1:2 * k0 + 1, 0]
+    out[0, 0] = packed[0, 0]
+    out[1:k0 + 1, 0].real = column[0::2]
+    out[1:k0 + 1, 0].imag = column[1::2]
+    out[k0 + 1:, 0] = np.conj(out[k0:0:-1, 0])
+    return out
+
+
+def _band_poc(b_ref: np.ndarray, b_mov: np.ndarray, k: tuple[int, int],
+              upsample: float) -> tuple[np.ndarray, tuple[int, int], tuple[int, int]]:
+    """:func:`band_limited_poc` from the bands (:func:`_take_band` / :func:`_band_spectrum`) of the spectra."""
     k0, k1 = k
     l0, l1 = 2 * k0 + 1, 2 * k1 + 1
     m0 = sfft.next_fast_len(int(np.ceil(upsample * l0)), real=True)
     m1 = sfft.next_fast_len(int(np.ceil(upsample * l1)), real=True)
-    batch = f_ref.shape[:-2]
+    batch = b_ref.shape[:-2]
+    cross = b_mov * np.conj(b_ref)
+    mag = np.abs(cross)
+    mag += np.float32(1e-30)
+    cross /= mag
     band = np.zeros((*batch, m0, m1 // 2 + 1), dtype=np.complex64)
-    for dst, src in ((slice(0, k0 + 1), slice(0, k0 + 1)), (slice(m0 - k0, m0), slice(n0 - k0, n0))):
-        cross = f_mov[..., src, : k1 + 1] * np.conj(f_ref[..., src, : k1 + 1])
-        mag = np.abs(cross)
-        mag += np.float32(1e-30)
-        band[..., dst, : k1 + 1] = cross / mag
+    band[..., :k0 + 1, :k1 + 1] = cross[..., :k0 + 1, :]
+    band[..., m0 - k0:, :k1 + 1] = cross[..., k0 + 1:, :]
     # The phase of the DC term is undefined once the means are removed; its consistent value is 1.
     band[..., 0, 0] = 1.0
-    r = sfft.irfft2(band, s=(m0, m1), axes=(-2, -1), workers=-1)
+    # one image: one thread (a second FFT thread stalls for milliseconds when the cores are busy)
+    r = sfft.irfft2(band, s=(m0, m1), axes=(-2, -1), workers=-1 if batch else 1)
     r *= np.float32(m0 * m1 / (l0 * l1))
     return r, (l0, l1), (m0, m1)
 
@@ -420,13 +470,13 @@ def fit_peak(r: np.ndarray, big_l: tuple[int, int], big_m: tuple[int, int], radi
 
 
 def _poc_shift(ref_w: np.ndarray, mov_w: np.ndarray, band_limit: float, upsample: float,
-               fit_radius: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Windowed images (..., H, W) → (dx, dy, alpha) arrays over the leading axes."""
+               fit_radius: int, overwrite: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Windowed images (..., H, W) → (dx, dy, alpha) arrays over the leading axes (``overwrite``: the
+    inputs are temporaries the transforms may overwrite)."""
     shape = ref_w.shape[-2:]
     k = (band_size(shape[0], band_limit), band_size(shape[1], band_limit))
-    f_ref = sfft.rfft2(ref_w, axes=(-2, -1), workers=-1)
-    f_mov = sfft.rfft2(mov_w, axes=(-2, -1), workers=-1)
-    r, big_l, big_m = band_limited_poc(f_ref, f_mov, shape, k, upsample)
+    r, big_l, big_m = _band_poc(_band_spectrum(ref_w, k, overwrite), _band_spectrum(mov_w, k, overwrite), k,
+                                upsample)
     p0, p1, alpha = fit_peak(r, big_l, big_m, fit_radius)
     return p1 * (shape[1] / big_m[1]), p0 * (shape[0] / big_m[0]), alpha
 
@@ -448,10 +498,22 @@ def _window_at(n: int, kind: str, shift: float) -> np.ndarray:
     return w.astype(np.float32)
 
 
-def _window_with(x: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Like :func:`_apply_window` with an explicit 2-D window."""
-    mean = np.einsum("ij,ij->", x, w) / np.float32(w.sum(dtype=np.float64))
-    return (x - np.float32(mean)) * w
+def _window_separable(x: np.ndarray, wy: np.ndarray, wx: np.ndarray) -> np.ndarray:
+    """:func:`_apply_window` for one image and a separable window ``wy wx^T``: ``(x - mean_w) * wy * wx``.
+
+    The weighted mean is two matrix-vector products (one thread), the rest one new array and two
+    in-place products: no 2-D window is built and fewer large temporaries are touched (the time of
+    this step doubled when other work had just evicted the caches; docs/benchmarks.md, issue 17).
+    """
+    x = np.ascontiguousarray(x, dtype=np.float32)
+    wy32, wx32 = np.asarray(wy, dtype=np.float32), np.asarray(wx, dtype=np.float32)
+    with single_threaded_blas():
+        weighted = float(wy32 @ (x @ wx32))
+    mean = weighted / (float(wy32.sum(dtype=np.float64)) * float(wx32.sum(dtype=np.float64)))
+    out = np.subtract(x, np.float32(mean))
+    out *= wy32[:, None]
+    out *= wx32[None, :]
+    return out
 
 
 def _overlap(shape: tuple[int, int], sx: int, sy: int) -> tuple[slice, slice, slice, slice] | None:
@@ -501,19 +563,19 @@ def _refine(a: np.ndarray, b: np.ndarray, dx: float, dy: float, window: str, ban
             break
         ya, xa, yb, xb = sl
         ra, rb = a[ya, xa], b[yb, xb]
-        if cache is None or cache[0] != (sx, sy):
-            cache = ((sx, sy), sfft.rfft2(_apply_window(ra, window), workers=-1))
-        f_ref = cache[1]
-        wb = _window_at(rb.shape[0], window, dy - sy)[:, None] * _window_at(rb.shape[1], window, dx - sx)[None, :]
-        f_mov = sfft.rfft2(_window_with(rb, wb), workers=-1)
         shape = ra.shape
         k = (band_size(shape[0], band_limit), band_size(shape[1], band_limit))
-        rx, ry = _weighted_peak(f_ref, f_mov, shape, k, dx - sx, dy - sy, SPECTRAL_WEIGHT_POWER)
+        if cache is None or cache[0] != (sx, sy):
+            cache = ((sx, sy), _band_spectrum(_apply_window(ra, window), k, overwrite=True))
+        moved = _window_separable(rb, _window_at(rb.shape[0], window, dy - sy),
+                                  _window_at(rb.shape[1], window, dx - sx))
+        rx, ry = _weighted_peak(cache[1], _band_spectrum(moved, k, overwrite=True), shape, k, dx - sx, dy - sy,
+                                SPECTRAL_WEIGHT_POWER)
         dx, dy = sx + rx, sy + ry
     return dx, dy
 
 
-def _weighted_peak(f_ref: np.ndarray, f_mov: np.ndarray, shape: tuple[int, int], k: tuple[int, int], dx: float,
+def _weighted_peak(b_ref: np.ndarray, b_mov: np.ndarray, shape: tuple[int, int], k: tuple[int, int], dx: float,
                    dy: float, power: float, iterations: int = 4) -> tuple[float, float]:
     """Newton maximisation of the weighted correlation over the band, at continuous ``d``.
 
@@ -523,8 +585,7 @@ def _weighted_peak(f_ref: np.ndarray, f_mov: np.ndarray, shape: tuple[int, int],
     """
     n0, n1 = shape
     k0, k1 = k
-    rows = np.r_[0:k0 + 1, n0 - k0:n0]
-    x = f_mov[rows, :k1 + 1] * np.conj(f_ref[rows, :k1 + 1])
+    x = b_mov * np.conj(b_ref)  # the bands (:func:`_band_spectrum`): rows 0..K0 and -K0..-1, columns 0..K1
     mag = np.abs(x)
     mag += np.float32(1e-30)
     if power == 0.5:
@@ -539,16 +600,13 @@ def _weighted_peak(f_ref: np.ndarray, f_mov: np.ndarray, shape: tuple[int, int],
     centre, q = None, None
     for _ in range(iterations):
         if centre is None or abs(dx - centre) > _TAYLOR_RADIUS_PX:
-            # Row sums q[:, m] = sum_j x_ij exp(i wx_j c) wx_j^m, once per centre c (no BLAS: a threaded
-            # gemv stalls for milliseconds on busy cores); exp(i wx dx) is then a Taylor series in dx - c.
+            # Row sums q[:, m] = sum_j x_ij exp(i wx_j c) wx_j^m, once per centre c, as one matrix product
+            # (BLAS held to one thread: a threaded product stalls for milliseconds on busy cores);
+            # exp(i wx dx) is then a Taylor series in dx - c.
             centre = dx
-            z = x * np.exp(1j * wx * centre).astype(np.complex64)[None, :]
-            wx32 = wx.astype(np.float32)
-            q = np.empty((z.shape[0], _TAYLOR_TERMS + 3), dtype=np.complex128)
-            for m in range(q.shape[1]):
-                q[:, m] = z.sum(axis=1)
-                if m + 1 < q.shape[1]:
-                    z *= wx32
+            moments = np.exp(1j * wx * centre)[:, None] * wx[:, None] ** np.arange(_TAYLOR_TERMS + 3)[None, :]
+            with single_threaded_blas():
+                q = (x @ moments.astype(np.complex64)).astype(np.complex128)
         delta = dx - centre
         coef = np.array([(1j * delta) ** m / math.factorial(m) for m in range(_TAYLOR_TERMS + 1)])
         # x @ (e^{i wx dx} wx^c), and the sums over rows below, element-wise: no BLAS call (see above)
@@ -627,7 +685,8 @@ def phase_correlate(reference, moving, *, window: str = DEFAULT_WINDOW, band_lim
     # Pass 1 (integer-level accuracy is enough for the refinement): on 2x2-binned images when large.
     binned = refine > 0 and min(a.shape) >= COARSE_MIN_SIZE_PX
     pa, pb = (_bin2(fa), _bin2(fb)) if binned else (fa, fb)
-    dx, dy, alpha = _poc_shift(_apply_window(pa, window), _apply_window(pb, window), band_limit, upsample, fit_radius)
+    dx, dy, alpha = _poc_shift(_apply_window(pa, window), _apply_window(pb, window), band_limit, upsample, fit_radius,
+                               overwrite=True)
     dx, dy = (2.0 * float(dx), 2.0 * float(dy)) if binned else (float(dx), float(dy))
     if refine:
         if bad_a is not None or bad_b is not None:
@@ -663,8 +722,9 @@ def _invalid(valid, shape: tuple[int, int], name: str) -> np.ndarray | None:
 def _bin2(x: np.ndarray) -> np.ndarray:
     """Mean of 2 x 2 pixel blocks (an odd last row / column is dropped)."""
     h, w = x.shape[0] // 2 * 2, x.shape[1] // 2 * 2
-    v = x[:h, :w]
-    return np.float32(0.25) * (v[0::2, 0::2] + v[1::2, 0::2] + v[0::2, 1::2] + v[1::2, 1::2])
+    # OpenCV's area resampling at exactly half size is the 2 x 2 mean (6x faster than four NumPy slices)
+    return cv2.resize(np.ascontiguousarray(x[:h, :w], dtype=np.float32), (w // 2, h // 2),
+                      interpolation=cv2.INTER_AREA)
 
 
 def _union(a: np.ndarray | None, b: np.ndarray | None) -> np.ndarray:

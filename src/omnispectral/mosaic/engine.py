@@ -56,6 +56,7 @@ from omnispectral.mosaic.interp import (
 from omnispectral.mosaic.maps import Canvas, Rect, SourceGeometry, exact_map, source_map, tile_cone
 from omnispectral.mosaic.sources import BAND_NAMES, MergedDirections, SourceImage, read_npy_rows
 from omnispectral.mosaic.store import PanoramaStore
+from omnispectral.threads import worker_call
 
 DEFAULT_TILE = 512
 DEFAULT_INTERP = "spline"
@@ -371,8 +372,10 @@ def run_tasks(fn, shared, items: list[tuple], scheduler, workers: int | None,
 
     client = scheduler if isinstance(scheduler, Client) else Client(scheduler)
     try:
-        remote = client.scatter(shared, broadcast=True)
-        futures = [client.submit(fn, remote, *item, pure=False) for item in items]
+        # hash=False: a new key each time; with the value's hash as key, a client that has just closed (the
+        # previous pyramid level) could release the same key under the new one ("lost dependencies")
+        remote = client.scatter(shared, broadcast=True, hash=False)
+        futures = [client.submit(worker_call, fn, remote, *item, pure=False) for item in items]
         results = []
         for future in as_completed(futures):
             results.append(future.result())
@@ -437,6 +440,7 @@ def mosaic(source: str | Path | MergedDirections, output: str | Path, *, width: 
     if tile < 16:
         raise ConfigurationError(f"tile must be at least 16 px, got {tile}")
     t_start = time.perf_counter()
+    output = Path(output).absolute()  # tasks may run in Dask worker processes started in other directories
     merged = open_input(source)
     merged.check_files()
     width = int(width) if width is not None else native_width(merged.cameras["A"].fx)

@@ -156,6 +156,8 @@ class MergedDirections:
     cameras: dict[str, CameraModel] = field(init=False)
 
     def __post_init__(self):
+        # absolute: the mosaic's tasks may run in Dask worker processes started in other directories
+        self.path = Path(self.path).absolute()
         self.cameras = {c: CameraModel.from_dict(self.meta["cameras"][c]) for c in CAMERAS}
 
     @classmethod

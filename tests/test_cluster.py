@@ -50,7 +50,7 @@ def test_process_on_separate_scheduler_and_worker_processes_matches_the_local_ru
                              env=worker_environment({"PYTHONWARNINGS": "ignore"}), capture_output=True, text=True,
                              timeout=600)
         assert run.returncode == 0, run.stderr[-2000:]
-        with warnings.catch_warnings(), Client(address) as client:
+        with warnings.catch_warnings(), Client(address, set_as_default=False) as client:
             warnings.simplefilter("ignore")  # version-mismatch notes between the client and the workers
             states = client.run(worker_state)
     remote = json.loads(run.stdout)

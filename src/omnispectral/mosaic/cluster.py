@@ -92,14 +92,14 @@ def process_cluster(n_workers: int = 2, threads_per_worker: int = 1, *, director
                   f"worker-{i}")
         from distributed import Client
 
-        with Client(address, timeout=timeout_s) as client:
+        with Client(address, timeout=timeout_s, set_as_default=False) as client:
             try:
                 client.wait_for_workers(n_workers, timeout=max(1.0, deadline - time.monotonic()))
             except TimeoutError:
                 logs = "\n".join(f"--- {log.name}\n{_log_tail(log)}" for _, log in procs[1:])
                 raise RuntimeError(f"{n_workers} Dask workers did not join {address}:\n{logs}") from None
         yield address
-        with Client(address, timeout=timeout_s) as client:
+        with Client(address, timeout=timeout_s, set_as_default=False) as client:
             client.shutdown()  # workers and scheduler close cleanly (faster than signals to the nannies)
     finally:
         _stop([proc for proc, _ in reversed(procs)])  # workers first, then the scheduler

@@ -370,14 +370,15 @@ def run_tasks(fn, shared, items: list[tuple], scheduler, workers: int | None,
             return list(dask.compute(*tasks, scheduler="threads", num_workers=workers or None))
     from distributed import Client, as_completed
 
-    client = scheduler if isinstance(scheduler, Client) else Client(scheduler)
+    # not the default client: dask collections elsewhere in this process keep their own scheduler
+    client = scheduler if isinstance(scheduler, Client) else Client(scheduler, set_as_default=False)
     try:
         # hash=False: a new key each time; with the value's hash as key, a client that has just closed (the
         # previous pyramid level) could release the same key under the new one ("lost dependencies")
         remote = client.scatter(shared, broadcast=True, hash=False)
         futures = [client.submit(worker_call, fn, remote, *item, pure=False) for item in items]
         results = []
-        for future in as_completed(futures):
+        for future in as_completed(futures, loop=client.loop):
             results.append(future.result())
             if progress is not None:
                 progress(results[-1])

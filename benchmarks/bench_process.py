@@ -14,10 +14,17 @@ import argparse
 import json
 import resource
 import shutil
+import sys
 import time
 from pathlib import Path
 
 from omnispectral.product.process import process
+
+
+def stage_progress(stage: str, done: int, total: int) -> None:
+    """Progress on stderr: one line per stage at its end."""
+    if done == total:
+        print(f"{time.strftime('%H:%M:%S')} {stage}: {total} done", file=sys.stderr, flush=True)
 
 
 def main() -> None:
@@ -32,7 +39,7 @@ def main() -> None:
     if out.exists():
         shutil.rmtree(out)
     t0 = time.perf_counter()
-    index = process(args.session, out, width=args.width, report=args.report, progress=True)
+    index = process(args.session, out, width=args.width, report=args.report, progress=stage_progress)
     wall = time.perf_counter() - t0
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     print(json.dumps({"wall_s": round(wall, 1), "peak_rss_gib": round(rss, 2), "size": [index["width"],

@@ -189,8 +189,10 @@ def ground_inverse_depth(model_a: CameraModel, pan_deg: float, tilt_deg: float, 
 
 #: Pixels whose parallax is below this (px) take part in the per-direction offset at infinity.
 FAR_PARALLAX_PX = 0.25
-#: Largest per-direction offset at infinity (px) accepted on top of the rig calibration.
-MAX_FAR_OFFSET_PX = 1.0
+#: Largest per-direction offset at infinity accepted on top of the rig calibration, as an angle (1 px of
+#: the 256-px sensor): the rig model's yaw rests on the scene's farthest content and can miss by ~0.15°,
+#: which is 3.5 px at full scale (a 1-px cap there left the direction holding the sun 3 px off).
+MAX_FAR_OFFSET_DEG = 0.37
 
 
 @dataclass(frozen=True)
@@ -209,7 +211,8 @@ class DirectionParallax:
 
 
 def far_offset(image_a: np.ndarray, warped_b: np.ndarray, far: np.ndarray,
-               min_confidence: float = DEFAULT_MIN_CONFIDENCE) -> tuple[tuple[float, float], float]:
+               min_confidence: float = DEFAULT_MIN_CONFIDENCE,
+               max_offset_px: float = 1.0) -> tuple[tuple[float, float], float]:
     """POC shift (A's pixels) of B against A on the direction's far content only (sky, distant land, the
     sun): what the rig model still misses at infinity in this direction; (0, 0) when not measurable.
     Large images are measured binned to about 1024 px (POC's sub-pixel precision, ~0.02 px, is then
@@ -221,7 +224,7 @@ def far_offset(image_a: np.ndarray, warped_b: np.ndarray, far: np.ndarray,
     valid = bin_image(far.astype(np.float32), f) > 0.999
     reg = phase_correlate(bin_image(image_a, f), bin_image(warped_b, f), reference_valid=valid, moving_valid=valid)
     d = (float(reg.dx) * f, float(reg.dy) * f)
-    if reg.confidence < min_confidence or np.hypot(*d) > MAX_FAR_OFFSET_PX or not np.isfinite(d).all():
+    if reg.confidence < min_confidence or np.hypot(*d) > max_offset_px or not np.isfinite(d).all():
         return (0.0, 0.0), float(reg.confidence)
     return d, float(reg.confidence)
 
@@ -248,7 +251,7 @@ def parallax_direction(image_a: np.ndarray, image_b: np.ndarray, model_a: Camera
     warped, seen = warp_b_onto_a(image_b, maps)
     first = parallax_map(image_a, warped, seen, model_a, c, field, ground_inv_depth=ground)
     far = seen & (np.abs(first.inv_depth_per_m) * np.linalg.norm(field[..., :2], axis=-1) < FAR_PARALLAX_PX)
-    d, conf = far_offset(image_a, warped, far)
+    d, conf = far_offset(image_a, warped, far, max_offset_px=MAX_FAR_OFFSET_DEG * model_a.width / model_a.hfov_deg)
     if d == (0.0, 0.0):
         return DirectionParallax((0.0, 0.0), d, conf, first)
     e2 = np.maximum(np.sum(field[..., :2] ** 2, axis=-1), 1e-12)

@@ -378,3 +378,25 @@ def test_multiband_blending_drops_the_inconsistent_view_too():
     # without the vote (plain views, no per-pixel registration) the wrong view pulls the spot down
     plain = [Warped(v.index, 0, 0, v.values, v.weight, 1, 0.0) for v in views]
     assert float(_multiband(job, plain, Rect(0, h, 0, w))[16, 16, 3]) < 0.3
+
+
+def test_offset_at_infinity_is_capped_by_an_angle():
+    """A direction's offset at infinity of 3 px (what a 0.13° yaw error of the rig model leaves at full scale)
+    is measured and accepted under the angular cap (8 px on the 2048-px sensor), refused under a 1-px cap;
+    on the small sensor the cap stays at one pixel."""
+    import cv2
+
+    from omnispectral.product.align import MAX_FAR_OFFSET_DEG, far_offset
+
+    rng = np.random.default_rng(2)
+    a = cv2.GaussianBlur(rng.uniform(0, 1, (256, 384)).astype(np.float32), (0, 0), 2.0)[..., None].repeat(3, -1)
+    b = cv2.warpAffine(a, np.float32([[1, 0, 3.0], [0, 1, 0]]), (384, 256), borderMode=cv2.BORDER_REFLECT)
+    far = np.ones((256, 384), bool)
+    full = camera_model(load_preset("paper-timelapse"), "A")
+    cap_full = MAX_FAR_OFFSET_DEG * full.width / full.hfov_deg
+    assert cap_full > 7.0
+    d, conf = far_offset(a, b, far, max_offset_px=cap_full)
+    assert abs(abs(d[0]) - 3.0) < 0.1 and abs(d[1]) < 0.1 and conf > 0.5
+    assert far_offset(a, b, far, max_offset_px=1.0)[0] == (0.0, 0.0)
+    small = camera_model(RIG, "A")
+    assert 0.9 < MAX_FAR_OFFSET_DEG * small.width / small.hfov_deg < 1.05

@@ -320,9 +320,6 @@ class PanoramaStore:
             return self.path / str(level) / "c" / str(ty) / str(tx) / "0"
         return self.path / str(level) / "c" / "0" / str(ty) / str(tx)
 
-    def is_done(self, level: int, ty: int, tx: int) -> bool:
-        return self._marker(level, ty, tx).is_file()
-
     def unmark(self, level: int, ty: int, tx: int) -> None:
         """Forget that a chunk is finished (it will be recomputed)."""
         self._marker(level, ty, tx).unlink(missing_ok=True)

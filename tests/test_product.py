@@ -104,6 +104,23 @@ def tiny_rig():
     return rig_from_dict(tomllib.loads(text), "tiny", text)
 
 
+def simulate_series(series_dir, rig, slots) -> None:
+    """A time-lapse of the procedural scene at ``slots`` (simulated captures on a fake clock) into ``series_dir``."""
+    from omnispectral.capture.devices import FakeClock
+    from omnispectral.capture.scenes import ProceduralOutdoorScene
+    from omnispectral.capture.timelapse import run_timelapse
+
+    clock = FakeClock(slots[0])
+
+    def capture(session_dir, t):
+        res = simulate_session(session_dir, rig, ProceduralOutdoorScene(time_hhmm=f"{t:%H:%M}"), start=clock.now(),
+                               ground_truth_width=64, progress=False)
+        clock.sleep(res["simulated_s"])
+        return res
+
+    run_timelapse(series_dir, slots, clock, capture)
+
+
 @pytest.fixture(scope="module")
 def tiny_session(tmp_path_factory):
     from omnispectral.capture.scenes import ProceduralOutdoorScene
@@ -148,21 +165,10 @@ def test_cli_process_reports_a_bad_session_in_one_line(tiny_session, tmp_path, c
 
 @pytest.mark.slow
 def test_process_series_stacks_slots_and_tracks_region_spectra(tmp_path, capsys):
-    from omnispectral.capture.devices import FakeClock
-    from omnispectral.capture.scenes import ProceduralOutdoorScene
-    from omnispectral.capture.timelapse import run_timelapse, slot_times
+    from omnispectral.capture.timelapse import slot_times
 
-    rig = tiny_rig()
     slots = slot_times(NOON.replace(hour=7), NOON.replace(hour=15), 4 * 3600)
-    clock = FakeClock(slots[0])
-
-    def capture(session_dir, t):
-        res = simulate_session(session_dir, rig, ProceduralOutdoorScene(time_hhmm=f"{t:%H:%M}"), start=clock.now(),
-                               ground_truth_width=64, progress=False)
-        clock.sleep(res["simulated_s"])
-        return res
-
-    run_timelapse(tmp_path / "series", slots, clock, capture)
+    simulate_series(tmp_path / "series", tiny_rig(), slots)
     assert main(["process-series", str(tmp_path / "series"), "-o", str(tmp_path / "out"), "--json",
                  "--region", "sky:-180,180,45,75", "--region", "ground:-180,180,-75,-45"]) == 0
     out = json.loads(capsys.readouterr().out)

@@ -361,25 +361,13 @@ def test_render_series_on_a_simulated_time_lapse(tmp_path):
     import cv2
 
     from omnispectral.apps.render import render_product
-    from omnispectral.capture.devices import FakeClock
-    from omnispectral.capture.scenes import ProceduralOutdoorScene
-    from omnispectral.capture.simulate import simulate_session
-    from omnispectral.capture.timelapse import run_timelapse, slot_times
+    from omnispectral.capture.timelapse import slot_times
     from omnispectral.cli import main
     from omnispectral.imaging.imageio import read_image
-    from tests.test_product import NOON, tiny_rig
+    from tests.test_product import NOON, simulate_series, tiny_rig
 
-    rig = tiny_rig()
     slots = slot_times(NOON.replace(hour=7), NOON.replace(hour=16), 3 * 3600)
-    clock = FakeClock(slots[0])
-
-    def capture(session_dir, t):
-        res = simulate_session(session_dir, rig, ProceduralOutdoorScene(time_hhmm=f"{t:%H:%M}"), start=clock.now(),
-                               ground_truth_width=64, progress=False)
-        clock.sleep(res["simulated_s"])
-        return res
-
-    run_timelapse(tmp_path / "series", slots, clock, capture)
+    simulate_series(tmp_path / "series", tiny_rig(), slots)
     assert main(["process-series", str(tmp_path / "series"), "-o", str(tmp_path / "processed")]) == 0
     opts = {"width": 24, "height": 24, "spp": 4, "wavelength_step_nm": 50.0}
     assert main(["render-series", str(tmp_path / "processed"), "-o", str(tmp_path / "render"), "--width", "24",

@@ -58,25 +58,14 @@ def product(tmp_path_factory):
 @pytest.fixture(scope="module")
 def series(tmp_path_factory):
     """Two slots (07:00, 12:00) of the reduced rig through ``process-series``."""
-    from omnispectral.capture.devices import FakeClock
-    from omnispectral.capture.scenes import ProceduralOutdoorScene
-    from omnispectral.capture.simulate import simulate_session
-    from omnispectral.capture.timelapse import run_timelapse, slot_times
-    from tests.test_product import tiny_rig
+    from omnispectral.capture.timelapse import slot_times
+    from tests.test_product import simulate_series, tiny_rig
 
     root = tmp_path_factory.mktemp("viewseries")
     rig = tiny_rig()
     start = dt.datetime(2017, 6, 21, 7, 0, tzinfo=dt.UTC)
     slots = slot_times(start, start.replace(hour=12), 5 * 3600)
-    clock = FakeClock(slots[0])
-
-    def capture(session_dir, t):
-        res = simulate_session(session_dir, rig, ProceduralOutdoorScene(time_hhmm=f"{t:%H:%M}"), start=clock.now(),
-                               ground_truth_width=64, progress=False)
-        clock.sleep(res["simulated_s"])
-        return res
-
-    run_timelapse(root / "series", slots, clock, capture)
+    simulate_series(root / "series", rig, slots)
     assert main(["process-series", str(root / "series"), "-o", str(root / "out"), "--json"]) == 0
     return root / "out"
 

@@ -395,11 +395,10 @@ class LocalLinearScore:
         self.var_floor = np.float32(1e-6 * max(float(np.mean(trace)) / n, 1e-24))
 
     def centred(self, image: np.ndarray) -> np.ndarray:
-        """``image`` minus its local mean: the window statistics are then formed from small numbers, which
-        float32 holds without cancellation next to the HDR sun (a window's covariances change only by the
-        small variation of the local mean across it)."""
-        img = as_channels(image)
-        return (img - cv2.blur(img, self.k).reshape(img.shape)).astype(np.float32)
+        """``image`` ``(H, W, C)`` float32 minus its local mean: the window statistics are then formed from
+        small numbers, which float32 holds without cancellation next to the HDR sun (a window's covariances
+        change only by the small variation of the local mean across it)."""
+        return (image - _blur3(image, self.k)).astype(np.float32, copy=False)
 
     def prepare_b(self, image_b: np.ndarray) -> np.ndarray:
         """B's image as the score expects it: scaled like A and centred, once, before the levels move it."""

@@ -211,8 +211,8 @@ class DirectionParallax:
 
 
 def far_offset(image_a: np.ndarray, warped_b: np.ndarray, far: np.ndarray,
-               min_confidence: float = DEFAULT_MIN_CONFIDENCE,
-               max_offset_px: float = 1.0) -> tuple[tuple[float, float], float]:
+               min_confidence: float = DEFAULT_MIN_CONFIDENCE, *,
+               max_offset_px: float) -> tuple[tuple[float, float], float]:
     """POC shift (A's pixels) of B against A on the direction's far content only (sky, distant land, the
     sun): what the rig model still misses at infinity in this direction; (0, 0) when not measurable.
     Large images are measured binned to about 1024 px (POC's sub-pixel precision, ~0.02 px, is then

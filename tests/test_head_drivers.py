@@ -199,3 +199,21 @@ def test_merlin_24bit_numbers_are_lsb_first():
         assert decode_u24(encode_u24(v)) == v
     with pytest.raises(ValueError):
         encode_u24(1 << 24)
+
+
+def test_a_pulled_cable_seen_by_tcdrain_is_a_disconnection():
+    """pyserial's POSIX flush raises ``termios.error`` (EIO), not an OSError, once the other end of the line
+    is gone (seen in CI on the Merlin emulator): the link reports a disconnection naming the device."""
+    termios = pytest.importorskip("termios")
+    from omnispectral.capture.devices import DeviceDisconnected
+    from omnispectral.capture.drivers.serial_link import SerialLink
+
+    link = SerialLink("merlin", "loop://", timeout_s=0.05, retries=0)
+
+    def flush():
+        raise termios.error(5, "Input/output error")
+
+    link.ser.flush = flush
+    with pytest.raises(DeviceDisconnected, match="merlin"):
+        link.exchange(b":e1\r", lambda reply: reply)
+    link.close()

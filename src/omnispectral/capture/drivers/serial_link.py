@@ -21,6 +21,13 @@ import serial
 
 from omnispectral.capture.devices import DeviceDisconnected, DeviceProtocolError, DeviceTimeout
 
+try:  # pyserial's POSIX flush (tcdrain) raises termios.error, not an OSError, when the cable is pulled
+    import termios
+
+    PORT_ERRORS: tuple[type[BaseException], ...] = (serial.SerialException, OSError, termios.error)
+except ImportError:  # Windows
+    PORT_ERRORS = (serial.SerialException, OSError)
+
 log = logging.getLogger(__name__)
 
 T = TypeVar("T")
@@ -84,7 +91,7 @@ class SerialLink:
                 time.sleep(self.gap_s)
                 if self.ser.in_waiting:
                     data += self.ser.read_until(CR)
-        except (serial.SerialException, OSError) as exc:
+        except PORT_ERRORS as exc:
             raise self._lost(exc, doing) from None
         return data
 
@@ -101,7 +108,7 @@ class SerialLink:
                     log.debug("%s: dropped stale bytes %s", self.name, show_bytes(stale))
                 self.ser.write(request)
                 self.ser.flush()
-            except (serial.SerialException, OSError) as exc:
+            except PORT_ERRORS as exc:
                 raise self._lost(exc, doing) from None
             reply = self._read_reply(doing)
             log.debug("%s: %s -> %s", self.name, show_bytes(request), show_bytes(reply))
@@ -122,7 +129,7 @@ class SerialLink:
     def close(self) -> None:
         try:
             self.ser.close()
-        except (serial.SerialException, OSError):
+        except PORT_ERRORS:
             pass
 
 

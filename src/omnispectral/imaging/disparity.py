@@ -667,10 +667,11 @@ def parallax_map(image_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, mo
     return Parallax(inv_depth.astype(np.float32), confidence.astype(np.float32), _occluded(inv_depth, field), bp)
 
 
-def _occluded(inv_depth: np.ndarray, field: np.ndarray) -> np.ndarray:
+def _occluded(inv_depth: np.ndarray, field: np.ndarray, e_len: np.ndarray | None = None) -> np.ndarray:
     """Step 4: pixels hidden from B by a nearer surface (z-buffer of the forward warp, nearness in px along
-    the epipolar line)."""
-    e_len = np.linalg.norm(field[..., :2], axis=-1).astype(np.float32)
+    the epipolar line); ``e_len``: the field's length, when the caller has it."""
+    if e_len is None:
+        e_len = np.hypot(field[..., 0], field[..., 1]).astype(np.float32)
     return _occlusion_zbuffer(inv_depth * field[..., 0], inv_depth * field[..., 1], inv_depth * e_len,
                               OCCLUSION_TOL_PX)
 
@@ -744,18 +745,22 @@ def _sample_grid(values: np.ndarray, x_px: np.ndarray, y_px: np.ndarray, xq: np.
 
 
 def _occlusion_zbuffer(dx_px: np.ndarray, dy_px: np.ndarray, nearness: np.ndarray, tol_px: float) -> np.ndarray:
-    """Reference pixels whose target ``p + d(p)`` in the moving image is taken by a nearer pixel (z-buffer)."""
+    """Reference pixels whose target ``p + d(p)`` in the moving image is taken by a nearer pixel (z-buffer).
+
+    A pixel is hidden only by one at least ``tol_px`` nearer, so only pixels more than ``tol_px`` nearer
+    than the farthest can hide anything and only those are scattered into the buffer: the same result,
+    at the cost of the near pixels only (most of a panorama is far)."""
     h, w = dx_px.shape
-    yy, xx = np.mgrid[0:h, 0:w]
-    tx = np.rint(xx + dx_px).astype(np.int64)
-    ty = np.rint(yy + dy_px).astype(np.int64)
+    tx = np.rint(np.arange(w, dtype=np.float64)[None, :] + dx_px).astype(np.int64)
+    ty = np.rint(np.arange(h, dtype=np.float64)[:, None] + dy_px).astype(np.int64)
     inside = (tx >= 0) & (tx < w) & (ty >= 0) & (ty < h)
-    key = (ty * w + tx)[inside]
-    near = nearness[inside]
+    key = np.where(inside, ty * w + tx, 0)
+    near = np.asarray(nearness, dtype=np.float64)
+    finite = np.isfinite(near)
+    occluders = inside & finite & (near > (float(near[finite].min()) if finite.any() else 0.0) + tol_px)
     top = np.full(h * w, -np.inf, dtype=np.float64)
-    np.maximum.at(top, key, near)
-    occluded = np.zeros((h, w), dtype=bool)
-    occluded[inside] = near < top[key] - tol_px
+    np.maximum.at(top, key[occluders], near[occluders])
+    occluded = inside & (near < top[key] - tol_px)
     return occluded
 
 

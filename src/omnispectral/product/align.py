@@ -250,7 +250,7 @@ def parallax_direction(image_a: np.ndarray, image_b: np.ndarray, model_a: Camera
     ground = ground_inverse_depth(model_a, pan_deg, tilt_deg, ground_height_m)
     warped, seen = warp_b_onto_a(image_b, maps)
     first = parallax_map(image_a, warped, seen, model_a, c, field, ground_inv_depth=ground)
-    far = seen & (np.abs(first.inv_depth_per_m) * np.linalg.norm(field[..., :2], axis=-1) < FAR_PARALLAX_PX)
+    far = seen & (np.abs(first.inv_depth_per_m) * np.hypot(field[..., 0], field[..., 1]) < FAR_PARALLAX_PX)
     d, conf = far_offset(image_a, warped, far, max_offset_px=MAX_FAR_OFFSET_DEG * model_a.width / model_a.hfov_deg)
     if d == (0.0, 0.0):
         return DirectionParallax((0.0, 0.0), d, conf, first)

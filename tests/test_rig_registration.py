@@ -400,3 +400,61 @@ def test_offset_at_infinity_is_capped_by_an_angle():
     assert far_offset(a, b, far, max_offset_px=1.0)[0] == (0.0, 0.0)
     small = camera_model(RIG, "A")
     assert 0.9 < MAX_FAR_OFFSET_DEG * small.width / small.hfov_deg < 1.05
+
+
+def _post_against_sky(shift_px: float, colour_b):
+    """A dark uniform post (rows 20-35) against a bright sky (left, columns < 30) and textured ground, seen
+    by A and by B through another filter (B = M A) with the post moved ``shift_px`` along the rows."""
+    rng = np.random.default_rng(4)
+    h, w = 60, 90
+    a = np.empty((h, w, 3), np.float32)
+    a[:, :30] = (60.0, 95.0, 400.0)                                   # sky
+    a[:, 30:] = 150.0 + 100.0 * rng.random((h, w - 30, 3)).astype(np.float32)  # sunlit ground, far
+    post_a = np.zeros((h, w), bool)
+    post_a[20:36, 20:] = True
+    b_scene = a.copy()
+    a[post_a] = (2.3, 6.5, 27.4)
+    post_b = np.roll(post_a, int(shift_px), axis=0)
+    b_scene[post_b] = (2.3, 6.5, 27.4)
+    b = (b_scene.reshape(-1, 3) @ np.asarray(colour_b, np.float32).T).reshape(h, w, 3)
+    field = np.zeros((h, w, 2), np.float32)
+    field[..., 1] = 10.0   # 10 px of parallax per 1/m, along the rows
+    return a, b, field, post_a
+
+
+@pytest.mark.parametrize("with_measured_part", [True, False])
+def test_settle_by_colour_gives_a_uniform_post_its_depth_and_leaves_the_sky(with_measured_part):
+    """The end of a uniform post against the sky: its windows see only edges along the line, the sweep leaves
+    it at infinity, and B shows the sky there.  Those pixels take a depth at which B shows the post -- from
+    the post's measured part (same colour, B fits) or, with none measured, by searching the line -- and
+    the sky stays at 0.  (Inside a uniform post the depth is not observable: any depth at which B shows
+    the post is right for the colour; its first row can only be at the true one.)"""
+    from omnispectral.imaging.disparity import moved_by_parallax, settle_by_colour
+
+    colour_b = np.asarray([[0.2, 0.7, 0.1], [0.1, 0.3, 0.6], [0.05, 0.1, 0.9]])
+    a, b, field, post = _post_against_sky(5.0, colour_b)
+    current = np.zeros(post.shape, np.float32)
+    reliable = ~post.copy()
+    if with_measured_part:
+        current[20:36, 70:] = 0.5                   # the measured part of the post, far from its end
+        reliable[20:36, 70:] = True
+    reliable[18:38, 17:23] = False                 # around the post's end nothing is sure
+    todo = ~reliable
+
+    def misfit(inv_depth):
+        seen_as_a = moved_by_parallax(b, field, inv_depth) @ np.linalg.inv(colour_b).T.astype(np.float32)
+        return np.abs(seen_as_a - a).max(axis=-1) / np.abs(a).max(axis=-1)
+
+    before = misfit(current)
+    assert before[post].max() > 0.5                 # before: B shows the sky at the post's end
+    out = settle_by_colour(a, b, field, current, todo, reliable)
+    after = misfit(out)
+    assert after[post].max() < 1e-3                 # after: B shows the post on every post pixel
+    assert abs(out[20, 25:].max() * 10 - 5.0) <= 0.5 and abs(out[20, 25:].min() * 10 - 5.0) <= 0.5
+    # the sky: where B already showed it, untouched; the unsure sky pixels the post hides from B show sky too
+    sky = np.zeros_like(post)
+    sky[:, :30] = True
+    sky &= ~post
+    np.testing.assert_array_equal(out[sky & (before < 1e-3)], 0.0)
+    assert (sky & (before >= 1e-3)).sum() == 5 * 10   # 5 rows x 10 columns hidden from B by the post
+    assert after[sky & todo].max() < 1e-3 and np.all(out[sky & ~todo] == 0.0)   # reliable pixels stay

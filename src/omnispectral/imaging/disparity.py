@@ -84,6 +84,16 @@ SWEEP_MARGIN_STEPS = 4
 #: Neighbourhood (blocks) whose range of estimates a pixel searches: a near object narrower than a block
 #: (a post at 1.5 m) is measured mixed with its background by every block that holds it.
 SWEEP_RANGE_BLOCKS = 5
+#: An unsure pixel left at infinity takes its neighbours' depth only when B's colour at infinity misfits
+#: A's pixel by more than this (relative, :func:`settle_by_colour`): an unrelated surface, not the spectral
+#: variety one linear map between the cameras leaves (a few per cent).
+COLOUR_MISFIT_MIN = 0.3
+#: Nearest content searched for a pixel that nothing else places (1/m: 0.33 m), in steps of this many px.
+NEAREST_INV_DEPTH_PER_M = 3.0
+SEARCH_STEP_PX = 0.5
+#: Two pixels are taken for one surface when their colours in A differ by at most this fraction of
+#: their summed magnitudes (shading within a surface moves both brightness and colour a little).
+SAME_SURFACE_COLOUR = 0.1
 #: Minimum POC peak height of a block measurement.
 PARALLAX_MIN_CONFIDENCE = 0.3
 #: Inverse depth change (1/m) used for the finite difference of the epipolar field.
@@ -498,6 +508,7 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
     # so near a depth edge it can use a window lying wholly on its own surface
     shift_kernel = np.ones((window, window), np.uint8)
     # several channels: the local linear score; one: normalised cross-correlation
+    ga_raw, gb_raw = (ga, gb) if ga.ndim == 3 else (None, None)
     if ga.ndim == 3:
         score_of = LocalLinearScore(ga, window)
         gb = score_of.prepare_b(gb)
@@ -567,9 +578,147 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
     out = np.where(at_prior, prior, out).astype(np.float32)
     # a pixel whose match other levels reach almost as well (or that matched nothing) takes the depth of
     # its distinctive neighbours, unless it sits at infinity among blocks that see infinity
-    ambiguous = (flat | (best - rival < SWEEP_ZERO_MARGIN)) & ~(at_prior & zero_ok)
+    unsure = flat | (best - rival < SWEEP_ZERO_MARGIN)
+    ambiguous = unsure & ~(at_prior & zero_ok)
     out = fill_from_neighbours(out, ambiguous, ~ambiguous)
+    # an unsure pixel left at infinity (its prior, or its neighbours' depth) may belong to a near object
+    # whose windows saw only its edges along the line (the end of a post against the sky): it takes the
+    # depth of its surface when B's colour there fits A's pixel and B's colour at infinity plainly does not.
+    # Pixels that took a near neighbour's depth are left alone: inside a chart's 3-px patches one linear map
+    # between the cameras misfits saturated colours, and a search would trade a patch for its neighbour
+    at_infinity = unsure & (np.abs(out) * e_len < SWEEP_STEP_PX * 2)
+    if ga_raw is not None and at_infinity.any():
+        out = settle_by_colour(ga_raw, gb_raw, field, out, at_infinity, ~unsure, window)
     return cv2.medianBlur(out, 3), np.clip(np.where(ambiguous, 0.0, centre), 0.0, 1.0).astype(np.float32)
+
+
+def moved_by_parallax(image: np.ndarray, field: np.ndarray, inv_depth: np.ndarray) -> np.ndarray:
+    """``image`` (B on A's grid) sampled at ``p + w(p) e(p)`` (with the field's second order when it has
+    one): what B saw at A's pixel ``p`` for the per-pixel inverse depth ``w``."""
+    h, w = inv_depth.shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    wk = inv_depth.astype(np.float32)
+    mx = xx + wk * field[..., 0]
+    my = yy + wk * field[..., 1]
+    if field.shape[-1] == 4:
+        mx += 0.5 * wk * wk * field[..., 2]
+        my += 0.5 * wk * wk * field[..., 3]
+    return cv2.remap(image, mx.astype(np.float32), my.astype(np.float32), cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE).reshape(image.shape)
+
+
+def colour_map_a_to_b(a: np.ndarray, b: np.ndarray, sample: np.ndarray, max_samples: int = 20000) -> np.ndarray:
+    """The direction's linear map ``M`` (``C_B × C_A``) with ``B ≈ M A`` over the ``sample`` pixels, fitted in
+    relative terms (each pixel divided by its brightness in A, so that the HDR sun does not outweigh the
+    rest): the cameras see through different filters, and over a direction one linear map predicts B's
+    channels from A's to within the materials' spectral variety."""
+    idx = np.flatnonzero(sample.ravel())
+    if idx.size > max_samples:
+        idx = idx[np.linspace(0, idx.size - 1, max_samples).astype(np.int64)]
+    xa = a.reshape(-1, a.shape[-1])[idx].astype(np.float64)
+    xb = b.reshape(-1, b.shape[-1])[idx].astype(np.float64)
+    norm = np.linalg.norm(xa, axis=1)
+    ok = norm > 0
+    if ok.sum() < 4 * a.shape[-1]:
+        return np.full((b.shape[-1], a.shape[-1]), np.nan)
+    m, *_ = np.linalg.lstsq(xa[ok] / norm[ok, None], xb[ok] / norm[ok, None], rcond=None)
+    return m.T
+
+
+def _colour_residual(a: np.ndarray, b: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """Relative misfit ``|B − M A| / (|M A| + |B|)`` per pixel (0: B is what A predicts; 1: unrelated)."""
+    pred = a @ m.T.astype(np.float32)
+    num = np.linalg.norm(b - pred, axis=-1)
+    den = np.linalg.norm(pred, axis=-1) + np.linalg.norm(b, axis=-1)
+    return np.where(den > 0, num / np.maximum(den, 1e-30), 0.0).astype(np.float32)
+
+
+def settle_by_colour(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarray, current: np.ndarray,
+                     todo: np.ndarray, reliable: np.ndarray, window: int = NCC_WINDOW_PX,
+                     passes: int = 8) -> np.ndarray:
+    """Where ``todo`` and B's colour at the current parallax plainly misfits A's pixel, take the depth of the
+    pixel's surface: the median depth of the reliable pixels within a ``window`` whose colour in A is the
+    pixel's (:data:`SAME_SURFACE_COLOUR`) and whose B colour fits, if B's colour at that parallax fits the
+    pixel too (misfit halved).
+
+    A pixel whose windows cannot tell its depth (the end of a post against the sky: an edge along the
+    line) is still one surface, and B must show that surface's colour there.  The misfit is measured
+    with one linear map from A's channels to B's (:func:`colour_map_a_to_b`, fitted on the ``reliable``
+    pixels at their parallax) and must exceed :data:`COLOUR_MISFIT_MIN` and three times the reliable
+    pixels' typical misfit.  Repeated up to ``passes`` times, switched pixels serving as reliable ones,
+    so that the depth reaches into an object from its measured part.  A pixel that still misfits, with no
+    neighbour to follow, takes the parallax along its line (up to :data:`NEAREST_INV_DEPTH_PER_M`) where
+    B's colour fits it best, if that fits.  Pixels that B cannot see (hidden by a nearer object) misfit at
+    every depth and keep theirs for the occlusion test.
+    """
+    a = as_channels(ga_raw)
+    b = as_channels(gb_raw)
+    out = current.astype(np.float32).copy()
+    m = colour_map_a_to_b(a, moved_by_parallax(b, field, out), reliable & np.isfinite(out))
+    if not np.isfinite(m).all():
+        return out
+    r_cur = _colour_residual(a, moved_by_parallax(b, field, out), m)
+    typical = float(np.median(r_cur[reliable])) if reliable.any() else 0.0
+    misfit = r_cur > max(COLOUR_MISFIT_MIN, 3 * typical)
+    todo = todo & misfit
+    known = reliable | ~misfit  # pixels whose colour fits at their depth vote for their surface
+    h, w = out.shape
+    half = window // 2
+    for _ in range(passes):
+        ys, xs = np.nonzero(todo)
+        if ys.size == 0:
+            break
+        ap = a[ys, xs]
+        votes = np.full((ys.size, window * window), np.nan, np.float32)
+        for k, (dy, dx) in enumerate((dy, dx) for dy in range(-half, half + 1) for dx in range(-half, half + 1)):
+            yq, xq = np.clip(ys + dy, 0, h - 1), np.clip(xs + dx, 0, w - 1)
+            aq = a[yq, xq]
+            same = (np.linalg.norm(ap - aq, axis=1)
+                    <= SAME_SURFACE_COLOUR * (np.linalg.norm(ap, axis=1) + np.linalg.norm(aq, axis=1)))
+            votes[:, k] = np.where(known[yq, xq] & same, out[yq, xq], np.nan)
+        has = np.isfinite(votes).any(axis=1)
+        if not has.any():
+            break
+        ys, xs, votes = ys[has], xs[has], votes[has]
+        cand = np.nanmedian(votes, axis=1).astype(np.float32)
+        r_cand = _colour_residual(a[ys, xs][None], _sample_moved(b, field, ys, xs, cand)[None], m)[0]
+        switch = r_cand < 0.5 * r_cur[ys, xs]
+        if not switch.any():
+            break
+        ys, xs = ys[switch], xs[switch]
+        out[ys, xs] = cand[switch]
+        r_cur[ys, xs] = r_cand[switch]
+        known[ys, xs] = True
+        todo[ys, xs] = False
+    # no neighbour of the pixel's colour fits: search the line (a near object none of whose pixels was
+    # measured, e.g. a post entering the frame), keeping the parallax where B's colour fits best
+    ys, xs = np.nonzero(todo)
+    if ys.size:
+        e_len = np.hypot(field[ys, xs, 0], field[ys, xs, 1])
+        n_levels = int(np.ceil(NEAREST_INV_DEPTH_PER_M * float(e_len.max(initial=0.0)) / SEARCH_STEP_PX)) + 1
+        best_r, best_w = r_cur[ys, xs].copy(), out[ys, xs].copy()
+        ap = a[ys, xs][None]
+        for wk in np.linspace(0.0, NEAREST_INV_DEPTH_PER_M, max(n_levels, 2), dtype=np.float32):
+            r = _colour_residual(ap, _sample_moved(b, field, ys, xs, np.full(ys.size, wk, np.float32))[None], m)[0]
+            better = r < best_r
+            best_r, best_w = np.where(better, r, best_r), np.where(better, wk, best_w)
+        switch = (best_r < 0.5 * r_cur[ys, xs]) & (best_r <= max(COLOUR_MISFIT_MIN, 3 * typical))
+        out[ys[switch], xs[switch]] = best_w[switch]
+    return out
+
+
+def _sample_moved(image: np.ndarray, field: np.ndarray, ys: np.ndarray, xs: np.ndarray,
+                  inv_depth: np.ndarray) -> np.ndarray:
+    """:func:`moved_by_parallax` at the pixels ``(ys, xs)`` only, ``(n, C)``."""
+    f = field[ys, xs]
+    mx = xs + inv_depth * f[:, 0]
+    my = ys + inv_depth * f[:, 1]
+    if field.shape[-1] == 4:
+        mx = mx + 0.5 * inv_depth**2 * f[:, 2]
+        my = my + 0.5 * inv_depth**2 * f[:, 3]
+    out = cv2.remap(image, mx.astype(np.float32)[None], my.astype(np.float32)[None], cv2.INTER_LINEAR,
+                    borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(xs.size, image.shape[-1])
 
 
 def _add_peak(top1: np.ndarray, top2: np.ndarray, peak: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -19,7 +19,7 @@ import json
 import shutil
 from pathlib import Path
 
-from omnispectral.capture.session import CAMERAS, FRAME_NAME, Session, read_journal, record_key, sha256_of
+from omnispectral.capture.session import FRAME_NAME, Session, read_journal, record_key, sha256_of
 from omnispectral.errors import InputFileError
 from omnispectral.io import atomic_write_text, clean_temp_files
 from omnispectral.locking import directory_lock
@@ -28,10 +28,11 @@ from omnispectral.locking import directory_lock
 def capture_order(session: Session) -> dict[tuple[int, str, int], int]:
     """Position of every planned frame in the capture loop's order (direction, exposure, camera)."""
     plan = session.plan()
+    cameras = session.cameras()
     order, n = {}, 0
     for d in plan.directions:
         for k in range(len(plan.exposures_s)):
-            for c in CAMERAS:
+            for c in cameras:
                 order[(d.index, c, k)] = n
                 n += 1
     return order
@@ -53,7 +54,7 @@ def resume_simulated_devices(session: Session, clock, head) -> bool:
     if "sim_clock_read_s" not in cam or "sim_clock_trigger_s" not in cam:
         return False
     d, _, k = last
-    bracket_done = all((d, c, k) in records for c in CAMERAS)
+    bracket_done = all((d, c, k) in records for c in session.cameras())
     # both cameras are triggered together: a half-written exposure restarts from its trigger time
     clock.set_elapsed(float(cam["sim_clock_read_s"] if bracket_done else cam["sim_clock_trigger_s"]))
     head.place_at(float(rec["pan_deg_commanded"]), float(rec["tilt_deg_commanded"]))

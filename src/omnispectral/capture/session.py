@@ -38,10 +38,11 @@ from omnispectral.fingerprint import differences
 from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text, is_temp_name
 from omnispectral.limits import check_image_shape
 from omnispectral.locking import LOCK_NAME, directory_lock
-from omnispectral.rig import Rig, rig_from_dict, rig_toml
+from omnispectral.rig import CAMERA_NAMES, Rig, rig_from_dict, rig_toml
 
 FORMAT_VERSION = 1
-CAMERAS = ("A", "B")
+#: Every camera a session may hold; a session's own are its rig's (:meth:`Session.cameras`: A, or A and B).
+CAMERAS = CAMERA_NAMES
 
 
 def frame_relpath(direction: int, camera: str, exposure_index: int) -> str:
@@ -180,7 +181,7 @@ class Session:
         atomic_write_text(s.path / "rig.toml", rig_toml(rig))
         atomic_write_json(s.path / "plan.json", plan.to_dict())
         meta = {"format": "omnispectral-session", "format_version": FORMAT_VERSION, "kind": kind, "rig": rig.name,
-                "created_utc": utc_now_iso(), "n_frames_planned": s.n_planned(plan)}
+                "created_utc": utc_now_iso(), "n_frames_planned": s.n_planned(plan, rig.camera_names)}
         if identity is not None:
             meta["identity"] = _jsonable(identity)
         meta.update(extra or {})
@@ -227,6 +228,10 @@ class Session:
         except (KeyError, TypeError, ValueError) as exc:
             raise InputFileError(self.path / "plan.json", f"not a valid plan ({exc})") from None
 
+    def cameras(self) -> tuple[str, ...]:
+        """The cameras of the session's rig, in band order: ``("A", "B")``, or ``("A",)`` for one RGB camera."""
+        return self.rig().camera_names
+
     def rig(self) -> Rig:
         p = self.path / "rig.toml"
         try:
@@ -245,8 +250,8 @@ class Session:
             raise InputFileError(p, f"unreadable ({exc})") from None
 
     @staticmethod
-    def n_planned(plan: Plan) -> int:
-        return plan.n_directions * len(CAMERAS) * len(plan.exposures_s)
+    def n_planned(plan: Plan, cameras: tuple[str, ...] = CAMERAS) -> int:
+        return plan.n_directions * len(cameras) * len(plan.exposures_s)
 
     # ------------------------------------------------------------------ journal
     @property
@@ -351,7 +356,8 @@ def verify_session(path: str | Path, check_pixels: bool = False, checksums: bool
     plan = s.plan()
     j = read_journal(s.journal_path)
     missing, damaged = [], []
-    expected = [(d.index, c, k) for d in plan.directions for c in CAMERAS for k in range(len(plan.exposures_s))]
+    cameras = s.cameras()
+    expected = [(d.index, c, k) for d in plan.directions for c in cameras for k in range(len(plan.exposures_s))]
     for key in expected:
         rel = frame_relpath(*key)
         rec = j.records.get(key)

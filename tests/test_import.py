@@ -182,3 +182,57 @@ def test_camera_raw_dng_import_is_a_bayer_session(tmp_path):
     ok[:3], ok[-3:], ok[:, :3], ok[:, -3:] = False, False, False, False
     ratio = radiance[ok] / truth[ok]
     assert abs(np.median(ratio) - 1) < 0.01 and np.median(np.abs(ratio - 1)) < 0.05
+
+
+def test_referenced_one_camera_import_is_verified_and_processed_in_place(tmp_path, capsys):
+    """``import --reference`` of one RGB camera: nothing copied, the journal holds each file's absolute path,
+    size, mtime and SHA-256; process reads the files in place (accuracy against the truth); a changed or moved
+    file is named on one line by ``session verify`` and refused by ``process``."""
+    import os
+
+    import tifffile
+
+    from omnispectral.capture.resume import repair_session
+    from tests.test_three_bands import chart_scene, rgb_rig
+
+    rig, scene = rgb_rig(), chart_scene()
+    renderer = RigRenderer(rig, scene)
+    files = write_photographs(tmp_path / "photos", rig, scene, "A", fmt="tiff", renderer=renderer)
+    (tmp_path / "rgb.toml").write_text(rig.toml_text)
+    assert main(["import", "--rig", str(tmp_path / "rgb.toml"), "--reference", "--images", str(tmp_path / "photos"),
+                 "--directions", files["papywizard"], "--exposures", files["exposures"], "-o", str(tmp_path / "s"),
+                 "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["referenced"] and summary["cameras_imported"] == ["A"] and summary["n_images"] == 72
+    assert not list((tmp_path / "s" / "frames").rglob("*.tif"))  # nothing copied
+    s = Session.open(tmp_path / "s")
+    rec = s.completed()[(5, "A", 2)]
+    original = tmp_path / "photos" / "A_d0005_e02.tif"
+    assert rec["referenced"] and rec["file"] == str(original.resolve()) and Path(rec["file"]).is_absolute()
+    assert rec["bytes"] == original.stat().st_size and rec["mtime_ns"] == original.stat().st_mtime_ns
+    frame, meta = s.read_frame(5, "A", 2)
+    assert np.array_equal(frame, tifffile.imread(original)) and meta["camera_metadata"]["response"] == "linear"
+    assert verify_session(tmp_path / "s", check_pixels=True)["complete"]
+    assert repair_session(tmp_path / "s")["n_dropped"] == 0  # a repair keeps the referenced records
+    # process reads them where they are: a three-band product against the truth of the same renderer
+    write_ground_truth(tmp_path / "s" / "ground_truth", renderer, 128)
+    assert main(["process", str(tmp_path / "s"), "-o", str(tmp_path / "p"), "--json"]) == 0
+    index = json.loads(capsys.readouterr().out)
+    acc = json.loads((tmp_path / "p" / "report" / "report.json").read_text())["accuracy"]
+    assert index["bands"] == ["A:R", "A:G", "A:B"] and acc["band_psnr_db"] > 33
+    assert 1.0 < acc["colorchecker"]["delta_e_ab"] < 10.0  # an RGB camera (measured 5.82, 36.1 dB)
+    # one file changed in place (same size), one moved away: each named on its own line
+    changed, moved = tmp_path / "photos" / "A_d0003_e01.tif", tmp_path / "photos" / "A_d0007_e04.tif"
+    data = tifffile.imread(changed)
+    data[10, 10] = (data[10, 10] + 1) % 4096
+    tifffile.imwrite(changed, data, photometric="rgb", metadata=None)
+    os.rename(moved, tmp_path / "elsewhere.tif")
+    assert main(["session", "verify", str(tmp_path / "s")]) == 1
+    lines = capsys.readouterr().out.splitlines()
+    named = {ln.strip().split(": ", 1)[0]: ln.strip().split(": ", 1)[1] for ln in lines[1:]}
+    assert set(named) == {str(changed.resolve()), str(moved.resolve())}, lines
+    assert "changed since the import" in named[str(changed.resolve())]
+    assert "moved or deleted" in named[str(moved.resolve())]
+    assert main(["process", str(tmp_path / "s"), "-o", str(tmp_path / "p2")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and ("A_d0003_e01.tif" in err or "A_d0007_e04.tif" in err), err

@@ -84,7 +84,8 @@ def repair_session(path: str | Path, apply: bool = False) -> dict:
     """Rebuild the journal of a session from its frames (dry run unless ``apply``); returns what changed.
 
     The new journal lists every frame that decodes and whose embedded record matches its file name,
-    in capture order, with the file's SHA-256 and size.  Frames that do not decode are reported (a
+    in capture order, with the file's SHA-256 and size, and keeps the records of referenced frames
+    (``import --reference``; ``session verify`` checks their files).  Frames that do not decode are reported (a
     resume captures them again).  With ``apply`` the old journal is kept as ``journal.jsonl.bak-TIME``.
     """
     s = Session.open(path)
@@ -107,6 +108,9 @@ def repair_session(path: str | Path, apply: bool = False) -> dict:
                 continue
             key = (int(rec["direction"]), str(rec["camera"]), int(rec["exposure_index"]))
             if key in order:
+                rebuilt[key] = rec
+        for key, rec in old.records.items():  # referenced frames (import --reference) live outside frames/
+            if rec.get("referenced") and key in order and key not in rebuilt:
                 rebuilt[key] = rec
         recovered = sorted(set(rebuilt) - set(old.records))
         dropped = sorted(set(old.records) - set(rebuilt))

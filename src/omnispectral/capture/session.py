@@ -9,12 +9,20 @@ Layout of a session directory::
       journal.jsonl     one JSON line per frame, appended, flushed and fsynced
       events.jsonl      start / resume / stop / complete events with reasons
       frames/dNNNN/{A,B}_eKK.tif   16-bit raw frames (tifffile), metadata as JSON in the description
+                        (camera B only in sessions of two-camera rigs)
       ground_truth/     simulated sessions only (see omnispectral.capture.simulate)
 
 A frame is first written to a temporary name, fsynced and renamed; only then is its journal line
 appended.  A process killed at any moment therefore leaves (a) complete frames with journal lines,
 (b) at most one frame file without a line (rewritten on resume), and (c) at most one partial last
 journal line (ignored and cut on resume).  Nothing already written is modified.
+
+**Referenced frames** (``omnispectral import --reference``): a frame may stay where it was made instead of
+being copied into ``frames/``.  Its journal record then has ``"referenced": true``, ``"file"`` the absolute
+path of the original, and the original's ``bytes``, ``mtime_ns`` and ``sha256``; the frame's metadata is the
+journal record itself.  :meth:`Session.read_frame` decodes the original
+(:func:`omnispectral.capture.sourcefiles.decode_source_image`) after checking its size and modification time,
+and :func:`verify_session` names a referenced file that was moved, deleted or changed.
 """
 
 from __future__ import annotations
@@ -33,6 +41,7 @@ import numpy as np
 import tifffile
 
 from omnispectral.capture.plan import Plan
+from omnispectral.capture.sourcefiles import decode_source_image
 from omnispectral.errors import InputFileError
 from omnispectral.fingerprint import differences
 from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text, is_temp_name
@@ -149,6 +158,7 @@ class Session:
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
+        self._records: dict | None = None  # journal records, read when a frame is not under frames/
 
     # ------------------------------------------------------------------ create / open
     @classmethod
@@ -319,10 +329,39 @@ class Session:
         self._append_line(self.journal_path, record)
         return record
 
+    def write_reference(self, source: str | Path, shape: tuple[int, ...], *, direction: int, camera: str,
+                        exposure_index: int, exposure_s: float, pan_deg_commanded: float, tilt_deg_commanded: float,
+                        pan_deg_reported: float, tilt_deg_reported: float, timestamp: str, bit_depth: int,
+                        extra: dict | None = None) -> dict:
+        """Record a frame that stays in the file ``source`` (module docstring: referenced frames); returns the
+        record.  ``shape`` is the decoded frame's."""
+        src = Path(source).resolve()
+        st = src.stat()
+        record = {"direction": direction, "camera": camera, "exposure_index": exposure_index,
+                  "exposure_s": exposure_s, "pan_deg_commanded": pan_deg_commanded,
+                  "tilt_deg_commanded": tilt_deg_commanded, "pan_deg_reported": pan_deg_reported,
+                  "tilt_deg_reported": tilt_deg_reported, "timestamp": timestamp, "bit_depth": bit_depth,
+                  "shape": list(shape), "file": str(src), "referenced": True, **(extra or {}),
+                  "sha256": sha256_of(src), "bytes": st.st_size, "mtime_ns": st.st_mtime_ns}
+        self._append_line(self.journal_path, record)
+        if self._records is not None:
+            self._records[(direction, camera, exposure_index)] = record
+        return record
+
+    def reference_record(self, direction: int, camera: str, exposure_index: int) -> dict | None:
+        """The journal record of a referenced frame (``None`` if the frame is not a referenced one)."""
+        key = (direction, camera, exposure_index)
+        if self._records is None or key not in self._records:
+            self._records = read_journal(self.journal_path).records
+        rec = self._records.get(key)
+        return rec if rec is not None and rec.get("referenced") else None
+
     def read_frame(self, direction: int, camera: str, exposure_index: int) -> tuple[np.ndarray, dict]:
         """A raw frame and the metadata stored inside it; a damaged file is named in the error."""
 
         p = self.path / frame_relpath(direction, camera, exposure_index)
+        if not p.exists() and (ref := self.reference_record(direction, camera, exposure_index)) is not None:
+            return self._read_referenced(ref)
         if not p.exists():
             raise InputFileError(p, f"frame missing (direction {direction}, camera {camera}, "
                                     f"exposure {exposure_index})")
@@ -339,6 +378,36 @@ class Session:
         if not isinstance(meta, dict):
             raise InputFileError(p, "damaged frame (no frame record in the TIFF description)")
         return data, meta
+
+    @staticmethod
+    def _read_referenced(rec: dict) -> tuple[np.ndarray, dict]:
+        """A referenced frame decoded from its original, refused when it is gone or no longer what was imported."""
+        p = Path(rec["file"])
+        problem = referenced_problem(rec, checksum=False)
+        if problem:
+            raise InputFileError(p, problem)
+        data, _ = decode_source_image(p)
+        if list(data.shape) != list(rec.get("shape", data.shape)):
+            raise InputFileError(p, f"referenced frame decodes to shape {list(data.shape)}, the journal recorded "
+                                    f"{rec['shape']}")
+        return data.astype(np.uint16), rec
+
+
+def referenced_problem(rec: dict, checksum: bool = True) -> str | None:
+    """What is wrong with a referenced frame's original against its journal record (``None``: nothing): gone,
+    another size, another modification time (``checksum=False``) or another SHA-256 (``checksum``)."""
+    p = Path(rec["file"])
+    if not p.is_file():
+        return "referenced frame missing: moved or deleted since the import (import again, or put it back)"
+    st = p.stat()
+    if "bytes" in rec and st.st_size != rec["bytes"]:
+        return f"referenced frame changed since the import: {st.st_size} bytes, the journal recorded {rec['bytes']}"
+    if checksum:
+        if sha256_of(p) != rec.get("sha256"):
+            return "referenced frame changed since the import: checksum mismatch"
+    elif "mtime_ns" in rec and st.st_mtime_ns != rec["mtime_ns"]:
+        return "referenced frame changed since the import: modified after it (the journal holds its mtime)"
+    return None
 
 
 def verify_session(path: str | Path, check_pixels: bool = False, checksums: bool = True) -> dict:
@@ -364,6 +433,18 @@ def verify_session(path: str | Path, check_pixels: bool = False, checksums: bool
         if rec is None:
             missing.append({"direction": key[0], "camera": key[1], "exposure_index": key[2], "file": rel,
                             "problem": "not in the journal"})
+            continue
+        if rec.get("referenced"):  # a file left where it was made (import --reference): named by its own path
+            problem = referenced_problem(rec, checksum=checksums)
+            if problem is None and check_pixels:
+                try:
+                    s.read_frame(*key)
+                except InputFileError as exc:
+                    problem = exc.problem
+            if problem:
+                (missing if "missing" in problem else damaged).append(
+                    {"direction": key[0], "camera": key[1], "exposure_index": key[2], "file": rec["file"],
+                     "problem": problem})
             continue
         p = s.path / rel
         problem = None

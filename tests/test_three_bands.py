@@ -165,3 +165,19 @@ def test_cli_one_camera_dry_run_plans_one_camera(tmp_path, capsys):
                  "-o", str(tmp_path / "s")]) == 0
     plan = json.loads(capsys.readouterr().out)
     assert plan["n_frames"] == 12 * 6 and list(plan["cameras"]) == ["A"]
+
+
+def test_cli_simulate_one_camera_writes_a_three_band_session_and_truth(tmp_path, capsys):
+    (tmp_path / "tiny.toml").write_text(tiny_rig().toml_text)
+    assert main(["simulate", "--rig", str(tmp_path / "tiny.toml"), "--one-camera", "--gt-width", "64",
+                 "-o", str(tmp_path / "s"), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["n_written"] == 12 * 6 and out["rig"] == "small-A"
+    s = Session.open(tmp_path / "s")
+    assert s.cameras() == ("A",) and not list((tmp_path / "s" / "frames").rglob("B_*.tif"))
+    gt = json.loads((tmp_path / "s" / "ground_truth" / "ground_truth.json").read_text())
+    assert gt["bands"]["names"] == BANDS3 and "camera_b_true" not in gt
+    # camera A keeps its filter (34A): the truth is the six-band rig's first three bands, exactly
+    matrix = np.load(tmp_path / "s" / "ground_truth" / "system_matrix.npy")
+    assert np.allclose(matrix, tiny_rig().system(np.asarray(
+        np.load(tmp_path / "s" / "ground_truth" / "wavelength_nm.npy"), float)).matrix[:3], rtol=1e-6)

@@ -10,7 +10,8 @@ Inputs, per camera of the rig (run once for camera A and once for camera B into 
     *n*-th image of the image list in name order; ``roll`` is the head's and must be 0;
   - a Hugin project ``.pto``: the ``i`` lines' ``y`` (yaw), ``p`` (pitch), ``r`` (roll) and ``n"file"`` (relative to
     the project); yaw is pan (positive right), pitch is tilt (positive up), roll must be the rig camera's mounting
-    roll (90 for a portrait camera; taken in the rig's convention, positive = clockwise seen from behind);
+    roll with the same sign (90 for a portrait camera), as Hugin's ``nona`` remaps such an image onto our model's
+    pixels (``tests/test_import.py::test_pto_yaw_pitch_roll_follow_hugin``);
 * **exposure times**: the CSV's ``exposure_s`` column, else a table (``file,exposure_s`` CSV or Debevec's
   ``name seconds`` list), else the EXIF ``ExposureTime`` of each file.
 

@@ -181,3 +181,10 @@ def test_cli_simulate_one_camera_writes_a_three_band_session_and_truth(tmp_path,
     matrix = np.load(tmp_path / "s" / "ground_truth" / "system_matrix.npy")
     assert np.allclose(matrix, tiny_rig().system(np.asarray(
         np.load(tmp_path / "s" / "ground_truth" / "wavelength_nm.npy"), float)).matrix[:3], rtol=1e-6)
+
+
+def test_calibrate_rig_refuses_a_one_camera_session(products, capsys):
+    session = products["rgb"][0]
+    assert main(["calibrate", "rig", str(session), "-o", str(session.parent / "cal.json")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "no camera B to calibrate" in err and str(session) in err

@@ -119,3 +119,21 @@ def test_pixel_format_helpers():
         ["RGGB", "GRBG", "GBRG", "BGGR", None]
     bayer = np.arange(12, dtype=np.uint16) * 300
     assert frame_to_uint16(bayer, 4, 3, "BayerRG12")[2, 3] == 3300
+
+
+def test_a_camera_that_goes_away_is_a_disconnection_naming_it(system):
+    """The device handle closed underneath the driver (GenTL ``DevClose``, as a producer does when the cable is
+    pulled): the next trigger is a :class:`DeviceDisconnected` naming the camera (the capture loop stops
+    cleanly and resumes later, as for a head's pulled cable), and closing the camera afterwards does not fail."""
+    from omnispectral.capture.devices import DeviceDisconnected
+
+    cam = system.open("A", serial="0", fixed_exposure=True)
+    try:
+        cam.trigger()
+        frame, _ = cam.read_frame(timeout_s=2.0)
+        assert frame.ndim == 3  # it worked before
+        cam.ia.device.module.close()  # the real GenTL call: the device is gone
+        with pytest.raises(DeviceDisconnected, match=r"^camera A \(.*serial 0\): trigger failed \(GenTL exception"):
+            cam.trigger()
+    finally:
+        cam.close()

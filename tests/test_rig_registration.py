@@ -371,7 +371,7 @@ def test_multiband_blending_drops_the_inconsistent_view_too():
     conf = np.ones((h, w), np.float32)
     views = [Warped(i, 0, 0, v, np.full((h, w), wt, np.float32), 1, 0.0, conf, np.zeros((h, w), np.float32))
              for i, (v, wt) in enumerate([(good, 0.3), (wrong, 1.0), (good * 1.02, 0.3)])]
-    job = SimpleNamespace(images=[SimpleNamespace(bands=(3, 4, 5))] * 3, multiband_levels=3)
+    job = SimpleNamespace(images=[SimpleNamespace(bands=(3, 4, 5))] * 3, multiband_levels=3, n_bands=6)
     out = _multiband(job, views, Rect(0, h, 0, w))
     spot = out[15:17, 15:17, 3:]
     assert np.all(np.abs(spot - 1.01) < 0.03), spot

@@ -1,4 +1,4 @@
-"""Rig description: two cameras, their mounting, the pan/tilt head, the exposure bracket, the grid.
+"""Rig description: the cameras and their mounting, the pan/tilt head, the exposure bracket, the grid.
 
 A rig is written in TOML (see ``src/omnispectral/data/rigs/*.toml`` for the built-in presets of the
 paper: ``paper-timelapse``, ``paper-gigapixel`` and the small ``small``).  Every value is validated
@@ -7,9 +7,13 @@ across the sensor's long side (``hfov_deg``, along ``width_px``) and short side 
 ``orientation = "portrait"`` rolls the camera by 90° on the head, as in the paper, so the long side
 then spans tilt.
 
+A rig has camera A and, for the paper's six bands, camera B behind the second filter.  A rig with
+camera A alone (one RGB camera: a DSLR on a Merlin head, ``omnispectral import`` of one camera) has
+three bands ``A:R, A:G, A:B``; everything downstream takes the band count from the rig.
+
 The rig also knows what its description means for processing: the geometric model of each camera
-(:meth:`Rig.camera_model`, lens and mounting) and the six-band spectral system of the two cameras
-(:meth:`Rig.system`).  Capture, simulation, mosaicking and processing all take them from here.
+(:meth:`Rig.camera_model`, lens and mounting) and the spectral system of its cameras, three bands
+each (:meth:`Rig.system`).  Capture, simulation, mosaicking and processing all take them from here.
 
 This is a base module of the package (see ``docs/architecture.md``): it builds on ``imaging`` and
 ``spectral`` and is imported by ``capture``, ``mosaic`` and ``product``, none of which it imports.
@@ -47,6 +51,8 @@ PRESETS = ("paper-timelapse", "paper-gigapixel", "small")
 HEAD_DRIVERS = ("simulated", "rodeon", "merlin")
 CAMERA_DRIVERS = ("simulated", "genicam")
 ORIENTATIONS = {"landscape": 0.0, "portrait": 90.0}
+#: Camera names in band order: a rig has camera A (bands 0-2) and optionally camera B (bands 3-5).
+CAMERA_NAMES = ("A", "B")
 
 
 #: How a rig-file error names the type it expected.
@@ -116,7 +122,7 @@ class RawSpec:
 
 @dataclass(frozen=True)
 class CameraSpec:
-    """One of the two cameras: sensor, lens, spectral sensitivity, filter, noise, orientation, device."""
+    """One camera (A, or B): sensor, lens, spectral sensitivity, filter, noise, orientation, device."""
 
     name: str
     model: str
@@ -226,7 +232,19 @@ class Rig:
 
     @property
     def camera_b(self) -> CameraSpec:
+        if "B" not in self.cameras:
+            raise ConfigurationError(f"rig {self.name!r} has one camera (A): there is no camera B")
         return self.cameras["B"]
+
+    @property
+    def camera_names(self) -> tuple[str, ...]:
+        """The rig's cameras in band order: ``("A", "B")`` (six bands) or ``("A",)`` (one RGB camera, three)."""
+        return tuple(c for c in CAMERA_NAMES if c in self.cameras)
+
+    @property
+    def n_bands(self) -> int:
+        """Three bands (R, G, B) per camera."""
+        return 3 * len(self.cameras)
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -238,7 +256,7 @@ class Rig:
         return camera_model(self, name)
 
     def system(self, wavelength_nm: np.ndarray | None = None) -> MultibandSystem:
-        """The six-band spectral system of the two cameras (see :func:`rig_system`)."""
+        """The spectral system of the rig's cameras, three bands each (see :func:`rig_system`)."""
         return rig_system(self, wavelength_nm)
 
 
@@ -273,19 +291,24 @@ def _model_from_fovs(width: int, height: int, hfov_deg: float, vfov_deg: float, 
 
 
 def rig_system(rig: Rig, wavelength_nm: np.ndarray | None = None) -> MultibandSystem:
-    """The six-band system of a rig: camera A's sensitivity × filter A, then camera B's × filter B."""
-    pairs = tuple((rig.cameras[c].sensitivity, rig.cameras[c].filter) for c in ("A", "B"))
-    return two_camera_system(pairs, wavelength_nm, rig.name)
+    """The system of a rig (Eq. (6)'s ``R``): camera A's sensitivity × filter A, then camera B's × filter B
+    when the rig has a camera B (six bands), else camera A's three bands alone."""
+    pairs = tuple((rig.cameras[c].sensitivity, rig.cameras[c].filter) for c in rig.camera_names)
+    return camera_system(pairs, wavelength_nm, rig.name)
 
 
-def two_camera_system(pairs: tuple[tuple[str, str], tuple[str, str]], wavelength_nm: np.ndarray | None = None,
-                      name: str = "rig") -> MultibandSystem:
-    """Bands ``A:R … B:B`` of two cameras given as (sensitivity, filter) names or CSV files."""
+def camera_system(pairs: tuple[tuple[str, str], ...], wavelength_nm: np.ndarray | None = None,
+                  name: str = "rig") -> MultibandSystem:
+    """Bands ``A:R, A:G, A:B[, B:R … B:B]`` of one or two cameras given as (sensitivity, filter) names or CSV
+    files, in the order of ``pairs``."""
+    if not 1 <= len(pairs) <= len(CAMERA_NAMES):
+        raise ConfigurationError(f"a rig has 1 or {len(CAMERA_NAMES)} cameras, got {len(pairs)}")
     parts = [build_system(load_camera(sens), [load_filter(filt)], wavelength_nm) for sens, filt in pairs]
+    names = CAMERA_NAMES[:len(parts)]
     return MultibandSystem(parts[0].wavelength_nm, np.vstack([p.sensitivity for p in parts]),
-                           tuple(f"{c}:{b}" for c in ("A", "B") for b in ("R", "G", "B")),
-                           np.array([0, 0, 0, 1, 1, 1]),
-                           f"{name}: {parts[0].description} | {parts[1].description}")
+                           tuple(f"{c}:{b}" for c in names for b in ("R", "G", "B")),
+                           np.repeat(np.arange(len(parts)), 3),
+                           f"{name}: " + " | ".join(p.description for p in parts))
 
 
 def _camera(r: _Reader, name: str) -> CameraSpec:
@@ -390,10 +413,12 @@ def rig_from_dict(data: dict, source: str = "<rig>", toml_text: str = "") -> Rig
     top = _Reader(data, "", source)
     cams = top.table("cameras")
     for key in cams.data:
-        if key not in ("A", "B"):
+        if key not in CAMERA_NAMES:
             cams.fail(key, "cameras are named A and B")
-    cameras = {n: _camera(cams.table(n), n) for n in ("A", "B")}
-    a, b = cameras["A"], cameras["B"]
+    if "A" not in cams.data:
+        cams.fail("A", "missing table (a rig has camera A, and camera B for six bands)")
+    cameras = {n: _camera(cams.table(n), n) for n in CAMERA_NAMES if n in cams.data}
+    a, b = cameras["A"], cameras.get("B", cameras["A"])
     if (a.width_px, a.height_px) != (b.width_px, b.height_px):
         raise ConfigurationError(f"{source}: cameras A and B have different sensor sizes "
                                  f"{a.width_px}x{a.height_px} and {b.width_px}x{b.height_px}")
@@ -473,6 +498,20 @@ def rig_with_camera_settings(rig: Rig, settings: dict[str, dict]) -> Rig:
                 cam[key] = {**cam[key], **value}
             else:
                 cam[key] = value
+    text = tomli_w.dumps(data)
+    return rig_from_dict(tomllib.loads(text), rig.source, text)
+
+
+def one_camera_rig(rig: Rig) -> Rig:
+    """``rig`` with camera A only (three bands; camera B and its mounting removed), its TOML text rewritten."""
+    if rig.camera_names == ("A",):
+        return rig
+    data = tomllib.loads(rig_toml(rig))
+    del data["cameras"]["B"]
+    data.pop("mounting", None)
+    data["name"] = f"{rig.name}-A"
+    description = data.get("description", "")
+    data["description"] = f"{description} (camera A only: three bands)" if description else "camera A only"
     text = tomli_w.dumps(data)
     return rig_from_dict(tomllib.loads(text), rig.source, text)
 

@@ -22,12 +22,13 @@ INDEX = "product.json"
 
 
 def create_band_product(root: str | Path, height: int, width: int, index: dict, attrs: dict, tile: int = 512,
-                        overwrite: bool = True) -> PanoramaStore:
-    """An empty product directory: the store (``(height, width, 6)`` + pyramid) and ``product.json``."""
+                        overwrite: bool = True, n_bands: int = 6) -> PanoramaStore:
+    """An empty product directory: the store (``(height, width, n_bands)`` + pyramid: six bands, or three for a
+    one-camera rig) and ``product.json``."""
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
-    store = PanoramaStore.create(root / PANORAMA, height, width, 6, tile, attrs, fingerprint={"written_by": "apps"},
-                                 overwrite=overwrite)
+    store = PanoramaStore.create(root / PANORAMA, height, width, n_bands, tile, attrs,
+                                 fingerprint={"written_by": "apps"}, overwrite=overwrite)
     atomic_write_json(root / INDEX, {"format": "omnispectral-product", "panorama": str((root / PANORAMA).resolve()),
                                      "width": width, "height": height, **index})
     return store
@@ -45,9 +46,10 @@ def fill_pyramid(store: PanoramaStore) -> None:
 
 def write_band_product(root: str | Path, bands: np.ndarray, index: dict, attrs: dict | None = None,
                        tile: int = 512) -> PanoramaStore:
-    """A whole product from an in-memory six-band panorama ``(H, W, 6)`` (tests, small results)."""
+    """A whole product from an in-memory panorama ``(H, W, bands)`` (tests, small results)."""
     h, w = bands.shape[:2]
-    store = create_band_product(root, h, w, index, attrs or {"bands": index.get("bands")}, tile)
+    store = create_band_product(root, h, w, index, attrs or {"bands": index.get("bands")}, tile,
+                                n_bands=bands.shape[2])
     write_level0(store, lambda r0, r1, c0, c1: bands[r0:r1, c0:c1])
     fill_pyramid(store)
     return store
@@ -55,7 +57,7 @@ def write_band_product(root: str | Path, bands: np.ndarray, index: dict, attrs: 
 
 def write_level0(store: PanoramaStore, tile_fn: Callable[[int, int, int, int], np.ndarray],
                  workers: int | None = None, progress: Callable[[int, int], None] | None = None) -> list:
-    """Level 0 chunk by chunk: ``tile_fn(r0, r1, c0, c1) → (r1-r0, c1-c0, 6)``, run as Dask tasks on threads
+    """Level 0 chunk by chunk: ``tile_fn(r0, r1, c0, c1) → (r1-r0, c1-c0, bands)``, run as Dask tasks on threads
     (each task holds one tile: memory is bounded by the tile size times the workers).  Returns each tile's
     ``stats`` when ``tile_fn`` returns ``(data, stats)``."""
     import dask

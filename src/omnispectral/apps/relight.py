@@ -353,7 +353,7 @@ def relight_product(product: str | Path, output: str | Path, whites: list[WhiteR
         raise ConfigurationError(f"{output}: the relit product needs its own directory (it would replace the input)")
     index, store, estimator = open_product(product)
     relighter = measure_relighter(store, estimator, whites, to, reflectance, 0, sources, method, source_factor)
-    R = np.asarray(estimator.system_matrix, np.float32)  # (6, n): relit spectra back to six bands
+    R = np.asarray(estimator.system_matrix, np.float32)  # (bands, n): relit spectra back to the bands
     h, w = store.shapes[0]
     attrs = dict(store.attrs().get("omnispectral", {}))
     for key in ("format", "format_version", "tile", "levels", "compression"):
@@ -363,7 +363,7 @@ def relight_product(product: str | Path, output: str | Path, whites: list[WhiteR
     attrs["relighting"] = info
     out_index = {k: v for k, v in index.items() if k in ("rig", "bands", "units", "estimator", "session_kind")}
     out_index["relighting"] = {k: v for k, v in info.items() if k != "wavelength_nm"}
-    out = create_band_product(output, h, w, out_index, attrs, tile=store.tile)
+    out = create_band_product(output, h, w, out_index, attrs, tile=store.tile, n_bands=store.n_bands)
 
     def tile(r0, r1, c0, c1):
         bands = store.read(0, slice(r0, r1), slice(c0, c1))

@@ -372,12 +372,14 @@ def band_materials(scene, sensitivity: np.ndarray, wavelength_nm: np.ndarray, en
 def render_fast(env: EnvironmentMap, estimator, scene, width: int = 256, height: int = 256, spp: int = 64,
                 seed: int = 0, variant: str | None = None, linear_map: tuple[np.ndarray, np.ndarray] | None = None,
                 progress: Callable[[str], None] | None = None) -> RenderResult:
-    """Six-band fast path (module docstring): two RGB passes of the bands, then the estimator per pixel
-    (the mixture with per-pixel weights, or ``linear_map = (M (n, 6), b (n,))`` as one linear map)."""
+    """Band fast path (module docstring): one RGB pass per camera's three bands (two for six bands, one for a
+    one-camera rig), then the estimator per pixel (the mixture with per-pixel weights, or
+    ``linear_map = (M (n, bands), b (n,))`` as one linear map)."""
 
     _check_size(width, height, spp)
-    if env.bands is None or env.bands.shape[2] != 6:
-        raise ConfigurationError("the fast path needs the environment's six bands (an environment from a product)")
+    if env.bands is None or env.bands.shape[2] % 3 or env.bands.shape[2] != estimator.n_bands:
+        raise ConfigurationError("the fast path needs the environment's bands, three per camera (an environment "
+                                 "from a product)")
     mi = mitsuba(variant)
     t0 = time.perf_counter()
     wl = np.asarray(estimator.wavelength_nm, float)
@@ -385,12 +387,13 @@ def render_fast(env: EnvironmentMap, estimator, scene, width: int = 256, height:
     env_mean = (env.spectra * omega).sum(axis=(0, 1)) / (omega.sum() * env.width)
     env_mean = np.interp(wl, env.wavelength_nm, env_mean)
     mats = band_materials(scene, estimator.system_matrix, wl, env_mean)
-    bands = np.empty((height, width, 6), np.float32)
-    for p, sl in enumerate((slice(0, 3), slice(3, 6))):
+    n_pass = env.bands.shape[2] // 3
+    bands = np.empty((height, width, 3 * n_pass), np.float32)
+    for p, sl in enumerate(slice(3 * q, 3 * q + 3) for q in range(n_pass)):
         pass_mats = {k: {q: v[sl] for q, v in params.items()} for k, params in mats.items()}
         bands[..., sl] = render_rgb(mi, scene.build(mi, pass_mats, env.bands[..., sl], width, height, spp), spp, seed)
         if progress:
-            progress(f"pass {p + 1}/2: bands {', '.join(estimator.band_names[sl]) or sl}")
+            progress(f"pass {p + 1}/{n_pass}: bands {', '.join(estimator.band_names[sl]) or sl}")
     t_render = time.perf_counter() - t0
     if linear_map is not None:
         m, b = linear_map

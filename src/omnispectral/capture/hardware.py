@@ -17,7 +17,7 @@ from omnispectral.capture.darks import record_darks
 from omnispectral.capture.devices import DeviceError, SimulatedHead, SystemClock
 from omnispectral.capture.plan import format_duration, make_plan
 from omnispectral.capture.run import RetryPolicy, run_capture
-from omnispectral.capture.session import CAMERAS, Session
+from omnispectral.capture.session import Session
 from omnispectral.capture.simulate import simulated_dark_cameras
 from omnispectral.errors import ConfigurationError, OmnispectralError
 from omnispectral.rig import Rig
@@ -51,8 +51,8 @@ def capture_with_devices(output: str | Path, rig: Rig, *, progress=None) -> dict
     except DeviceError as exc:  # opening failed: nothing captured this time, the session stays resumable
         session.log_event("stop", reason=str(exc), frames_done=len(session.completed()))
         n_done = len(session.completed())
-        result = {"session": str(session.path), "n_planned": Session.n_planned(plan), "n_written": 0,
-                  "n_already_done": n_done, "complete": n_done >= Session.n_planned(plan),
+        result = {"session": str(session.path), "n_planned": Session.n_planned(plan, rig.camera_names), "n_written": 0,
+                  "n_already_done": n_done, "complete": n_done >= Session.n_planned(plan, rig.camera_names),
                   "stopped_reason": str(exc)}
     finally:
         if system is not None:
@@ -70,7 +70,7 @@ def capture_darks(session_path: str | Path, n_frames: int = 8, *, seed: int = 0,
     rig = session.rig()
     system = None
     try:
-        if all(rig.cameras[c].device.get("driver", "simulated") == "simulated" for c in CAMERAS):
+        if all(rig.cameras[c].device.get("driver", "simulated") == "simulated" for c in rig.camera_names):
             cams = simulated_dark_cameras(rig, seed=seed, noise=noise)
         else:
             cams, system = drivers.open_cameras(rig)
@@ -90,11 +90,11 @@ def dry_run(rig: Rig, output: str | Path | None = None) -> dict:
     drivers.rig_device_kind(rig)
     plan = make_plan(rig)
     out = {"rig": rig.name, "n_directions": plan.n_directions, "exposures_s": list(plan.exposures_s),
-           "n_frames": Session.n_planned(plan), "estimated_s": plan.estimated_s,
+           "n_frames": Session.n_planned(plan, rig.camera_names), "estimated_s": plan.estimated_s,
            "estimated": format_duration(plan.estimated_s),
            "head": {"driver": rig.head.driver, "port": rig.head.port,
                     "port_exists": bool(rig.head.port) and Path(rig.head.port).exists()},
-           "cameras": {n: dict(rig.cameras[n].device) for n in CAMERAS},
+           "cameras": {n: dict(rig.cameras[n].device) for n in rig.camera_names},
            "moves": [{"direction": d.index, "pan_deg": d.pan_deg, "tilt_deg": d.tilt_deg} for d in plan.directions],
            "n_already_done": 0, "session": str(output) if output else None}
     if output and (Path(output) / "session.json").exists():

@@ -10,7 +10,8 @@ Inputs, per camera of the rig (run once for camera A and once for camera B into 
     *n*-th image of the image list in name order; ``roll`` is the head's and must be 0;
   - a Hugin project ``.pto``: the ``i`` lines' ``y`` (yaw), ``p`` (pitch), ``r`` (roll) and ``n"file"`` (relative to
     the project); yaw is pan (positive right), pitch is tilt (positive up), roll must be the rig camera's mounting
-    roll (90 for a portrait camera; taken in the rig's convention, positive = clockwise seen from behind);
+    roll with the same sign (90 for a portrait camera), as Hugin's ``nona`` remaps such an image onto our model's
+    pixels (``tests/test_import.py::test_pto_yaw_pitch_roll_follow_hugin``);
 * **exposure times**: the CSV's ``exposure_s`` column, else a table (``file,exposure_s`` CSV or Debevec's
   ``name seconds`` list), else the EXIF ``ExposureTime`` of each file.
 
@@ -19,7 +20,9 @@ exposure first as in a capture.  Every direction must hold the same number of ex
 imported fixes the plan; the second camera's brackets are assigned to the nearest planned direction.
 
 The session is written as a capture would write it (:class:`~omnispectral.capture.session.Session`: rig snapshot,
-plan, fsynced journal, frames copied into ``frames/`` as uint16 TIFFs), with ``kind = "import"``; each journal
+plan, fsynced journal, frames copied into ``frames/`` as uint16 TIFFs, or with ``reference`` left where they are:
+the journal records each file's absolute path, size, modification time and SHA-256, ``session verify`` names a
+moved or changed one and ``process`` decodes them in place), with ``kind = "import"``; each journal
 record's ``camera_metadata`` names the source file, its SHA-256, where the exposure time came from, and the
 ``response`` of the values: ``linear`` (raw/16-bit) or ``srgb`` (8-bit JPEG/PNG, decoded by ``process`` through
 the sRGB curve, IEC 61966-2-1, with the largest code at the rig camera's full scale ``full_scale_dn``, so that
@@ -29,8 +32,9 @@ Camera raw files (DNG, NEF, CR2, ARW, …) are read through rawpy (LibRaw): the 
 its CFA layout and black level in ``camera_metadata`` (``process`` subtracts and demosaics as for a raw camera,
 :mod:`omnispectral.imaging.bayer`); their exposure times come from the table or the CSV.
 
-Not supported: frames referenced in place (they are always copied into the session), per-image roll or lens
-parameters from the ``.pto`` (the rig file's lens model is used), one-camera (three-band) products.
+One camera: a rig with camera A only (or ``--one-camera``) makes a three-band session, processed into a
+three-band product.  Not supported: per-image roll or lens parameters from the ``.pto`` (the rig file's lens
+model is used).
 """
 
 from __future__ import annotations
@@ -47,14 +51,12 @@ import numpy as np
 
 from omnispectral.capture.plan import Direction, Plan
 from omnispectral.capture.session import Session, sha256_of
+from omnispectral.capture.sourcefiles import IMAGE_SUFFIXES, decode_source_image
 from omnispectral.errors import ConfigurationError, InputFileError
-from omnispectral.imaging.bracket import exif_exposure_s, parse_exposure_s, read_frame, read_times_list
+from omnispectral.imaging.bracket import exif_exposure_s, parse_exposure_s, read_times_list
 from omnispectral.locking import directory_lock
 from omnispectral.rig import Rig
 
-#: camera raw files, read through rawpy (LibRaw; the optional ``raw`` extra): DNG and the common makers' formats
-RAW_SUFFIXES = (".dng", ".nef", ".cr2", ".cr3", ".arw", ".orf", ".raf", ".rw2", ".pef")
-IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".jpg", ".jpeg", *RAW_SUFFIXES)
 RESPONSES = ("auto", "linear", "srgb")
 #: images whose pan and tilt agree within this belong to one direction's bracket
 SAME_DIRECTION_DEG = 0.05
@@ -274,9 +276,10 @@ def _timestamp(path: Path) -> str:
 
 
 def import_images(output: str | Path, rig: Rig, camera: str, entries: list[ImageEntry], *,
-                  exposure_table: dict[str, float] | None = None, response: str = "auto",
+                  exposure_table: dict[str, float] | None = None, response: str = "auto", reference: bool = False,
                   progress: Callable[[str, int, int], None] | None = None) -> dict:
-    """Write camera ``camera``'s images into the session at ``output`` (created for the first camera)."""
+    """Write camera ``camera``'s images into the session at ``output`` (created for the first camera); with
+    ``reference`` the journal points at the files where they are instead of copying them (module docstring)."""
     if camera not in rig.cameras:
         raise ConfigurationError(f"camera must be one of {', '.join(rig.cameras)}, got {camera!r}")
     if response not in RESPONSES:
@@ -322,44 +325,19 @@ def import_images(output: str | Path, rig: Rig, camera: str, entries: list[Image
             for k, e in enumerate(group):
                 n += 1
                 if (index, camera, k) not in done:
-                    _write_one(session, cam, camera, index, k, e, times[e.path], response)
+                    _write_one(session, cam, camera, index, k, e, times[e.path], response, reference)
                 if progress is not None:
                     progress("import", n, n_total)
-    return {"session": str(Path(output)), "camera": camera, "n_directions": len(groups),
+    return {"session": str(Path(output)), "camera": camera, "referenced": reference, "n_directions": len(groups),
             "n_exposures": len(groups[0]), "n_images": n_total, "exposures_s": list(exposures),
             "cameras_imported": sorted({c for _, c, _ in Session.open(output).completed()})}
 
 
-def read_camera_raw(path: Path) -> tuple[np.ndarray, dict]:
-    """A camera raw file's Bayer mosaic as recorded (uint16 ``(H, W)``, visible area) and what the camera says
-    about it: CFA layout (``RGGB`` …), black level, white level (LibRaw through rawpy)."""
-    try:
-        import rawpy  # optional dependency (extra "raw"): LibRaw's native library
-    except ImportError:
-        raise InputFileError(path, "camera raw files need rawpy (pip install 'omnispectral[raw]')") from None
-    try:
-        with rawpy.imread(str(path)) as raw:
-            mosaic = np.array(raw.raw_image_visible, dtype=np.uint16)
-            pattern, desc = np.asarray(raw.raw_pattern), raw.color_desc.decode("ascii", "replace")
-            black = float(np.mean(raw.black_level_per_channel))
-            white = int(raw.white_level)
-    except (rawpy.LibRawError, OSError, ValueError) as exc:
-        raise InputFileError(path, f"not a readable camera raw file ({type(exc).__name__}: {exc})") from None
-    cfa = "".join(desc[int(i)] for i in pattern.ravel()) if pattern.shape == (2, 2) else ""
-    if sorted(cfa) != sorted("RGGB"):
-        raise InputFileError(path, f"colour filter array {desc} {pattern.tolist()} is not a 2 x 2 Bayer pattern")
-    return mosaic, {"cfa_pattern": cfa, "black_level": black, "white_level": white}
-
-
-def _write_one(session: Session, cam, camera: str, index: int, k: int, e: ImageEntry, time_and_source, response):
-    raw_meta = {}
-    if e.path.suffix.lower() in RAW_SUFFIXES:
-        frame, raw_meta = read_camera_raw(e.path)
+def _write_one(session: Session, cam, camera: str, index: int, k: int, e: ImageEntry, time_and_source, response,
+               reference: bool = False):
+    frame, raw_meta = decode_source_image(e.path)
+    if raw_meta:
         response = "linear"
-    else:
-        frame = read_frame(e.path)
-    if frame.ndim == 3 and frame.shape[2] == 4:
-        frame = frame[..., :3]
     if frame.shape[:2] != (cam.height_px, cam.width_px) or (frame.ndim == 3 and frame.shape[2] != 3):
         raise InputFileError(e.path, f"image of {frame.shape[1]}x{frame.shape[0]} px"
                                      f"{'' if frame.ndim == 2 else f' x {frame.shape[2]}'}; camera {camera} of the "
@@ -374,10 +352,14 @@ def _write_one(session: Session, cam, camera: str, index: int, k: int, e: ImageE
             "exposure_source": time_and_source[1], "response": response, "direction_source": e.where, **raw_meta}
     if response == "srgb":  # the largest code means the camera's full scale: radiance in the rig's DN/s
         meta["full_scale_dn"] = cam.max_dn
-    session.write_frame(frame.astype(np.uint16), direction=index, camera=camera, exposure_index=k,
-                        exposure_s=time_and_source[0], pan_deg_commanded=e.pan_deg, tilt_deg_commanded=e.tilt_deg,
-                        pan_deg_reported=e.pan_deg, tilt_deg_reported=e.tilt_deg, timestamp=_timestamp(e.path),
-                        bit_depth=bit_depth, extra={"camera_metadata": meta})
+    fields = {"direction": index, "camera": camera, "exposure_index": k, "exposure_s": time_and_source[0],
+              "pan_deg_commanded": e.pan_deg, "tilt_deg_commanded": e.tilt_deg, "pan_deg_reported": e.pan_deg,
+              "tilt_deg_reported": e.tilt_deg, "timestamp": _timestamp(e.path), "bit_depth": bit_depth,
+              "extra": {"camera_metadata": meta}}
+    if reference:
+        session.write_reference(e.path, frame.shape, **fields)
+    else:
+        session.write_frame(frame.astype(np.uint16), **fields)
 
 
 def _plan_of(rig: Rig, groups: list[list[ImageEntry]], exposures: tuple[float, ...]) -> Plan:

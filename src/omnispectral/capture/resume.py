@@ -19,7 +19,7 @@ import json
 import shutil
 from pathlib import Path
 
-from omnispectral.capture.session import CAMERAS, FRAME_NAME, Session, read_journal, record_key, sha256_of
+from omnispectral.capture.session import FRAME_NAME, Session, read_journal, record_key, sha256_of
 from omnispectral.errors import InputFileError
 from omnispectral.io import atomic_write_text, clean_temp_files
 from omnispectral.locking import directory_lock
@@ -28,10 +28,11 @@ from omnispectral.locking import directory_lock
 def capture_order(session: Session) -> dict[tuple[int, str, int], int]:
     """Position of every planned frame in the capture loop's order (direction, exposure, camera)."""
     plan = session.plan()
+    cameras = session.cameras()
     order, n = {}, 0
     for d in plan.directions:
         for k in range(len(plan.exposures_s)):
-            for c in CAMERAS:
+            for c in cameras:
                 order[(d.index, c, k)] = n
                 n += 1
     return order
@@ -53,7 +54,7 @@ def resume_simulated_devices(session: Session, clock, head) -> bool:
     if "sim_clock_read_s" not in cam or "sim_clock_trigger_s" not in cam:
         return False
     d, _, k = last
-    bracket_done = all((d, c, k) in records for c in CAMERAS)
+    bracket_done = all((d, c, k) in records for c in session.cameras())
     # both cameras are triggered together: a half-written exposure restarts from its trigger time
     clock.set_elapsed(float(cam["sim_clock_read_s"] if bracket_done else cam["sim_clock_trigger_s"]))
     head.place_at(float(rec["pan_deg_commanded"]), float(rec["tilt_deg_commanded"]))
@@ -83,7 +84,8 @@ def repair_session(path: str | Path, apply: bool = False) -> dict:
     """Rebuild the journal of a session from its frames (dry run unless ``apply``); returns what changed.
 
     The new journal lists every frame that decodes and whose embedded record matches its file name,
-    in capture order, with the file's SHA-256 and size.  Frames that do not decode are reported (a
+    in capture order, with the file's SHA-256 and size, and keeps the records of referenced frames
+    (``import --reference``; ``session verify`` checks their files).  Frames that do not decode are reported (a
     resume captures them again).  With ``apply`` the old journal is kept as ``journal.jsonl.bak-TIME``.
     """
     s = Session.open(path)
@@ -106,6 +108,9 @@ def repair_session(path: str | Path, apply: bool = False) -> dict:
                 continue
             key = (int(rec["direction"]), str(rec["camera"]), int(rec["exposure_index"]))
             if key in order:
+                rebuilt[key] = rec
+        for key, rec in old.records.items():  # referenced frames (import --reference) live outside frames/
+            if rec.get("referenced") and key in order and key not in rebuilt:
                 rebuilt[key] = rec
         recovered = sorted(set(rebuilt) - set(old.records))
         dropped = sorted(set(old.records) - set(rebuilt))

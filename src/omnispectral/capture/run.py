@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 from omnispectral.capture.devices import Camera, Clock, DeviceError, DeviceTimeout, PanTiltHead
 from omnispectral.capture.plan import Direction
-from omnispectral.capture.session import CAMERAS, Session
+from omnispectral.capture.session import Session
 from omnispectral.io import clean_temp_files
 from omnispectral.locking import directory_lock
 
@@ -107,7 +107,8 @@ def _run_capture_locked(session: Session, head: PanTiltHead, cameras: dict[str, 
     plan = session.plan()
     cut = session.repair_journal()
     done = set(session.completed())
-    n_planned = Session.n_planned(plan)
+    names_all = session.cameras()
+    n_planned = Session.n_planned(plan, names_all)
     n_before = len(done)
     session.log_event("resume" if n_before or cut else "start", frames_done=n_before, journal_cut=cut)
     t_wall, t_sim = time.perf_counter(), clock.monotonic()
@@ -118,12 +119,12 @@ def _run_capture_locked(session: Session, head: PanTiltHead, cameras: dict[str, 
         progress("capture", n_before, n_planned)
     try:
         for d in plan.directions:
-            todo = [(c, k) for k in range(len(plan.exposures_s)) for c in CAMERAS if (d.index, c, k) not in done]
+            todo = [(c, k) for k in range(len(plan.exposures_s)) for c in names_all if (d.index, c, k) not in done]
             if not todo:
                 continue
             pan_r, tilt_r = goto_direction(head, d, policy)
             for k, exposure in enumerate(plan.exposures_s):
-                names = [c for c in CAMERAS if (d.index, c, k) not in done]
+                names = [c for c in names_all if (d.index, c, k) not in done]
                 if not names:
                     continue
                 frames = expose_all(cameras, names, exposure, policy)

@@ -9,12 +9,20 @@ Layout of a session directory::
       journal.jsonl     one JSON line per frame, appended, flushed and fsynced
       events.jsonl      start / resume / stop / complete events with reasons
       frames/dNNNN/{A,B}_eKK.tif   16-bit raw frames (tifffile), metadata as JSON in the description
+                        (camera B only in sessions of two-camera rigs)
       ground_truth/     simulated sessions only (see omnispectral.capture.simulate)
 
 A frame is first written to a temporary name, fsynced and renamed; only then is its journal line
 appended.  A process killed at any moment therefore leaves (a) complete frames with journal lines,
 (b) at most one frame file without a line (rewritten on resume), and (c) at most one partial last
 journal line (ignored and cut on resume).  Nothing already written is modified.
+
+**Referenced frames** (``omnispectral import --reference``): a frame may stay where it was made instead of
+being copied into ``frames/``.  Its journal record then has ``"referenced": true``, ``"file"`` the absolute
+path of the original, and the original's ``bytes``, ``mtime_ns`` and ``sha256``; the frame's metadata is the
+journal record itself.  :meth:`Session.read_frame` decodes the original
+(:func:`omnispectral.capture.sourcefiles.decode_source_image`) after checking its size and modification time,
+and :func:`verify_session` names a referenced file that was moved, deleted or changed.
 """
 
 from __future__ import annotations
@@ -34,16 +42,18 @@ import numpy as np
 import tifffile
 
 from omnispectral.capture.plan import Plan
+from omnispectral.capture.sourcefiles import decode_source_image
 from omnispectral.errors import InputFileError
 from omnispectral.fingerprint import differences
 from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text, is_temp_name
 from omnispectral.limits import check_image_shape
 from omnispectral.locking import LOCK_NAME, directory_lock
-from omnispectral.rig import Rig, rig_from_dict, rig_toml
+from omnispectral.rig import CAMERA_NAMES, Rig, rig_from_dict, rig_toml
 from omnispectral.threads import ordered_thread_map
 
 FORMAT_VERSION = 1
-CAMERAS = ("A", "B")
+#: Every camera a session may hold; a session's own are its rig's (:meth:`Session.cameras`: A, or A and B).
+CAMERAS = CAMERA_NAMES
 
 
 def frame_relpath(direction: int, camera: str, exposure_index: int) -> str:
@@ -150,6 +160,7 @@ class Session:
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
+        self._records: dict | None = None  # journal records, read when a frame is not under frames/
 
     # ------------------------------------------------------------------ create / open
     @classmethod
@@ -182,7 +193,7 @@ class Session:
         atomic_write_text(s.path / "rig.toml", rig_toml(rig))
         atomic_write_json(s.path / "plan.json", plan.to_dict())
         meta = {"format": "omnispectral-session", "format_version": FORMAT_VERSION, "kind": kind, "rig": rig.name,
-                "created_utc": utc_now_iso(), "n_frames_planned": s.n_planned(plan)}
+                "created_utc": utc_now_iso(), "n_frames_planned": s.n_planned(plan, rig.camera_names)}
         if identity is not None:
             meta["identity"] = _jsonable(identity)
         meta.update(extra or {})
@@ -229,6 +240,10 @@ class Session:
         except (KeyError, TypeError, ValueError) as exc:
             raise InputFileError(self.path / "plan.json", f"not a valid plan ({exc})") from None
 
+    def cameras(self) -> tuple[str, ...]:
+        """The cameras of the session's rig, in band order: ``("A", "B")``, or ``("A",)`` for one RGB camera."""
+        return self.rig().camera_names
+
     def rig(self) -> Rig:
         p = self.path / "rig.toml"
         try:
@@ -247,8 +262,8 @@ class Session:
             raise InputFileError(p, f"unreadable ({exc})") from None
 
     @staticmethod
-    def n_planned(plan: Plan) -> int:
-        return plan.n_directions * len(CAMERAS) * len(plan.exposures_s)
+    def n_planned(plan: Plan, cameras: tuple[str, ...] = CAMERAS) -> int:
+        return plan.n_directions * len(cameras) * len(plan.exposures_s)
 
     # ------------------------------------------------------------------ journal
     @property
@@ -316,14 +331,56 @@ class Session:
         self._append_line(self.journal_path, record)
         return record
 
+    def write_reference(self, source: str | Path, shape: tuple[int, ...], *, direction: int, camera: str,
+                        exposure_index: int, exposure_s: float, pan_deg_commanded: float, tilt_deg_commanded: float,
+                        pan_deg_reported: float, tilt_deg_reported: float, timestamp: str, bit_depth: int,
+                        extra: dict | None = None) -> dict:
+        """Record a frame that stays in the file ``source`` (module docstring: referenced frames); returns the
+        record.  ``shape`` is the decoded frame's."""
+        src = Path(source).resolve()
+        st = src.stat()
+        record = {"direction": direction, "camera": camera, "exposure_index": exposure_index,
+                  "exposure_s": exposure_s, "pan_deg_commanded": pan_deg_commanded,
+                  "tilt_deg_commanded": tilt_deg_commanded, "pan_deg_reported": pan_deg_reported,
+                  "tilt_deg_reported": tilt_deg_reported, "timestamp": timestamp, "bit_depth": bit_depth,
+                  "shape": list(shape), "file": str(src), "referenced": True, **(extra or {}),
+                  "sha256": sha256_of(src), "bytes": st.st_size, "mtime_ns": st.st_mtime_ns}
+        self._append_line(self.journal_path, record)
+        if self._records is not None:
+            self._records[(direction, camera, exposure_index)] = record
+        return record
+
+    def reference_record(self, direction: int, camera: str, exposure_index: int) -> dict | None:
+        """The journal record of a referenced frame (``None`` if the frame is not a referenced one)."""
+        key = (direction, camera, exposure_index)
+        if self._records is None or key not in self._records:
+            self._records = read_journal(self.journal_path).records
+        rec = self._records.get(key)
+        return rec if rec is not None and rec.get("referenced") else None
+
     def read_frame(self, direction: int, camera: str, exposure_index: int) -> tuple[np.ndarray, dict]:
         """A raw frame and the metadata stored inside it; a damaged file is named in the error."""
 
         p = self.path / frame_relpath(direction, camera, exposure_index)
+        if not p.exists() and (ref := self.reference_record(direction, camera, exposure_index)) is not None:
+            return self._read_referenced(ref)
         if not p.exists():
             raise InputFileError(p, f"frame missing (direction {direction}, camera {camera}, "
                                     f"exposure {exposure_index})")
         return decode_frame(p)
+
+    @staticmethod
+    def _read_referenced(rec: dict) -> tuple[np.ndarray, dict]:
+        """A referenced frame decoded from its original, refused when it is gone or no longer what was imported."""
+        p = Path(rec["file"])
+        problem = referenced_problem(rec, checksum=False)
+        if problem:
+            raise InputFileError(p, problem)
+        data, _ = decode_source_image(p)
+        if list(data.shape) != list(rec.get("shape", data.shape)):
+            raise InputFileError(p, f"referenced frame decodes to shape {list(data.shape)}, the journal recorded "
+                                    f"{rec['shape']}")
+        return data.astype(np.uint16), rec
 
 
 def decode_frame(path: Path, content: bytes | None = None) -> tuple[np.ndarray, dict]:
@@ -344,28 +401,58 @@ def decode_frame(path: Path, content: bytes | None = None) -> tuple[np.ndarray, 
     return data, meta
 
 
-def _frame_problem(p: Path, rec: dict | None, checksums: bool, check_pixels: bool) -> tuple[str, str] | None:
-    """``("missing" | "damaged", problem)`` of one planned frame against its journal line, or None."""
+def referenced_problem(rec: dict, checksum: bool = True) -> str | None:
+    """What is wrong with a referenced frame's original against its journal record (``None``: nothing): gone,
+    another size, another modification time (``checksum=False``) or another SHA-256 (``checksum``)."""
+    p = Path(rec["file"])
+    if not p.is_file():
+        return "referenced frame missing: moved or deleted since the import (import again, or put it back)"
+    st = p.stat()
+    if "bytes" in rec and st.st_size != rec["bytes"]:
+        return f"referenced frame changed since the import: {st.st_size} bytes, the journal recorded {rec['bytes']}"
+    if checksum:
+        if sha256_of(p) != rec.get("sha256"):
+            return "referenced frame changed since the import: checksum mismatch"
+    elif "mtime_ns" in rec and st.st_mtime_ns != rec["mtime_ns"]:
+        return "referenced frame changed since the import: modified after it (the journal holds its mtime)"
+    return None
+
+
+def _frame_problem(s: Session, key: tuple[int, str, int], rec: dict | None, checksums: bool,
+                   check_pixels: bool) -> tuple[str, str, str] | None:
+    """``("missing" | "damaged", file, problem)`` of one planned frame against its journal line, or None."""
+    rel = frame_relpath(*key)
     if rec is None:
-        return "missing", "not in the journal"
+        return "missing", rel, "not in the journal"
+    if rec.get("referenced"):  # a file left where it was made (import --reference): named by its own path
+        problem = referenced_problem(rec, checksum=checksums)
+        if problem is None and check_pixels:
+            try:
+                s.read_frame(*key)
+            except InputFileError as exc:
+                problem = exc.problem
+        if problem:
+            return ("missing" if "missing" in problem else "damaged"), rec["file"], problem
+        return None
+    p = s.path / rel
     if not p.exists():  # journalled, then deleted: missing (there is nothing to be damaged)
-        return "missing", "file missing"
+        return "missing", rel, "file missing"
     size = p.stat().st_size
     if "bytes" in rec and size != rec["bytes"]:  # the plainer message when sizes differ
-        return "damaged", (f"size {size} bytes, the journal recorded {rec['bytes']} (truncated or changed"
-                           + ("; checksum mismatch)" if checksums else ")"))
+        return "damaged", rel, (f"size {size} bytes, the journal recorded {rec['bytes']} (truncated or changed"
+                                + ("; checksum mismatch)" if checksums else ")"))
     content = None
     if checksums or "bytes" not in rec:
         content = p.read_bytes()
         if hashlib.sha256(content).hexdigest() != rec.get("sha256"):
-            return "damaged", "checksum mismatch (file changed or truncated)"
+            return "damaged", rel, "checksum mismatch (file changed or truncated)"
     if check_pixels:
         try:
             data, _ = decode_frame(p, content)
         except InputFileError as exc:
-            return "damaged", exc.problem
+            return "damaged", rel, exc.problem
         if "shape" in rec and list(data.shape) != list(rec["shape"]):
-            return "damaged", f"shape {list(data.shape)}, the journal recorded {rec['shape']}"
+            return "damaged", rel, f"shape {list(data.shape)}, the journal recorded {rec['shape']}"
     return None
 
 
@@ -385,20 +472,20 @@ def verify_session(path: str | Path, check_pixels: bool = False, checksums: bool
     s = Session.open(path)
     plan = s.plan()
     j = read_journal(s.journal_path)
-    expected = [(d.index, c, k) for d in plan.directions for c in CAMERAS for k in range(len(plan.exposures_s))]
+    cameras = s.cameras()
+    expected = [(d.index, c, k) for d in plan.directions for c in cameras for k in range(len(plan.exposures_s))]
 
     def check(key):
-        return _frame_problem(s.path / frame_relpath(*key), j.records.get(key), checksums, check_pixels)
+        return _frame_problem(s, key, j.records.get(key), checksums, check_pixels)
 
     missing, damaged = [], []
     # each frame is read once (hash and decode from the same bytes); SHA-256 and the decoder release the
     # GIL, so two threads halve the wall time of a session of large frames
     for key, found in zip(expected, ordered_thread_map(check, expected, workers=workers), strict=True):
         if found is not None:
-            kind, problem = found
+            kind, file, problem = found
             (missing if kind == "missing" else damaged).append(
-                {"direction": key[0], "camera": key[1], "exposure_index": key[2], "file": frame_relpath(*key),
-                 "problem": problem})
+                {"direction": key[0], "camera": key[1], "exposure_index": key[2], "file": file, "problem": problem})
     n_ok = len(expected) - len(missing) - len(damaged)
     return {"session": str(s.path), "n_planned": len(expected), "n_ok": n_ok, "n_missing": len(missing),
             "n_damaged": len(damaged), "complete": not missing and not damaged and not j.bad_lines,

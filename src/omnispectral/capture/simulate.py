@@ -145,7 +145,7 @@ class DarkRenderer:
 
 @dataclass
 class RigRenderer:
-    """Renders raw frames of ``scene`` for both cameras of ``rig`` (the simulated cameras' ``render``)."""
+    """Renders raw frames of ``scene`` for every camera of ``rig`` (the simulated cameras' ``render``)."""
 
     rig: Rig
     scene: object
@@ -163,15 +163,16 @@ class RigRenderer:
 
     def __post_init__(self):
         self.system = self.rig.system(np.asarray(self.scene.wavelength_nm))
-        self.models = {c: self.rig.camera_model(c) for c in ("A", "B")}
-        self.models["B"] = perturbed_model(self.models["B"], self.b_mounting_error_deg)
+        self.models = {c: self.rig.camera_model(c) for c in self.rig.camera_names}
+        if "B" in self.models:
+            self.models["B"] = perturbed_model(self.models["B"], self.b_mounting_error_deg)
         if self.electrons_per_unit is None:
             self.electrons_per_unit = calibrate_exposure(self.rig, self.scene, self.system)
 
     def band_matrix(self, camera: str) -> np.ndarray:
         """(3, n) sensitivity × filter × Δλ of one camera."""
-        rows = slice(0, 3) if camera == "A" else slice(3, 6)
-        return self.system.matrix[rows]
+        i = self.rig.camera_names.index(camera)
+        return self.system.matrix[3 * i:3 * i + 3]
 
     def camera_rays(self, camera: str) -> tuple[np.ndarray, np.ndarray]:
         """Unit camera-frame rays (H*W*s², 3) of ``s × s`` points spread evenly over every pixel's area
@@ -223,7 +224,7 @@ def simulated_dark_cameras(rig: Rig, seed: int = 0, noise: bool = True) -> dict[
     renderer = DarkRenderer(rig, noise, seed)
     return {c: SimulatedCamera(c, head, renderer, clock, rig.cameras[c].bit_depth, rig.cameras[c].readout_s,
                                seed=seed * 2 + i + 7919, metadata=raw_metadata(rig.cameras[c]))
-            for i, c in enumerate(("A", "B"))}
+            for i, c in enumerate(rig.camera_names)}
 
 
 def bayer_rig(rig: Rig, pattern: str = "RGGB") -> Rig:
@@ -254,17 +255,18 @@ def default_ground_truth_width(rig: Rig) -> int:
 
 def write_ground_truth(directory: str | Path, renderer: RigRenderer, width: int, spectral_width: int = 512,
                        rows_per_chunk: int = 64) -> dict:
-    """Save the scene's exact six-band response and spectral radiance on equirectangular grids.
+    """Save the scene's exact band response (every band of the rig) and spectral radiance on equirectangular grids.
 
     Files (all float32 NumPy ``.npy``, row 0 = latitude +90°, column 0 = longitude -180°, pixel
     centres at +0.5, see :mod:`omnispectral.imaging.geometry`):
 
-    ``bands.npy`` ``(H, W, 6)``: noise-free response of bands ``A:R … B:B`` in DN per second of exposure
+    ``bands.npy`` ``(H, W, m)``: noise-free response of the rig's bands (``A:R … B:B``, or ``A:R, A:G, A:B`` for
+    a one-camera rig) in DN per second of exposure
     (what the HDR merge of a noise-free capture gives), seen from the head's rotation centre, averaged
     over each pixel's area (2 × 2 points, like the sensor's pixels).
     ``spectral.npy`` ``(h, w, n)`` at ``spectral_width``: spectral radiance in DN/s per unit of the
     system matrix (``bands = spectral @ matrix.T``), i.e. the unit a Wiener estimate of the bands is in.
-    ``wavelength_nm.npy``, ``system_matrix.npy`` ``(6, n)``; for scenes with a chart
+    ``wavelength_nm.npy``, ``system_matrix.npy`` ``(m, n)``; for scenes with a chart
     ``colorchecker_radiance.npy`` ``(24, n)`` (spectral radiance at each patch centre, same units) and
     ``colorchecker_white.npy`` ``(n,)`` (a perfect white diffuser there); ``ground_truth.json`` describes it all.
     """
@@ -274,7 +276,7 @@ def write_ground_truth(directory: str | Path, renderer: RigRenderer, width: int,
     scale = renderer.electrons_per_unit / renderer.rig.camera_a.noise_model().gain_e_per_dn
     matrix = renderer.system.matrix
     with atomic_path(out / "bands.npy") as tmp:
-        arr = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float32, shape=(height, width, 6))
+        arr = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float32, shape=(height, width, matrix.shape[0]))
         _fill_equirect(arr, lambda rays: renderer.scene.band_radiance(rays, matrix) * np.float32(scale),
                        rows_per_chunk)
         arr.flush()
@@ -297,7 +299,8 @@ def write_ground_truth(directory: str | Path, renderer: RigRenderer, width: int,
         _save_npy(out / "colorchecker_white.npy", white.astype(np.float32))
         chart = {"colorchecker_radiance": "colorchecker_radiance.npy", "colorchecker_white": "colorchecker_white.npy"}
     meta = {"format": GROUND_TRUTH_FORMAT, "format_version": 1,
-            "bands": {"file": "bands.npy", "shape": [height, width, 6], "names": list(renderer.system.band_names),
+            "bands": {"file": "bands.npy", "shape": [height, width, int(matrix.shape[0])],
+                      "names": list(renderer.system.band_names),
                       "units": "DN per second of exposure (noise-free, 12-bit codes per second)"},
             "spectral": {"file": "spectral.npy", "shape": [sh, sw, int(matrix.shape[1])],
                          "units": "DN/s per unit of system_matrix: bands = spectral @ system_matrix.T"},
@@ -306,9 +309,10 @@ def write_ground_truth(directory: str | Path, renderer: RigRenderer, width: int,
                     "world +Y up, longitude 0 = +Z, longitude +90 = -X (omnispectral.imaging.geometry)",
             "viewpoint": "the head's rotation centre (camera A's optical centre)",
             "electrons_per_unit": renderer.electrons_per_unit, "dn_per_second_per_unit": scale,
-            "camera_b_true": {"mounting_error_deg": list(renderer.b_mounting_error_deg),
-                              "model": renderer.models["B"].to_dict(),
-                              "note": "what processing must estimate; never read by processing"},
+            **({"camera_b_true": {"mounting_error_deg": list(renderer.b_mounting_error_deg),
+                                  "model": renderer.models["B"].to_dict(),
+                                  "note": "what processing must estimate; never read by processing"}}
+               if "B" in renderer.models else {}),
             "scene": _jsonable(renderer.scene.describe()), "colorchecker_patches": _jsonable(patches), **chart}
     atomic_write_json(out / "ground_truth.json", meta)
     return meta
@@ -345,7 +349,7 @@ def simulate_session(output: str | Path, rig: Rig, scene, *, start: _dt.datetime
                      raw: str | None = None) -> dict:
     """``capture`` with the simulated rig plus the ground truth; resumable like any capture.
 
-    ``raw="bayer"`` makes both cameras raw Bayer cameras (:func:`bayer_rig`): frames are the mosaics the
+    ``raw="bayer"`` makes every camera raw Bayer cameras (:func:`bayer_rig`): frames are the mosaics the
     sensor records (uint16 ``(H, W)``), the CFA layout and black level go into the rig snapshot and into
     every frame's journal record (``camera_metadata``), and ``process`` demosaics them.
 
@@ -374,7 +378,7 @@ def simulate_session(output: str | Path, rig: Rig, scene, *, start: _dt.datetime
         head = SimulatedHead(clock, rig.head.pan_speed_deg_s, rig.head.tilt_speed_deg_s, rig.head.settle_s)
         cams = {c: SimulatedCamera(c, head, renderer, clock, rig.cameras[c].bit_depth, rig.cameras[c].readout_s,
                                    seed=seed * 2 + i, metadata=raw_metadata(rig.cameras[c]))
-                for i, c in enumerate(("A", "B"))}
+                for i, c in enumerate(rig.camera_names)}
         resume_simulated_devices(session, clock, head)
         result = run_capture(session, head, cams, clock,
                              RetryPolicy(rig.head.retries, rig.head.timeout_s, rig.head.position_tolerance_deg),

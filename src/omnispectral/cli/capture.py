@@ -10,18 +10,22 @@ from omnispectral.capture.resume import repair_session
 from omnispectral.capture.session import verify_session
 from omnispectral.cli._common import console, print_json
 from omnispectral.io import atomic_write_json
-from omnispectral.rig import PRESETS, resolve_rig
+from omnispectral.rig import PRESETS, one_camera_rig, resolve_rig
 
 
 def add_rig_args(p) -> None:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--preset", choices=PRESETS, default=None, help="built-in rig of the paper (or 'small')")
     g.add_argument("--rig", default=None, metavar="FILE.toml", help="rig description file")
+    p.add_argument("--one-camera", action="store_true",
+                   help="use the rig's camera A alone: one RGB camera, three bands (a rig file with only "
+                        "[cameras.A] is one-camera already)")
 
 
 def rig_from_args(args, default_preset: str | None = None):
     preset = args.preset if args.preset or args.rig else default_preset
-    return resolve_rig(preset, args.rig)
+    rig = resolve_rig(preset, args.rig)
+    return one_camera_rig(rig) if getattr(args, "one_camera", False) else rig
 
 
 def cmd_plan(args) -> int:

@@ -14,11 +14,12 @@ def cmd_import(args) -> int:
     table = read_exposure_table(args.exposures) if args.exposures else None
     with ProgressBars(enabled=not args.json, transient=True) as bars:
         out = import_images(args.output, rig, args.camera, entries, exposure_table=table, response=args.response,
-                            progress=bars)
+                            reference=args.reference, progress=bars)
     if args.json:
         print_json(out)
     else:
-        console.print(f"Imported {out['n_images']} images of camera {out['camera']} ({out['n_directions']} "
+        console.print(f"{'Referenced' if out['referenced'] else 'Imported'} {out['n_images']} images of camera "
+                      f"{out['camera']} ({out['n_directions']} "
                       f"directions x {out['n_exposures']} exposures) into {out['session']}; cameras in the session: "
                       f"{', '.join(out['cameras_imported'])}"
                       + ("" if len(out["cameras_imported"]) == len(rig.cameras) else
@@ -32,7 +33,8 @@ def add_commands(sub) -> None:
                        description="Build a capture session from existing images (TIFF, PNG, JPEG) of one camera of "
                                    "the rig: directions from a CSV (file,pan_deg,tilt_deg), a Papywizard XML or a "
                                    "Hugin .pto; exposure times from the CSV, a table or EXIF. Run once per camera "
-                                   "into the same session; 'omnispectral process' works on it as on a capture.")
+                                   "into the same session (a rig with camera A only, or --one-camera, makes a "
+                                   "three-band session); 'omnispectral process' works on it as on a capture.")
     add_rig_args(p)
     p.add_argument("--camera", default="A", choices=["A", "B"], help="the rig camera the images are from (default A)")
     p.add_argument("--directions", required=True, metavar="FILE.csv|FILE.xml|FILE.pto",
@@ -43,6 +45,10 @@ def add_commands(sub) -> None:
                    help="exposure times: CSV file,exposure_s or 'name seconds' lines (default: EXIF ExposureTime)")
     p.add_argument("--response", default="auto", choices=list(RESPONSES),
                    help="how values relate to light: linear (raw, 16-bit), srgb (JPEG/PNG); auto: srgb for 8-bit")
+    p.add_argument("--reference", action="store_true",
+                   help="leave the images where they are: the journal records each file's absolute path, size, "
+                        "modification time and SHA-256 (session verify names a moved or changed one) instead of "
+                        "copying it into the session")
     p.add_argument("-o", "--output", required=True, metavar="SESSION", help="session directory (created or added to)")
     p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(func=cmd_import)

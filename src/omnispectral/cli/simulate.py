@@ -67,7 +67,8 @@ def cmd_capture(args) -> int:
             return 0
         h = out["head"]
         console.print(f"[bold]{rig.name}[/bold] (dry run, nothing moves): {out['n_directions']} directions x "
-                      f"{len(out['exposures_s'])} exposures x 2 cameras = {out['n_frames']} frames, "
+                      f"{len(out['exposures_s'])} exposures x {len(out['cameras'])} camera(s) = "
+                      f"{out['n_frames']} frames, "
                       f"{out['n_already_done']} already in {args.output}; estimated {out['estimated']}")
         port = f" on {h['port']} ({'present' if h['port_exists'] else 'NOT FOUND'})" if h["port"] else ""
         console.print(f"head: {h['driver']}{port}")
@@ -164,7 +165,8 @@ def add_commands(sub) -> None:
     s = sub.add_parser("simulate", help="capture a simulated scene with the simulated rig (plus ground truth)",
                        description="Run the capture loop on the simulated rig: every sensor pixel through the rig's "
                                    "camera model, CMV2000 noise, frames and journal as from real hardware, and the "
-                                   "ground truth (six-band DN/s and spectral radiance, equirectangular). Resumable.")
+                                   "ground truth (the rig's bands in DN/s and spectral radiance, equirectangular). "
+                                   "Resumable.")
     _add_session_args(s)
     s.set_defaults(func=cmd_simulate)
 

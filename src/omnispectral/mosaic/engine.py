@@ -11,7 +11,7 @@ For each output tile (a chunk of the store) the engine
 3. reads only the crop of each source the map touches, interpolates it once
    (:mod:`omnispectral.mosaic.interp`), weights it with the linear-blending weight
    (:mod:`omnispectral.mosaic.blending`) and accumulates camera A into bands 0–2 and camera B into
-   bands 3–5 (optionally multi-band blending and per-direction gains);
+   bands 3–5, three bands for a one-camera rig (optionally multi-band blending and per-direction gains);
 4. writes the chunk atomically with a completion marker (:mod:`omnispectral.mosaic.store`).
 
 Tiles are independent tasks run by Dask (the local threaded scheduler, or a distributed cluster
@@ -60,6 +60,7 @@ from omnispectral.threads import worker_call
 
 DEFAULT_TILE = 512
 DEFAULT_INTERP = "spline"
+#: Bands of a two-camera rig's panorama; a one-camera rig's has three (``MosaicJob.n_bands``).
 N_BANDS = 6
 #: Registration-quality layer of a panorama whose camera B carries parallax maps: blended registration
 #: confidence (0..1) and occluded (1 where every direction that sees the pixel with B has it hidden).
@@ -86,6 +87,7 @@ class MosaicJob:
     gains: np.ndarray  # (n_sources, 3): per source, per band of its camera
     store_path: Path
     run_id: str = ""  # recorded in the markers of the tiles this run computes
+    n_bands: int = N_BANDS  # three per camera of the merged directions
     axes: np.ndarray = field(init=False)
     radii: np.ndarray = field(init=False)
     #: for a camera-B source with a parallax map: the index of camera A's source of the same direction
@@ -117,7 +119,8 @@ def build_job(merged: MergedDirections, store_path: Path, width: int, tile: int,
     if gains is None:
         gains = np.ones((len(images), 3), np.float32)
     return MosaicJob(Canvas(width, width // 2), tile, interp, blend, multiband_levels, images, geometry,
-                     np.asarray(gains, np.float32), Path(store_path), run_id=f"{os.getpid()}-{time.time_ns()}")
+                     np.asarray(gains, np.float32), Path(store_path), run_id=f"{os.getpid()}-{time.time_ns()}",
+                     n_bands=merged.n_bands)
 
 
 # ------------------------------------------------------------------------------------------ one tile
@@ -244,7 +247,7 @@ def _touches(bad: np.ndarray, u: np.ndarray, v: np.ndarray, radius: int) -> np.n
 
 
 def render_tile(job: MosaicJob, rect: Rect) -> tuple[np.ndarray, dict]:
-    """The six-band tile ``rect`` (h, w, 6) float32 (NaN where no source covers it) and its statistics.
+    """The tile ``rect`` (h, w, bands) float32 (NaN where no source covers it) and its statistics.
 
     Linear blending accumulates each source as soon as it is resampled, so a tile holds one
     resampled source at a time; multi-band blending needs them all (on the tile plus its halo).
@@ -258,7 +261,7 @@ def render_tile(job: MosaicJob, rect: Rect) -> tuple[np.ndarray, dict]:
         out = _multiband(job, warped, work)[halo:halo + rect.shape[0], halo:halo + rect.shape[1]]
         del warped
     else:
-        acc = LinearBlend(rect.shape, N_BANDS)
+        acc = LinearBlend(rect.shape, job.n_bands)
         quality = LinearBlend(rect.shape, N_QUALITY) if job.has_quality else None
         with_parallax = []
         for i in job.sources_for(work):
@@ -294,8 +297,8 @@ def render_tile(job: MosaicJob, rect: Rect) -> tuple[np.ndarray, dict]:
 
 def _multiband(job: MosaicJob, warped: list[Warped], work: Rect) -> np.ndarray:
     h, w = work.shape
-    out = np.full((h, w, N_BANDS), np.nan, np.float32)
-    for camera_bands in ((0, 1, 2), (3, 4, 5)):
+    out = np.full((h, w, job.n_bands), np.nan, np.float32)
+    for camera_bands in ((0, 1, 2), (3, 4, 5))[:job.n_bands // 3]:
         group = [x for x in warped if job.images[x.index].bands == camera_bands]
         if not group:
             continue
@@ -452,7 +455,7 @@ def mosaic(source: str | Path | MergedDirections, output: str | Path, *, width: 
         gains = estimate_gains(merged)
     job = build_job(merged, Path(output), width, tile, interp, blend, multiband_levels, gains)
     attrs = panorama_attributes(merged, job, gain_compensation)
-    store = PanoramaStore.create(output, width // 2, width, N_BANDS, tile, attrs, fingerprint(merged, job),
+    store = PanoramaStore.create(output, width // 2, width, job.n_bands, tile, attrs, fingerprint(merged, job),
                                  overwrite=overwrite, compression=compression,
                                  quality_bands=N_QUALITY if job.has_quality and blend != "multiband" else 0)
     t_tiles = time.perf_counter()
@@ -582,7 +585,7 @@ def summarise(store: PanoramaStore, tiles: list[tuple[int, int]], computed: int,
     holes = sum(int(m.get("holes", 0)) for m in markers.values())
     n_src = [int(m.get("n_sources", 0)) for m in markers.values()]
     computed_px = sum(int(m.get("pixels", 0)) for t, m in markers.items() if m.get("run") == job.run_id)
-    return {"output": str(store.path), "width": w, "height": h, "bands": N_BANDS, "levels": [list(s) for s in
+    return {"output": str(store.path), "width": w, "height": h, "bands": store.n_bands, "levels": [list(s) for s in
                                                                                              store.shapes],
             "tile": store.tile, "interp": job.interp, "blend": job.blend, "n_sources": len(job.images),
             "tiles": n_tiles, "tiles_computed": computed, "tiles_skipped": n_tiles - computed,

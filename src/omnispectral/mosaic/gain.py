@@ -28,7 +28,7 @@ from omnispectral.imaging.geometry import lonlat_to_equirect_pixel, ray_to_lonla
 from omnispectral.mosaic.blending import feather_weight
 from omnispectral.mosaic.interp import remap
 from omnispectral.mosaic.maps import Canvas, Rect, SourceGeometry, source_map
-from omnispectral.mosaic.sources import CAMERAS, MergedDirections, SourceImage, npy_shape, read_npy_rows
+from omnispectral.mosaic.sources import MergedDirections, SourceImage, npy_shape, read_npy_rows
 
 SIGMA_N = 0.1
 SIGMA_G = 1.0
@@ -136,7 +136,7 @@ def estimate_gains(merged: MergedDirections, decimate: int = 8, width: int | Non
     canvas_w = width or coarse_width(merged.cameras["A"].fx, decimate)
     canvas = Canvas(canvas_w, canvas_w // 2)
     gains = np.ones((len(images), 3), np.float32)
-    for cam in CAMERAS:
+    for cam in merged.cameras:
         members = [k for k, s in enumerate(images) if s.camera == cam]
         if len(members) < 2:
             continue

@@ -9,7 +9,8 @@ Layout (``format = "omnispectral-merged-directions"``, version 1)::
       ...
 
 ``merged.json`` holds ``units`` (DN per second of exposure, the HDR merge's unit), ``band_names``
-(``A:R … B:B``), ``camera_bands`` (``{"A": [0, 1, 2], "B": [3, 4, 5]}``), ``cameras`` (each
+(``A:R … B:B``; ``A:R, A:G, A:B`` for a one-camera rig, which has no ``B`` files), ``camera_bands``
+(``{"A": [0, 1, 2], "B": [3, 4, 5]}``), ``cameras`` (each
 camera's :class:`~omnispectral.imaging.geometry.CameraModel` as JSON: lens, distortion, mounting),
 ``rig`` (name and the TOML snapshot of the rig), ``system`` (the six bands' spectral sensitivities,
 :meth:`~omnispectral.spectral.system.MultibandSystem.to_dict`, or null), ``session`` (where the frames
@@ -158,7 +159,14 @@ class MergedDirections:
     def __post_init__(self):
         # absolute: the mosaic's tasks may run in Dask worker processes started in other directories
         self.path = Path(self.path).absolute()
-        self.cameras = {c: CameraModel.from_dict(self.meta["cameras"][c]) for c in CAMERAS}
+        self.cameras = {c: CameraModel.from_dict(self.meta["cameras"][c]) for c in CAMERAS if c in self.meta["cameras"]}
+        if "A" not in self.cameras:
+            raise KeyError("camera A")
+
+    @property
+    def n_bands(self) -> int:
+        """Bands of the panorama these directions make: three per camera (six for cameras A and B)."""
+        return 3 * len(self.cameras)
 
     @classmethod
     def open(cls, path: str | Path, require_complete: bool = True) -> MergedDirections:
@@ -190,7 +198,7 @@ class MergedDirections:
         """Every (direction, camera) image, in direction order, A before B."""
         out = []
         for d in self.directions:
-            for cam in CAMERAS:
+            for cam in self.cameras:
                 img = d["images"].get(cam)
                 if img is None:
                     continue
@@ -227,9 +235,10 @@ class MergedDirectionsWriter:
     @classmethod
     def create(cls, path: str | Path, cameras: dict[str, CameraModel], directions: list[dict], *,
                rig_name: str = "", rig_toml: str = "", session: dict | None = None, dtype: str = "float16",
-               estimator: dict | None = None, band_names=BAND_NAMES,
+               estimator: dict | None = None, band_names=None,
                system: dict | None = None) -> MergedDirectionsWriter:
-        """``directions``: the planned ``{"index", "pan_deg", "tilt_deg"}`` (pan/tilt may be updated by ``add``)."""
+        """``directions``: the planned ``{"index", "pan_deg", "tilt_deg"}`` (pan/tilt may be updated by ``add``);
+        ``cameras``: camera A's model, and camera B's for six bands (band names default to the cameras')."""
         if dtype not in DTYPES:
             raise ConfigurationError(f"dtype must be one of {DTYPES}, got {dtype!r}")
         path = Path(path)
@@ -240,10 +249,16 @@ class MergedDirectionsWriter:
             if meta.get("format") != FORMAT or meta.get("planned") != planned or meta.get("dtype") != dtype:
                 raise InputFileError(path, "holds merged directions of another plan or dtype; choose another directory")
             return cls(path, meta)
+        names = [c for c in CAMERAS if c in cameras]
+        if "A" not in names or len(names) != len(cameras):
+            raise ConfigurationError(f"cameras must be A, or A and B; got {', '.join(cameras)}")
+        band_names = list(band_names) if band_names is not None else [n for n in BAND_NAMES if n[0] in names]
+        if len(band_names) != 3 * len(names):
+            raise ConfigurationError(f"{len(band_names)} band names for {len(names)} cameras (three bands each)")
         path.mkdir(parents=True, exist_ok=True)
         meta = {"format": FORMAT, "format_version": FORMAT_VERSION, "created_utc": _utc_now(), "units": UNITS,
-                "band_names": list(band_names), "camera_bands": {c: list(b) for c, b in CAMERA_BANDS.items()},
-                "dtype": dtype, "cameras": {c: cameras[c].to_dict() for c in CAMERAS},
+                "band_names": band_names, "camera_bands": {c: list(CAMERA_BANDS[c]) for c in names},
+                "dtype": dtype, "cameras": {c: cameras[c].to_dict() for c in names},
                 "rig": {"name": rig_name, "toml": rig_toml}, "system": system, "session": session,
                 "estimator": estimator,
                 "n_planned": len(planned), "planned": planned, "complete": False, "directions": []}

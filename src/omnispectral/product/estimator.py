@@ -1,11 +1,12 @@
-"""The Wiener estimator attached to a product: fitted for the rig's six bands, described by parameters.
+"""The Wiener estimator attached to a product: fitted for the rig's bands, described by parameters.
 
-A product stores six bands plus the estimator (DESIGN: "spectra are a linear view").  The estimator
-is stored twice over: as its parameters (rig sensitivities and filters, prior, σ², form), from which
-:func:`estimator_from_params` re-fits exactly the same estimator, and as ``WienerEstimator.to_dict()``
-(the per-component linear maps, usable without this package).  σ² is tuned on the calibration chart
-(CIE TCS + NIST CQS) measured through the rig's own noise model, and the ColorChecker is held out
-of prior and calibration, so an accuracy report on the chart in the panorama is not circular.
+A product stores its bands (six for two cameras, three for a one-camera rig) plus the estimator
+(DESIGN: "spectra are a linear view").  The estimator is stored twice over: as its parameters (rig
+sensitivities and filters, prior, σ², form), from which :func:`estimator_from_params` re-fits exactly
+the same estimator, and as ``WienerEstimator.to_dict()`` (the per-component linear maps, usable without
+this package).  σ² is tuned on the calibration chart (CIE TCS + NIST CQS) measured through the rig's own
+noise model, and the ColorChecker is held out of prior and calibration, so an accuracy report on the
+chart in the panorama is not circular.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from __future__ import annotations
 import functools
 import json
 
-from omnispectral.rig import Rig, two_camera_system
+from omnispectral.rig import Rig, camera_system
 from omnispectral.spectral.evaluate import Protocol, fit_for_protocol
 from omnispectral.spectral.library import load_reflectances
 from omnispectral.spectral.noise import SensorNoiseModel
@@ -23,11 +24,13 @@ HELD_OUT = "colorchecker"
 
 
 def estimator_params(rig: Rig, mixture: bool = True) -> dict:
-    """Everything :func:`estimator_from_params` needs, JSON-able (stored in the product)."""
-    a, b = rig.camera_a, rig.camera_b
-    return {"sensitivity_a": a.sensitivity, "filter_a": a.filter, "sensitivity_b": b.sensitivity,
-            "filter_b": b.filter, "full_well_e": a.full_well_e, "read_noise_e": a.read_noise_e,
-            "bit_depth": a.bit_depth, "mixture": bool(mixture), "normalized": True, "held_out": HELD_OUT}
+    """Everything :func:`estimator_from_params` needs, JSON-able (stored in the product); a one-camera rig has
+    no ``sensitivity_b`` / ``filter_b`` (three bands)."""
+    a = rig.camera_a
+    b = {"sensitivity_b": rig.camera_b.sensitivity, "filter_b": rig.camera_b.filter} if "B" in rig.cameras else {}
+    return {"sensitivity_a": a.sensitivity, "filter_a": a.filter, **b, "full_well_e": a.full_well_e,
+            "read_noise_e": a.read_noise_e, "bit_depth": a.bit_depth, "mixture": bool(mixture), "normalized": True,
+            "held_out": HELD_OUT}
 
 
 @functools.lru_cache(maxsize=4)
@@ -41,7 +44,10 @@ def _fit_cached(params_json: str) -> tuple[WienerEstimator, str]:
 
 
 def _system_from_params(p: dict):
-    return two_camera_system(((p["sensitivity_a"], p["filter_a"]), (p["sensitivity_b"], p["filter_b"])))
+    pairs = [(p["sensitivity_a"], p["filter_a"])]
+    if p.get("sensitivity_b") is not None:
+        pairs.append((p["sensitivity_b"], p["filter_b"]))
+    return camera_system(tuple(pairs))
 
 
 def estimator_from_params(params: dict) -> tuple[WienerEstimator, dict]:
@@ -51,7 +57,7 @@ def estimator_from_params(params: dict) -> tuple[WienerEstimator, dict]:
 
 
 def rig_estimator(rig: Rig, mixture: bool = True) -> tuple[WienerEstimator, dict]:
-    """The estimator for a rig's six bands, with its parameters and fit information."""
+    """The estimator for a rig's bands, with its parameters and fit information."""
     params = estimator_params(rig, mixture)
     est, info = estimator_from_params(params)
     return est, {"params": params, **info}

@@ -224,7 +224,7 @@ def export_product(product: str | Path, fmt: str, output: str | Path, region: tu
     if not (0 <= r0 < r1 <= h and 0 <= c0 < c1 <= w):
         raise ConfigurationError(f"region rows {r0}-{r1}, columns {c0}-{c1} is outside level {level} ({w}x{h})")
     n = len(estimator.wavelength_nm)
-    per_px = {"spectral-exr": n + 3, "envi": n, "uncertainty": 2 * n}.get(fmt, 6)
+    per_px = {"spectral-exr": n + 3, "envi": n, "uncertainty": 2 * n}.get(fmt, store.n_bands)
     need = (r1 - r0) * (c1 - c0) * per_px * 4 * 2
     limit = max_bytes if max_bytes is not None else os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") // 2
     if need > limit:

@@ -2,9 +2,10 @@
 
 Each direction's brackets are merged per camera (Eqs. (1)-(2), :func:`omnispectral.imaging.merge_exposures`)
 and written to a merged-directions directory (:mod:`omnispectral.mosaic.sources`, the mosaic's input)
-together with what the mosaic needs and must never re-read from a rig or a session: the two camera
-models, the six bands' spectral sensitivities (``system``), the rig's name and TOML snapshot and a
-summary of the session.  Camera B's registration to A for the paper's method plugs in as ``register``
+together with what the mosaic needs and must never re-read from a rig or a session: the camera
+models, the bands' spectral sensitivities (``system``, three bands per camera), the rig's name and TOML snapshot and a
+summary of the session.  A one-camera rig (camera A alone) gives three-band directions and nothing to
+register.  Camera B's registration to A for the paper's method plugs in as ``register``
 (:func:`omnispectral.product.process.merge_and_register`); the parallax method runs afterwards on the
 merged directions (:func:`omnispectral.product.process.register_parallax`).
 """
@@ -25,7 +26,7 @@ from omnispectral.imaging import merge_exposures
 from omnispectral.imaging.bayer import correct_raw, demosaic
 from omnispectral.imaging.geometry import CameraModel
 from omnispectral.imaging.response import CameraResponse
-from omnispectral.mosaic.sources import CAMERAS, MergedDirections, MergedDirectionsWriter
+from omnispectral.mosaic.sources import MergedDirections, MergedDirectionsWriter
 from omnispectral.rig import RawSpec, rig_toml
 from omnispectral.spectral.colour import srgb_decode
 
@@ -147,9 +148,11 @@ def merge_session(session: Session | str | Path, output: str | Path, *, register
     rig = session.rig()
     plan = session.plan()
     register = register or calibrated_offset()
-    cameras = cameras or {c: rig.camera_model(c) for c in CAMERAS}
+    names = rig.camera_names
+    cameras = {c: m for c, m in cameras.items() if c in names} if cameras else \
+        {c: rig.camera_model(c) for c in names}
     directions = [d for d in plan.directions if d.index not in set(skip)]
-    raw = {c: RawSettings.of(session, rig, c) for c in CAMERAS}
+    raw = {c: RawSettings.of(session, rig, c) for c in names}
     writer = MergedDirectionsWriter.create(
         output, cameras, [d.to_dict() for d in directions], rig_name=rig.name, rig_toml=rig_toml(rig),
         session={"path": str(session.path.resolve()), **_session_summary(session)}, dtype=dtype,
@@ -158,20 +161,22 @@ def merge_session(session: Session | str | Path, output: str | Path, *, register
     n = len(directions)
     for i, d in enumerate(directions):
         if d.index not in done:
-            img_a, (pan, tilt) = merge_direction(session, d.index, "A", len(plan.exposures_s), raw["A"],
-                                                 **merge_options)
-            img_b, _ = merge_direction(session, d.index, "B", len(plan.exposures_s), raw["B"], **merge_options)
-            dx, dy, *rest = register(d.index, img_a, img_b)
-            writer.add(d.index, pan, tilt, {"A": img_a, "B": img_b}, {"B": (dx, dy)},
+            images, (pan, tilt) = {}, (0.0, 0.0)
+            for c in names:
+                images[c], pose = merge_direction(session, d.index, c, len(plan.exposures_s), raw[c], **merge_options)
+                if c == "A":
+                    pan, tilt = pose
+            dx, dy, *rest = register(d.index, images["A"], images["B"]) if "B" in images else (0.0, 0.0)
+            writer.add(d.index, pan, tilt, images, {"B": (dx, dy)} if "B" in images else {},
                        {"pan_deg_commanded": d.pan_deg, "tilt_deg_commanded": d.tilt_deg, **(rest[0] if rest else {})})
-            del img_a, img_b
+            del images
         if progress is not None:
             progress(i + 1, n)
     return MergedDirections.open(output)
 
 
 def _system_or_none(rig) -> dict | None:
-    """The six bands' sensitivities for ``merged.json`` (``None`` when the rig names curves this package
+    """The rig's bands' sensitivities for ``merged.json`` (``None`` when the rig names curves this package
     does not know: the mosaic then records no sensitivities, as before)."""
     try:
         return rig.system().to_dict()

@@ -1,4 +1,7 @@
-"""``process``: a capture session into an HDR six-band panorama with its spectral estimator (paper Sec. 4).
+"""``process``: a capture session into an HDR multiband panorama with its spectral estimator (paper Sec. 4).
+
+Six bands from a two-camera rig; three from a one-camera rig (camera A alone), which skips camera B's
+registration (``product.json``'s ``registration.method`` is ``"none"``) and is otherwise processed alike.
 
 Stages (each timed, with progress; the whole run is resumable):
 
@@ -17,8 +20,8 @@ Stages (each timed, with progress; the whole run is resumable):
    few pixels wide) radiometrically right — on the ``small`` demo the chart patches read +5 % (cubic)
    and +10 % (spline) too bright, and the six-band PSNR against the truth is 45.7 dB (linear) vs
    39.1 (cubic) and 33.3 (spline);
-4. **estimator**: the Wiener estimator for the rig's six bands (ColorChecker held out), stored in the
-   panorama's attributes and in ``product.json``: spectra are computed on demand from the six bands.
+4. **estimator**: the Wiener estimator for the rig's bands (ColorChecker held out), stored in the
+   panorama's attributes and in ``product.json``: spectra are computed on demand from the bands.
 
 ``PRODUCT/product.json`` indexes it all (see docs/product.md).
 """
@@ -96,7 +99,7 @@ def merge_and_register(session: Session, out: Path, skip: set[int], min_confiden
     """Stage 2: :func:`omnispectral.product.merge.merge_session` (streamed per direction) with camera B
     registered to A by :func:`~omnispectral.product.align.align_direction`; returns the merged directions
     and the alignment of every direction.  ``models``: the rig's camera models (default: built here)."""
-    models = models or {c: session.rig().camera_model(c) for c in ("A", "B")}
+    models = models or {c: session.rig().camera_model(c) for c in session.cameras()}
     t_reg, n_merged = 0.0, 0
 
     def register(direction: int, img_a, img_b):
@@ -234,7 +237,7 @@ def _process_locked(session_path: Path, paths: dict, calibration, *, width, tile
     timings["check"] = time.perf_counter() - t0
     s = Session.open(session_path)  # opened once for the run: the merge reads its frames through it
     rig = s.rig()
-    models = {c: rig.camera_model(c) for c in ("A", "B")}
+    models = {c: rig.camera_model(c) for c in rig.camera_names}
     progress = progress or None  # False (no progress) is accepted too
     fingerprint = product_fingerprint(session_path, hdr_weight=hdr_weight, registration=registration,
                                       min_confidence=min_confidence, rig_calibration=rig_calibration,
@@ -242,7 +245,10 @@ def _process_locked(session_path: Path, paths: dict, calibration, *, width, tile
     state = check_merged(paths["merged"], fingerprint, overwrite,
                          dependents=(paths["panorama"], paths["rig_calibration"], paths["index"]))
     parallax_stats = None
-    if registration == "paper":
+    if "B" not in models:  # one camera (three bands): nothing to register
+        merged = merge_only(s, paths["merged"], set(bad), _stage(progress, "merge"), timings, hdr_weight, models)
+        alignments = []
+    elif registration == "paper":
         merged, alignments = merge_and_register(s, paths["merged"], set(bad),
                                                 DEFAULT_MIN_CONFIDENCE if min_confidence is None
                                                 else min_confidence,
@@ -273,7 +279,9 @@ def _process_locked(session_path: Path, paths: dict, calibration, *, width, tile
              "width": summary["width"], "height": summary["height"], "bands": list(merged.meta["band_names"]),
              "units": merged.meta["units"], "hdr_weight": hdr_weight,
              "estimator": {k: estimator[k] for k in ("params", "sigma2", "prior")},
-             "registration": ({"method": "paper",
+             "registration": ({"method": "none", "note": "one camera: nothing to register", "directions": []}
+                              if "B" not in models else
+                              {"method": "paper",
                                "min_confidence": DEFAULT_MIN_CONFIDENCE if min_confidence is None else min_confidence,
                                "directions": alignments} if registration == "paper" else
                               {"method": "parallax", "rig_calibration": calibration.to_dict(),

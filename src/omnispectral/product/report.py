@@ -3,7 +3,8 @@
 ``PRODUCT/report/report.json`` (keys at least ``accuracy`` and ``timings_s``) and ``report.html`` with
 PNG plots.  Accuracy against the simulator's ground truth (``SESSION/ground_truth``):
 
-- ``six_band_psnr_db``: ``10 log10(peak² / MSE)`` of the six bands (DN/s) against the ground truth
+- ``band_psnr_db``: ``10 log10(peak² / MSE)`` of the panorama's bands (DN/s; six, or three for a one-camera
+  rig: ``n_bands``; ``six_band_psnr_db`` is the same number for six-band products) against the ground truth
   resampled to the panorama grid (area average), over pixels the panorama covers and where the truth
   is below the shortest exposure's saturation (the sun disk saturates every exposure and is flagged,
   not measured); ``peak`` = the largest ground-truth value on those pixels.
@@ -24,6 +25,7 @@ import cv2
 import numpy as np
 
 from omnispectral.capture.session import Session
+from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.geometry import equirect_pixel_to_lonlat, lonlat_to_equirect_pixel, lonlat_to_ray
 from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text
 from omnispectral.product.exports import write_preview
@@ -61,7 +63,7 @@ def psnr_db(estimate: np.ndarray, truth: np.ndarray, valid: np.ndarray) -> float
 
 
 def patch_bands(bands: np.ndarray, lon_deg: float, lat_deg: float, radius_deg: float) -> np.ndarray:
-    """Mean six-band value within ``radius_deg`` of a direction on an equirect panorama (NaNs ignored)."""
+    """Mean band values within ``radius_deg`` of a direction on an equirect panorama (NaNs ignored)."""
 
     h, w = bands.shape[:2]
     radius_deg = max(radius_deg, 0.75 * 360.0 / w)  # at least the nearest pixel centre
@@ -79,20 +81,33 @@ def patch_bands(bands: np.ndarray, lon_deg: float, lat_deg: float, radius_deg: f
     return sel.mean(axis=0) if sel.size else np.full(bands.shape[2], np.nan)
 
 
-def accuracy(bands: np.ndarray, estimator, gt_dir: Path, shortest_s: float, max_dn: int) -> dict:
-    """Accuracy of a panorama against the simulator's ground truth (module docstring)."""
+def accuracy(bands: np.ndarray, estimator, gt_dir: Path, shortest_s: float, max_dn: int,
+             band_names: list[str] | None = None) -> dict:
+    """Accuracy of a panorama against the simulator's ground truth (module docstring).
+
+    ``band_names``: the panorama's bands; when the truth holds more (a one-camera product compared with the
+    truth of a two-camera simulation), the truth's bands of those names are compared."""
 
     meta = json.loads((gt_dir / "ground_truth.json").read_text())
     h, w = bands.shape[:2]
     gt_bands = np.load(gt_dir / "bands.npy")
     saturated = gt_bands.max(axis=2) >= max_dn / shortest_s  # read and reduced once
+    if gt_bands.shape[2] != bands.shape[2]:
+        gt_names = list(meta["bands"]["names"])
+        missing = [n for n in band_names or [] if n not in gt_names]
+        if band_names is None or missing or len(band_names) != bands.shape[2]:
+            raise ConfigurationError(f"{gt_dir}: the ground truth has bands {gt_names}, the panorama "
+                                     f"{band_names or bands.shape[2]}")
+        gt_bands = gt_bands[..., [gt_names.index(n) for n in band_names]]
     truth = _resize_to(gt_bands, h, w)
     del gt_bands
     unsaturated = ~_saturated_mask(saturated, h, w)
     covered = np.isfinite(bands).all(axis=2)
     valid = covered & unsaturated
-    out: dict = {"six_band_psnr_db": psnr_db(bands, truth, valid),
+    out: dict = {"band_psnr_db": psnr_db(bands, truth, valid), "n_bands": int(bands.shape[2]),
                  "pixels_compared_fraction": float(valid.mean()), "uncovered_fraction": float(1 - covered.mean())}
+    if bands.shape[2] == 6:
+        out["six_band_psnr_db"] = out["band_psnr_db"]
     spectral = np.load(gt_dir / "spectral.npy")
     sh, sw = spectral.shape[:2]
     small = _resize_to(np.where(covered[..., None], bands, np.nan).astype(np.float32), sh, sw)
@@ -213,7 +228,8 @@ def write_report(product: str | Path, preview_width: int = 2048) -> dict:
         _plot_rig_residuals(reg["rig_calibration"]["directions"], out_dir / "registration.png")
         files["registration_plot"] = str(out_dir / "registration.png")
     report = {"product": str(paths["root"]), "rig": index["rig"], "session": index["session"],
-              "size": [index["height"], index["width"]], "timings_s": index["timings_s"],
+              "size": [index["height"], index["width"]], "n_bands": len(index["bands"]),
+              "timings_s": index["timings_s"],
               "registration_method": reg.get("method", "paper"), "registration": alignments,
               "rig_calibration": reg.get("rig_calibration"), "registration_warnings": reg.get("warnings", []),
               "skipped_directions": index["skipped_directions"], "accuracy": None}
@@ -222,7 +238,8 @@ def write_report(product: str | Path, preview_width: int = 2048) -> dict:
         s = Session.open(index["session"])
         rig = s.rig()
         bands = store.read(0)
-        report["accuracy"] = accuracy(bands, estimator, gt_dir, min(s.plan().exposures_s), rig.camera_a.max_dn)
+        report["accuracy"] = accuracy(bands, estimator, gt_dir, min(s.plan().exposures_s), rig.camera_a.max_dn,
+                                      index["bands"])
         if report["accuracy"].get("colorchecker"):
             _plot_chart(report["accuracy"]["colorchecker"], out_dir / "colorchecker.png")
             files["colorchecker_plot"] = str(out_dir / "colorchecker.png")
@@ -240,13 +257,15 @@ def _html(report: dict) -> str:
     acc_html = "<p>No ground truth (not a simulated session).</p>"
     if acc:
         cc = acc.get("colorchecker") or {}
-        acc_html = (f"<table><tr><td>six-band PSNR</td><td>{acc['six_band_psnr_db']:.2f} dB</td></tr>"
+        acc_html = (f"<table><tr><td>{acc['n_bands']}-band PSNR</td><td>{acc['band_psnr_db']:.2f} dB</td></tr>"
                     f"<tr><td>spectral NRMSE (panorama)</td><td>{acc['spectral_nrmse']:.4f}</td></tr>"
                     + (f"<tr><td>ColorChecker NRMSE</td><td>{cc['nrmse']:.4f}</td></tr>"
                        f"<tr><td>ColorChecker ΔE*ab (mean / max)</td><td>{cc['delta_e_ab']:.2f} / "
                        f"{cc['delta_e_ab_max']:.2f}</td></tr>" if cc else "") + "</table>"
                     + ('<img src="colorchecker.png" width="900">' if cc else ""))
-    if report.get("registration_method") == "parallax":
+    if report.get("registration_method") == "none":
+        reg_html = "<p>One camera: nothing to register.</p>"
+    elif report.get("registration_method") == "parallax":
         cal = report.get("rig_calibration") or {}
         delta = cal.get("delta_from_rig_file_deg", {})
         warn = "".join(f"<li>{w}</li>" for w in report.get("registration_warnings", []))
@@ -264,7 +283,7 @@ def _html(report: dict) -> str:
     return f"""<!doctype html><html><head><meta charset="utf-8"><title>omnispectral report: {report['rig']}</title>
 <style>body{{font-family:sans-serif;max-width:1000px;margin:2em auto}}td{{padding:2px 12px}}</style></head><body>
 <h1>omnispectral report</h1><p>Product {report['product']} from session {report['session']} (rig {report['rig']}),
-{report['size'][1]} × {report['size'][0]} px, six bands.</p>
+{report['size'][1]} × {report['size'][0]} px, {report['n_bands']} bands.</p>
 <h2>Preview</h2><img src="preview.png" width="960">
 <p>sRGB rendering of the Wiener estimate, global Reinhard tone map.</p>
 <h2>Accuracy against ground truth</h2>{acc_html}

@@ -40,6 +40,7 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
+from omnispectral.capture.session import Session
 from omnispectral.errors import InputFileError
 from omnispectral.imaging.disparity import (
     CALIBRATION_ANALYSIS_PX,
@@ -361,6 +362,8 @@ def calibrate_session(session: str | Path, output: str | Path, work_dir: str | P
                       progress=None) -> RigCalibration:
     """Merge a session's brackets (into ``work_dir``, default a temporary directory) and fit camera B's
     mounting from them; saved to ``output`` (JSON) for ``process --rig-calibration``."""
+    if "B" not in Session.open(session).cameras():
+        raise InputFileError(session, "a one-camera session (three bands): there is no camera B to calibrate")
     with tempfile.TemporaryDirectory(prefix="omnispectral-rigcal-") as tmp:
         merged = merge_session(session, Path(work_dir) if work_dir else Path(tmp) / "merged",
                                progress=None if progress is None else (lambda i, n: progress("merge", i, n)))

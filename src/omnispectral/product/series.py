@@ -82,9 +82,10 @@ def process_series(series: str | Path, output: str | Path, regions: dict | None 
     first_index, store, estimator = open_product(products[0])
     level = next((k for k, (_, w) in enumerate(store.shapes) if w <= stack_width), len(store.shapes) - 1)
     h, w = store.shapes[level]
+    nb = store.n_bands  # six, or three for a one-camera rig
     stack_path = out / "timestack.zarr"
     group = zarr.open_group(str(stack_path), mode="w", zarr_format=3)
-    arr = group.create_array("bands", shape=(len(products), h, w, 6), chunks=(1, min(h, 512), min(w, 512), 6),
+    arr = group.create_array("bands", shape=(len(products), h, w, nb), chunks=(1, min(h, 512), min(w, 512), nb),
                              dtype="float32", fill_value=np.nan, dimension_names=("t", "y", "x", "band"))
     analysis: dict = {"times": times, "regions": {}, "wavelength_nm": list(map(float, estimator.wavelength_nm))}
     for name in regions:
@@ -97,9 +98,9 @@ def process_series(series: str | Path, output: str | Path, regions: dict | None 
         arr[t] = bands
         for name, box in regions.items():
             rows, cols = region_pixels(box, h, w)
-            px = bands[rows, cols].reshape(-1, 6)
+            px = bands[rows, cols].reshape(-1, nb)
             px = px[np.isfinite(px).all(axis=1)]
-            med = np.median(px, axis=0) if px.size else np.full(6, np.nan)
+            med = np.median(px, axis=0) if px.size else np.full(nb, np.nan)
             spd = est.estimate(med[None])[0] if px.size else np.full(len(est.wavelength_nm), np.nan)
             analysis["regions"][name]["median_bands"].append(med.tolist())
             analysis["regions"][name]["spd"].append(spd.tolist())

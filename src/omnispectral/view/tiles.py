@@ -144,11 +144,11 @@ class SlotRenderer:
             s = UNCERTAINTY_STEP
             small = relative_uncertainty(bands[::s, ::s], self.estimator)
             return cv2.resize(small, (bands.shape[1], bands.shape[0]), interpolation=cv2.INTER_LINEAR)[..., None]
+        if display.mode == "band" and not 0 <= display.band < len(self.bands):
+            raise ConfigurationError(f"band {display.band} does not exist (0-{len(self.bands) - 1})")
         gain = np.float32(2.0**display.ev / self._reference(display))
         if display.mode == "colour":
             return self._colour(bands) * gain
-        if not 0 <= display.band < len(self.bands):
-            raise ConfigurationError(f"band {display.band} does not exist (0-{len(self.bands) - 1})")
         return bands[..., display.band:display.band + 1] * gain
 
     def _quality_window(self, level: int, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:

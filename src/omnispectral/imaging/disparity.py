@@ -91,6 +91,8 @@ COLOUR_MISFIT_MIN = 0.3
 #: Nearest content searched for a pixel that nothing else places (1/m: 0.33 m), in steps of this many px.
 NEAREST_INV_DEPTH_PER_M = 3.0
 SEARCH_STEP_PX = 0.5
+#: Levels whose misfit is within this (or twice the best) belong to the best's basin.
+SEARCH_BASIN_MARGIN = 0.05
 #: Two pixels are taken for one surface when their colours in A differ by at most this fraction of
 #: their summed magnitudes (shading within a surface moves both brightness and colour a little).
 SAME_SURFACE_COLOUR = 0.1
@@ -648,8 +650,10 @@ def settle_by_colour(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarray, 
     pixels' typical misfit.  Repeated up to ``passes`` times, switched pixels serving as reliable ones,
     so that the depth reaches into an object from its measured part.  A pixel that still misfits, with no
     neighbour to follow, takes the parallax along its line (up to :data:`NEAREST_INV_DEPTH_PER_M`) where
-    B's colour fits it best, if that fits.  Pixels that B cannot see (hidden by a nearer object) misfit at
-    every depth and keep theirs for the occlusion test.
+    B's colour fits it best, if that fits and the levels that fit nearly as well are one interval (a
+    uniform object over a range of parallax; several separate ones are a row of similar patches).
+    A pixel that B cannot see (hidden by a nearer object) keeps its depth unless B shows its colour
+    elsewhere along its line (uniform content: its depth is then not observable, the colour is its own).
     """
     a = as_channels(ga_raw)
     b = as_channels(gb_raw)
@@ -696,14 +700,20 @@ def settle_by_colour(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarray, 
     if ys.size:
         e_len = np.hypot(field[ys, xs, 0], field[ys, xs, 1])
         n_levels = int(np.ceil(NEAREST_INV_DEPTH_PER_M * float(e_len.max(initial=0.0)) / SEARCH_STEP_PX)) + 1
-        best_r, best_w = r_cur[ys, xs].copy(), out[ys, xs].copy()
+        levels = np.linspace(0.0, NEAREST_INV_DEPTH_PER_M, max(n_levels, 2), dtype=np.float32)
         ap = a[ys, xs][None]
-        for wk in np.linspace(0.0, NEAREST_INV_DEPTH_PER_M, max(n_levels, 2), dtype=np.float32):
-            r = _colour_residual(ap, _sample_moved(b, field, ys, xs, np.full(ys.size, wk, np.float32))[None], m)[0]
-            better = r < best_r
-            best_r, best_w = np.where(better, r, best_r), np.where(better, wk, best_w)
-        switch = (best_r < 0.5 * r_cur[ys, xs]) & (best_r <= max(COLOUR_MISFIT_MIN, 3 * typical))
-        out[ys[switch], xs[switch]] = best_w[switch]
+        misfits = np.stack([
+            _colour_residual(ap, _sample_moved(b, field, ys, xs, np.full(ys.size, wk, np.float32))[None], m)[0]
+            for wk in levels])
+        k_best = np.argmin(misfits, axis=0)
+        best_r = misfits[k_best, np.arange(ys.size)]
+        # one basin: the levels that fit nearly as well must be contiguous (a uniform object seen over a range
+        # of parallax), not scattered (a row of patches, some of which resemble the pixel's colour)
+        close = misfits <= np.maximum(2 * best_r, best_r + SEARCH_BASIN_MARGIN)[None]
+        first, last = np.argmax(close, axis=0), len(levels) - 1 - np.argmax(close[::-1], axis=0)
+        one_basin = close.sum(axis=0) == last - first + 1
+        switch = one_basin & (best_r < 0.5 * r_cur[ys, xs]) & (best_r <= max(COLOUR_MISFIT_MIN, 3 * typical))
+        out[ys[switch], xs[switch]] = levels[k_best[switch]]
     return out
 
 

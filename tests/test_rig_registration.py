@@ -458,3 +458,27 @@ def test_settle_by_colour_gives_a_uniform_post_its_depth_and_leaves_the_sky(with
     np.testing.assert_array_equal(out[sky & (before < 1e-3)], 0.0)
     assert (sky & (before >= 1e-3)).sum() == 5 * 10   # 5 rows x 10 columns hidden from B by the post
     assert after[sky & todo].max() < 1e-3 and np.all(out[sky & ~todo] == 0.0)   # reliable pixels stay
+
+
+@pytest.mark.parametrize("n_places", [1, 2])
+def test_colour_search_takes_one_basin_only(n_places):
+    """A pixel whose B colour misfits, with no neighbour to follow, searches its line: where B shows its colour
+    at one place it takes that parallax; at two separate places (a row of patches, two alike) it keeps its own."""
+    from omnispectral.imaging.disparity import settle_by_colour
+
+    rng = np.random.default_rng(7)
+    colour_b = np.asarray([[0.2, 0.7, 0.1], [0.1, 0.3, 0.6], [0.05, 0.1, 0.9]], np.float32)
+    a = (50 + 200 * rng.random((60, 40, 3))).astype(np.float32)       # textured, everything at infinity
+    b = a @ colour_b.T
+    a[5, 20] = (400.0, 20.0, 30.0)                                      # a colour B shows elsewhere only
+    b[5, 20] = np.asarray((20.0, 30.0, 400.0), np.float32) @ colour_b.T  # and not here: another surface
+    for row in (15, 35)[:n_places]:
+        b[row, 20] = a[5, 20] @ colour_b.T
+    field = np.zeros((60, 40, 2), np.float32)
+    field[..., 1] = 10.0
+    todo = np.zeros((60, 40), bool)
+    todo[5, 20] = True
+    out = settle_by_colour(a, b, field, np.zeros((60, 40), np.float32), todo, ~todo)
+    expected = 1.0 if n_places == 1 else 0.0
+    assert out[5, 20] == pytest.approx(expected, abs=0.026)
+    assert np.count_nonzero(out) == (1 if n_places == 1 else 0)

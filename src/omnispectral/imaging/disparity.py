@@ -14,11 +14,13 @@ pixels per unit of ``w``; :func:`parallax_map` measures ``w`` at every pixel:
 2. blocks without a reliable measurement take the inverse depth of reliable neighbours
    (normalised convolution over 5 × 5 blocks), else of the ground plane when one is known
    (rays below the horizon), else 0 (sky);
-3. every pixel sweeps the inverse depths spanned by its 3 × 3 neighbouring blocks (every 0.5 px of
+3. every pixel sweeps the inverse depths spanned by its 5 × 5 neighbouring blocks (every 0.25 px of
    parallax) and keeps the one whose warped-B neighbourhood matches A best (:class:`LocalLinearScore`:
    how well B's channels are a linear function of A's over 11 × 11 px, which the different filters of
    the two cameras allow; parabolic sub-step refinement; shiftable windows: a pixel takes the depth of
-   its own surface, never a blend of two);
+   its own surface, never a blend of two); a pixel whose match is not distinctive takes its distinctive
+   neighbours' depth, and one left at infinity whose B colour plainly misfits A takes its surface's
+   depth by colour (:func:`settle_by_colour`);
 4. pixels of A that B cannot see because a nearer surface hides them (z-buffer forward warp) are
    flagged as occluded: the mosaic takes B's bands there from other directions.
 """

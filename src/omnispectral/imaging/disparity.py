@@ -90,11 +90,6 @@ SWEEP_RANGE_BLOCKS = 5
 #: A's pixel by more than this (relative, :func:`settle_by_colour`): an unrelated surface, not the spectral
 #: variety one linear map between the cameras leaves (a few per cent).
 COLOUR_MISFIT_MIN = 0.3
-#: Nearest content searched for a pixel that nothing else places (1/m: 0.33 m), in steps of this many px.
-NEAREST_INV_DEPTH_PER_M = 3.0
-SEARCH_STEP_PX = 0.5
-#: Levels whose misfit is within this (or twice the best) belong to the best's basin.
-SEARCH_BASIN_MARGIN = 0.05
 #: Two pixels are taken for one surface when their colours in A differ by at most this fraction of
 #: their summed magnitudes (shading within a surface moves both brightness and colour a little).
 SAME_SURFACE_COLOUR = 0.1
@@ -639,23 +634,21 @@ def _colour_residual(a: np.ndarray, b: np.ndarray, m: np.ndarray) -> np.ndarray:
 
 def settle_by_colour(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarray, current: np.ndarray,
                      todo: np.ndarray, reliable: np.ndarray, window: int = NCC_WINDOW_PX,
-                     passes: int = 8) -> np.ndarray:
+                     passes: int = 16) -> np.ndarray:
     """Where ``todo`` and B's colour at the current parallax plainly misfits A's pixel, take the depth of the
     pixel's surface: the median depth of the reliable pixels within a ``window`` whose colour in A is the
-    pixel's (:data:`SAME_SURFACE_COLOUR`) and whose B colour fits, if B's colour at that parallax fits the
-    pixel too (misfit halved).
+    pixel's (:data:`SAME_SURFACE_COLOUR`) and whose B colour fits -- their nearest or their median depth,
+    whichever B's colour fits better -- if B's colour at that parallax fits the pixel (misfit halved).
 
     A pixel whose windows cannot tell its depth (the end of a post against the sky: an edge along the
     line) is still one surface, and B must show that surface's colour there.  The misfit is measured
     with one linear map from A's channels to B's (:func:`colour_map_a_to_b`, fitted on the ``reliable``
     pixels at their parallax) and must exceed :data:`COLOUR_MISFIT_MIN` and three times the reliable
     pixels' typical misfit.  Repeated up to ``passes`` times, switched pixels serving as reliable ones,
-    so that the depth reaches into an object from its measured part.  A pixel that still misfits, with no
-    neighbour to follow, takes the parallax along its line (up to :data:`NEAREST_INV_DEPTH_PER_M`) where
-    B's colour fits it best, if that fits and the levels that fit nearly as well are one interval (a
-    uniform object over a range of parallax; several separate ones are a row of similar patches).
-    A pixel that B cannot see (hidden by a nearer object) keeps its depth unless B shows its colour
-    elsewhere along its line (uniform content: its depth is then not observable, the colour is its own).
+    so that the depth reaches into an object from its measured part.  A pixel with no such neighbour keeps
+    its depth: searching the line for the best colour fit was tried (session 6) and gave far buildings and
+    sky 20-30 px of parallax where one linear map between the cameras misfits their colours everywhere
+    (a brick wall's repeated texture fits somewhere along any line).
     """
     a = as_channels(ga_raw)
     b = as_channels(gb_raw)
@@ -686,8 +679,14 @@ def settle_by_colour(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarray, 
         if not has.any():
             break
         ys, xs, votes = ys[has], xs[has], votes[has]
-        cand = np.nanmedian(votes, axis=1).astype(np.float32)
-        r_cand = _colour_residual(a[ys, xs][None], _sample_moved(b, field, ys, xs, cand)[None], m)[0]
+        # the nearest and the median depth of the pixel's surface around it (a uniform object's pixels that
+        # fit at the far depth too would outvote its measured part): the one at which B's colour fits best
+        ap = a[ys, xs][None]
+        cands = [np.nanmax(votes, axis=1).astype(np.float32), np.nanmedian(votes, axis=1).astype(np.float32)]
+        fits = [_colour_residual(ap, _sample_moved(b, field, ys, xs, c)[None], m)[0] for c in cands]
+        near_better = fits[0] <= fits[1]
+        cand = np.where(near_better, cands[0], cands[1])
+        r_cand = np.where(near_better, fits[0], fits[1])
         switch = r_cand < 0.5 * r_cur[ys, xs]
         if not switch.any():
             break
@@ -696,26 +695,6 @@ def settle_by_colour(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarray, 
         r_cur[ys, xs] = r_cand[switch]
         known[ys, xs] = True
         todo[ys, xs] = False
-    # no neighbour of the pixel's colour fits: search the line (a near object none of whose pixels was
-    # measured, e.g. a post entering the frame), keeping the parallax where B's colour fits best
-    ys, xs = np.nonzero(todo)
-    if ys.size:
-        e_len = np.hypot(field[ys, xs, 0], field[ys, xs, 1])
-        n_levels = int(np.ceil(NEAREST_INV_DEPTH_PER_M * float(e_len.max(initial=0.0)) / SEARCH_STEP_PX)) + 1
-        levels = np.linspace(0.0, NEAREST_INV_DEPTH_PER_M, max(n_levels, 2), dtype=np.float32)
-        ap = a[ys, xs][None]
-        misfits = np.stack([
-            _colour_residual(ap, _sample_moved(b, field, ys, xs, np.full(ys.size, wk, np.float32))[None], m)[0]
-            for wk in levels])
-        k_best = np.argmin(misfits, axis=0)
-        best_r = misfits[k_best, np.arange(ys.size)]
-        # one basin: the levels that fit nearly as well must be contiguous (a uniform object seen over a range
-        # of parallax), not scattered (a row of patches, some of which resemble the pixel's colour)
-        close = misfits <= np.maximum(2 * best_r, best_r + SEARCH_BASIN_MARGIN)[None]
-        first, last = np.argmax(close, axis=0), len(levels) - 1 - np.argmax(close[::-1], axis=0)
-        one_basin = close.sum(axis=0) == last - first + 1
-        switch = one_basin & (best_r < 0.5 * r_cur[ys, xs]) & (best_r <= max(COLOUR_MISFIT_MIN, 3 * typical))
-        out[ys[switch], xs[switch]] = levels[k_best[switch]]
     return out
 
 

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from omnispectral.imaging.geometry import CameraModel, equirect_pixel_to_lonlat, lonlat_to_ray
+from omnispectral.mosaic.kernels import compiled_kernels
 
 #: Node spacing (output pixels) of the first attempt.
 MAP_STEP_PX = 8
@@ -153,6 +154,12 @@ def interpolate_nodes(nodes: np.ndarray, rows: tuple[np.ndarray, np.ndarray],
     """Separable Catmull–Rom interpolation of a node grid ``(n_r, n_c)`` at ``rows × cols`` (four taps each)."""
     kc, wc = cols
     kr, wr = rows
+    kernels = compiled_kernels()
+    if kernels is not None:  # one pass per axis, the same sums in the same order
+        out = np.empty((kr.shape[0], kc.shape[0]), np.float64)
+        kernels.catmull_rom(np.ascontiguousarray(nodes, np.float64), kr, np.ascontiguousarray(wr, np.float64), kc,
+                            np.ascontiguousarray(wc, np.float64), out)
+        return out
     t = sum(nodes[:, kc + j] * wc[None, :, j] for j in range(4))
     return sum(t[kr + j, :] * wr[:, j, None] for j in range(4))
 

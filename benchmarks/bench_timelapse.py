@@ -76,12 +76,14 @@ def follow(a, rig_args: list[str], series: Path, out: Path) -> dict:
     cmd = [sys.executable, "-m", "omnispectral", "timelapse", *rig_args, "--from", a.start, "--to", a.end,
            "--every", a.every, "-o", str(series)]
     t0 = time.perf_counter()
-    sim = subprocess.Popen(cmd, stdout=subprocess.DEVNULL)
+    # --attach: a simulator started earlier (an interrupted --follow run) is still writing the series
+    sim = None if a.attach else subprocess.Popen(cmd, stdout=subprocess.DEVNULL)
     load_before = os.getloadavg()
     summary, calls = None, 0
     while True:
-        finished = sim.poll() is not None
         index = json.loads((series / "series.json").read_text()) if (series / "series.json").exists() else None
+        finished = sim.poll() is not None if sim is not None else \
+            bool(index) and all(e["status"] not in ("pending", "incomplete") for e in index["slots"])
         complete = [e["session"] for e in index["slots"] if e["status"] == "complete"] if index else []
         new = [n for n in complete if not (out / n / "product.json").exists()]
         if new or (finished and complete):
@@ -93,7 +95,7 @@ def follow(a, rig_args: list[str], series: Path, out: Path) -> dict:
             break
         if not new:
             time.sleep(5.0)
-    if sim.returncode != 0:
+    if sim is not None and sim.returncode != 0:
         raise SystemExit(f"simulating the series failed ({sim.returncode})")
     wall_s = time.perf_counter() - t0
     times = [json.loads(line) for line in log.read_text().splitlines()]
@@ -120,6 +122,8 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--json-out", type=Path, default=None)
     ap.add_argument("--follow", action="store_true", help="process slots while the series is simulated")
     ap.add_argument("--drop-frames", action="store_true", help="with --follow: delete processed slots' frames")
+    ap.add_argument("--attach", action="store_true",
+                    help="with --follow: do not start the simulator (one already runs on WORK/series)")
     a = ap.parse_args(argv)
     a.work = a.work.absolute()
     a.work.mkdir(parents=True, exist_ok=True)

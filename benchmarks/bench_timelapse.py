@@ -99,7 +99,7 @@ def follow(a, rig_args: list[str], series: Path, out: Path) -> dict:
         raise SystemExit(f"simulating the series failed ({sim.returncode})")
     wall_s = time.perf_counter() - t0
     times = [json.loads(line) for line in log.read_text().splitlines()]
-    slot_s = [t["seconds"] for t in times]
+    slot_s = [t["seconds"] for t in times if "seconds" in t]  # (other lines mark restarts)
     sim_s = [e["duration_s"] for e in index["slots"] if e.get("duration_s") is not None]
     return {"rig": str(a.rig or a.preset or "small"), "mode": "follow", "slots": summary["n_slots"],
             "wall_s_this_run": wall_s, "process_series_calls": calls, "slots_s": sum(slot_s),

@@ -14,7 +14,7 @@ from ``product.json``, and the load average before and after.
 ``--follow`` pipelines the two for a long day: the simulator runs as a child process while this
 process calls ``process_series`` again whenever slots have completed (finished products are kept, so
 each call processes only the new slots; the last call stacks the whole day).  Each processed slot's
-wall time is appended to ``WORK/slot_times.jsonl`` as it finishes, so an interrupted run resumes with
+wall and CPU time (this process, all its threads) are appended to ``WORK/slot_times.jsonl`` as it finishes, so an interrupted run resumes with
 the times it had; ``--drop-frames`` deletes a slot's frames and ground truth once its product exists
 (a ``small`` slot is ~260 MB of TIFF frames: 133 of them would be 35 GB).
 """
@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import shutil
 import statistics
 import subprocess
@@ -35,30 +36,37 @@ from omnispectral.cli import main as cli
 from omnispectral.product.series import process_series
 
 
+def _cpu_s() -> float:
+    """CPU time (user + system) of this process, all its threads."""
+    ru = resource.getrusage(resource.RUSAGE_SELF)
+    return ru.ru_utime + ru.ru_stime
+
+
 def timed_process_series(series: Path, out: Path, log: Path | None = None) -> tuple[dict, list[float], float]:
     """``process_series`` with the wall time of every slot it processed in this call (skipped slots excluded)."""
     done_before = {p.name for p in out.glob("slot_*") if (p / "product.json").exists()}
-    marks: list[tuple[int, float]] = []
-    t0 = time.perf_counter()
+    marks: list[tuple[int, float, float]] = []
+    t0, cpu0 = time.perf_counter(), _cpu_s()
 
     def progress(stage, done, total):
         if stage == "slots":
-            marks.append((done, time.perf_counter()))
+            marks.append((done, time.perf_counter(), _cpu_s()))
 
     summary = process_series(series, out, progress=progress)
     total_s = time.perf_counter() - t0
     # slots only ever become complete in time order: the index read now lists the ones processed first
     index = json.loads((series / "series.json").read_text())
     names = [e["session"] for e in index["slots"] if e["status"] == "complete"]
-    slot_s, prev = [], t0
-    for done, t in marks:
+    slot_s, prev, prev_cpu = [], t0, cpu0
+    for done, t, cpu in marks:
         name = names[done - 1]
         if name not in done_before:
             slot_s.append(t - prev)
             if log is not None:
                 with log.open("a") as fh:
-                    fh.write(json.dumps({"slot": name, "seconds": t - prev, "load": os.getloadavg()}) + "\n")
-        prev = t
+                    fh.write(json.dumps({"slot": name, "seconds": t - prev, "cpu_s": cpu - prev_cpu,
+                                         "load": os.getloadavg()}) + "\n")
+        prev, prev_cpu = t, cpu
     return summary, slot_s, total_s
 
 
@@ -100,12 +108,14 @@ def follow(a, rig_args: list[str], series: Path, out: Path) -> dict:
     wall_s = time.perf_counter() - t0
     times = [json.loads(line) for line in log.read_text().splitlines()]
     slot_s = [t["seconds"] for t in times if "seconds" in t]  # (other lines mark restarts)
+    slot_cpu = [t["cpu_s"] for t in times if "cpu_s" in t]
     sim_s = [e["duration_s"] for e in index["slots"] if e.get("duration_s") is not None]
     return {"rig": str(a.rig or a.preset or "small"), "mode": "follow", "slots": summary["n_slots"],
             "wall_s_this_run": wall_s, "process_series_calls": calls, "slots_s": sum(slot_s),
             "per_slot_s": {"median": statistics.median(slot_s), "min": min(slot_s), "max": max(slot_s),
                            "first": slot_s[0]},
-            "simulate_per_slot_s": {"median": statistics.median(sim_s), "total": sum(sim_s)},
+            "per_slot_cpu_s": {"median": statistics.median(slot_cpu), "n": len(slot_cpu)} if slot_cpu else None,
+            "simulated_capture_per_slot_s": {"median": statistics.median(sim_s), "total": sum(sim_s)},
             "stack_shape": summary["stack_shape"], "load_before": load_before, "load_after": os.getloadavg(),
             "per_slot_all_s": slot_s}
 

@@ -14,9 +14,10 @@ from ``product.json``, and the load average before and after.
 ``--follow`` pipelines the two for a long day: the simulator runs as a child process while this
 process calls ``process_series`` again whenever slots have completed (finished products are kept, so
 each call processes only the new slots; the last call stacks the whole day).  Each processed slot's
-wall and CPU time (this process, all its threads) are appended to ``WORK/slot_times.jsonl`` as it finishes, so an interrupted run resumes with
-the times it had; ``--drop-frames`` deletes a slot's frames and ground truth once its product exists
-(a ``small`` slot is ~260 MB of TIFF frames: 133 of them would be 35 GB).
+wall and CPU time (this process, all its threads) are appended to ``WORK/slot_times.jsonl`` as it
+finishes, so an interrupted run resumes with the times it had; ``--drop-frames`` deletes a slot's
+frames and ground truth once its product exists (a ``small`` slot is ~260 MB of TIFF frames: 133 of
+them would be 35 GB).
 """
 
 from __future__ import annotations

@@ -148,3 +148,14 @@ def test_engine_gives_the_same_panorama_with_and_without_the_kernels(tmp_path, n
     x, y = a.read(0), b.read(0)
     err_c, err_n = np.abs(x - truth).max(), np.abs(y - truth).max()
     assert err_c <= 1.05 * err_n + 1e-6 * truth.max()
+
+
+def test_canvas_rays_are_the_per_pixel_rays():
+    """``Canvas.rays`` computes the trigonometry per row and per column: bit for bit the per-pixel rays,
+    beyond the canvas too (over the poles, across the seam)."""
+    canvas = maps.Canvas(952, 476)
+    for rows, cols in [(np.arange(-20, 500), np.arange(-30, 990)), ([3.5], [7.25]),
+                       (np.arange(0, 476, 8) - 8, np.arange(900, 1100, 8))]:
+        col, row = np.meshgrid(np.asarray(cols, np.float64), np.asarray(rows, np.float64))
+        got, ref = canvas.rays(rows, cols), canvas.rays_at(row, col)
+        assert got.shape == ref.shape and np.array_equal(got, ref)

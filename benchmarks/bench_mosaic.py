@@ -15,6 +15,10 @@ Cases:
     Six bands, 7260 × 3630, 36 directions of 2048 × 1088 (the paper's time-lapse configuration),
     rendered from the panorama upsampled to 7260 px.  Wall time of our engine (default
     interpolation, 2 threads) against ``nona`` doing the same (two 3-band runs, spline36); PSNR of both.
+``versus``
+    The ``speed`` job with ours and ``nona`` alternating in fresh processes, ``--repeat`` rounds: medians of
+    wall and CPU time (``getrusage`` of the children), load average before each run, PSNR;
+    ``--baseline-src DIR`` adds our engine from another source tree (a previous commit) to the rounds.
 ``memory``
     Peak RSS of the engine at 7260 × 3630, 4× and 16× the pixel count (same 36 directions), each in
     a fresh process.
@@ -34,7 +38,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import shutil
+import statistics
 import subprocess
 import sys
 import time
@@ -230,17 +236,84 @@ def case_speed(work: Path, interps=("cubic", "spline")) -> dict:
     return {"case": "speed", "width": width, "directions": 36, "results": rows}
 
 
-def run_one(merged: Path, out: Path, width: int, region=None) -> dict:
+def run_one(merged: Path, out: Path, width: int, region=None, env: dict | None = None) -> dict:
     """One engine run in a fresh process under ``/usr/bin/time`` (its peak RSS: a child forked from this
     process would inherit this process's high-water mark in ``ru_maxrss``)."""
     cmd = ["/usr/bin/time", "-f", "MAXRSS_KB %M", sys.executable, __file__, "_one", str(merged), str(out), str(width)]
-    r = subprocess.run(cmd + ([json.dumps(region)] if region else []), capture_output=True, text=True)
+    r = subprocess.run(cmd + ([json.dumps(region)] if region else []), capture_output=True, text=True, env=env)
     if r.returncode != 0:
         raise RuntimeError(r.stderr[-2000:])
     summary = json.loads(r.stdout.strip().splitlines()[-1])
     kb = [line for line in r.stderr.splitlines() if line.startswith("MAXRSS_KB")][-1].split()[1]
     summary["peak_rss_mb"] = round(float(kb) / 1024.0, 1)
     return summary
+
+
+def _children_cpu_s() -> float:
+    ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return ru.ru_utime + ru.ru_stime
+
+
+def case_versus(work: Path, repeat: int = 3, baseline_src: Path | None = None) -> dict:
+    """The ``speed`` job, ours and ``nona`` alternating in fresh processes: wall and CPU time (user + system of
+    the children, ``getrusage``), medians of ``repeat`` rounds, the load average before each run; PSNR of each
+    contender's first output.  ``baseline_src``: also run our engine from another source tree (a previous
+    commit's ``src``) in the same rounds, and compare its panorama with ours."""
+    width = 7260
+    truth = load_panorama(width)
+    merged = ensure_merged(work / "speed_merged", truth, timelapse_cameras(2048, 1088), grid(12, 3), "float32")
+    projects = write_nona_inputs(merged, work / "speed_nona", width, 2) if shutil.which("nona") else []
+    contenders = {"ours": None}
+    if projects:
+        contenders["nona spline36"] = "nona"
+    if baseline_src is not None:
+        contenders["ours, baseline"] = Path(baseline_src).absolute()
+    runs: dict[str, list[dict]] = {name: [] for name in contenders}
+    quality: dict[str, dict] = {}
+    for rnd in range(repeat):
+        for name, how in contenders.items():
+            load = os.getloadavg()
+            cpu0, t0 = _children_cpu_s(), time.perf_counter()
+            if how == "nona":
+                nona = run_nona(projects, work / "speed_nona" / "out")
+                rss = nona["peak_rss_mb"]
+            else:
+                out = work / ("versus_baseline.zarr" if how else "versus.zarr")
+                env = dict(os.environ, PYTHONPATH=str(how)) if how else None
+                summary = run_one(merged.path, out, width, env=env)
+                rss = summary["peak_rss_mb"]
+            wall, cpu = time.perf_counter() - t0, _children_cpu_s() - cpu0
+            runs[name].append({"wall_s": round(wall, 2), "cpu_s": round(cpu, 2), "peak_rss_mb": rss,
+                               "load_before": [round(x, 2) for x in load]})
+            print(f"  round {rnd + 1} {name}: wall {wall:.1f} s, CPU {cpu:.1f} s, load {load[0]:.2f}", flush=True)
+            if name not in quality:
+                est = read_nona_six_bands(nona["outputs"]) if how == "nona" else PanoramaStore.open(out).read(0)
+                quality[name] = psnr(est, truth)
+                if how == "nona":
+                    quality[name]["seconds"] = None
+                del est
+            elif how == "nona":
+                for path in nona["outputs"]:
+                    path.unlink()
+    rows = {}
+    for name, rs in runs.items():
+        wall = statistics.median(r["wall_s"] for r in rs)
+        cpu = statistics.median(r["cpu_s"] for r in rs)
+        rows[name] = {"wall_median_s": wall, "cpu_median_s": cpu, "runs": rs, **quality[name]}
+    if "nona spline36" in rows:
+        for name in rows:
+            rows[name]["nona_cpu_over_ours"] = rows["nona spline36"]["cpu_median_s"] / rows[name]["cpu_median_s"]
+            rows[name]["nona_wall_over_ours"] = rows["nona spline36"]["wall_median_s"] / rows[name]["wall_median_s"]
+    if baseline_src is not None:
+        a, b = PanoramaStore.open(work / "versus.zarr"), PanoramaStore.open(work / "versus_baseline.zarr")
+        x, y = a.read(0), b.read(0)
+        fin = np.isfinite(x) & np.isfinite(y)
+        diff = np.abs(x - y)[fin]
+        rel = diff / np.maximum(np.abs(y[fin]), 1e-30)
+        rows["ours vs baseline"] = {"same_coverage": bool(np.array_equal(np.isfinite(x), np.isfinite(y))),
+                                    "max_abs_over_peak": float(diff.max() / np.abs(y[fin]).max()),
+                                    "rel_p99_99": float(np.percentile(rel, 99.99)), "rel_median": float(np.median(rel))}
+    return {"case": "versus", "width": width, "directions": 36, "repeat": repeat, "results": rows}
 
 
 def case_memory(work: Path, scales=(1, 2, 4)) -> dict:
@@ -287,7 +360,8 @@ def _one(merged: str, out: str, width: str, region: str | None = None) -> None:
     print(json.dumps(summary))
 
 
-CASES = {"quality": case_quality, "speed": case_speed, "memory": case_memory, "gigapixel": case_gigapixel}
+CASES = {"quality": case_quality, "speed": case_speed, "versus": case_versus, "memory": case_memory,
+         "gigapixel": case_gigapixel}
 
 
 def main() -> None:
@@ -298,6 +372,8 @@ def main() -> None:
     ap.add_argument("case", nargs="?", default="all", choices=[*CASES, "all"])
     ap.add_argument("--work", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "omnispectral-bench-mosaic")
     ap.add_argument("--json-out", type=Path)
+    ap.add_argument("--repeat", type=int, default=3, help="versus: rounds (medians)")
+    ap.add_argument("--baseline-src", type=Path, help="versus: also run the engine from this source tree")
     args = ap.parse_args()
     if shutil.which("nona") is None and args.case in ("quality", "speed", "all"):
         print("nona not found: its rows are skipped (make bench-deps installs Debian's hugin-tools)", flush=True)
@@ -305,7 +381,8 @@ def main() -> None:
     results = []
     for name in (CASES if args.case == "all" else [args.case]):
         print(f"{name}:", flush=True)
-        results.append(CASES[name](args.work))
+        kw = {"repeat": args.repeat, "baseline_src": args.baseline_src} if name == "versus" else {}
+        results.append(CASES[name](args.work, **kw))
     text = json.dumps(results, indent=2, default=str)
     if args.json_out:
         args.json_out.write_text(text + "\n")

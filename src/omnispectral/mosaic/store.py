@@ -42,6 +42,7 @@ import numpy as np
 
 from omnispectral.errors import InputFileError
 from omnispectral.io import TEMP_MARK, atomic_write_json, follow_umask
+from omnispectral.mosaic.kernels import compiled_kernels
 
 FORMAT = "omnispectral-panorama"
 #: 2: OME-Zarr 0.5, arrays (c, y, x), metadata in ``omnispectral.json``; 1: arrays (y, x, band), all in zarr.json.
@@ -392,6 +393,11 @@ def box_average_2x2(src: np.ndarray, out_shape: tuple[int, int]) -> np.ndarray:
     """2 × 2 block means of ``src`` (h, w, c) onto ``out_shape`` (edge blocks may hold fewer pixels); NaN ignored."""
     h, w = out_shape
     c = src.shape[2]
+    kernels = compiled_kernels()
+    if kernels is not None and src.shape[0] <= 2 * h and src.shape[1] <= 2 * w:
+        out = np.empty((h, w, c), np.float32)
+        kernels.box_average(np.ascontiguousarray(src, np.float32), out)
+        return out
     padded = np.full((2 * h, 2 * w, c), np.nan, np.float32)
     padded[:src.shape[0], :src.shape[1]] = src
     blocks = padded.reshape(h, 2, w, 2, c)

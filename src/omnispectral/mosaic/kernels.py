@@ -1,0 +1,161 @@
+"""Compiled loops (Numba) of the mosaic engine: work NumPy can only do in several passes over memory.
+
+Each kernel has a NumPy definition it is tested against (bit for bit where the float32 operations
+are the same, to float32 rounding where they are not):
+
+``spline(coef, u, v, out)``
+    cubic B-spline evaluation at exact positions (Unser, Aldroubi & Eden 1991) from prefiltered
+    coefficients: the 4 × 4 taps in one pass (:func:`omnispectral.mosaic.interp.remap`; reference
+    :func:`~omnispectral.mosaic.interp.remap_reference`);
+``accumulate(num, den, row0, col0, band0, values, weight)`` / ``divide(num, den, band0, n, out)``
+    the linear blend's ``Σ w x``, ``Σ w`` and ``Σ w x / Σ w``
+    (:class:`omnispectral.mosaic.blending.LinearBlend`; the same float32 products and sums);
+``catmull_rom(nodes, kr, wr, kc, wc, out)``
+    the map's separable Catmull–Rom interpolation of a node grid
+    (:func:`omnispectral.mosaic.maps.interpolate_nodes`; the same float64 sums in the same order);
+``feather(u, v, 2 / W, 2 / H, out)``
+    the linear-blending tent weight of float32 positions (:func:`omnispectral.mosaic.blending.feather_weight`;
+    the same float32 operations);
+``box_average(src, out)``
+    the pyramid's 2 × 2 means ignoring NaN (:func:`omnispectral.mosaic.store.box_average_2x2`; float64
+    sums of float32 values, exact for all but extreme dynamic ranges, so the same result).
+
+Numba is imported on first use (compiling costs ~1-2 s once per environment; the results are
+cached on disk next to this module); ``compiled_kernels()`` returns ``None`` without Numba, and
+the callers then run their NumPy definitions.  The kernels release the GIL (Dask's threads run
+them in parallel) and start no threads of their own.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+_CACHE: dict = {}
+
+
+def compiled_kernels() -> SimpleNamespace | None:
+    """The kernels (module docstring), or ``None`` if Numba is not installed."""
+    if "kernels" in _CACHE:
+        return _CACHE["kernels"]
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - numba is a dependency; the NumPy paths stay correct without it
+        _CACHE["kernels"] = None
+        return None
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
+    def spline(coef, u, v, out):  # pragma: no cover - compiled (tested through remap)
+        hs, ws, nc = coef.shape
+        sixth = np.float32(1.0 / 6.0)
+        one, three, four, six = np.float32(1.0), np.float32(3.0), np.float32(4.0), np.float32(6.0)
+        lo_x, hi_x = np.float32(-2.0), np.float32(ws + 1)
+        lo_y, hi_y = np.float32(-2.0), np.float32(hs + 1)
+        for i in range(u.shape[0]):
+            for j in range(u.shape[1]):
+                x, y = u[i, j], v[i, j]
+                if not (np.isfinite(x) and np.isfinite(y)):
+                    for c in range(nc):
+                        out[i, j, c] = np.nan
+                    continue
+                # beyond 2 px outside, every tap is the replicated border pixel
+                x = min(max(x, lo_x), hi_x)
+                y = min(max(y, lo_y), hi_y)
+                fx, fy = np.floor(x), np.floor(y)
+                t = x - fx
+                t2 = t * t
+                t3 = t2 * t
+                wx0 = (one - three * t + three * t2 - t3) * sixth
+                wx1 = (four - six * t2 + three * t3) * sixth
+                wx3 = t3 * sixth
+                wx2 = one - wx0 - wx1 - wx3
+                t = y - fy
+                t2 = t * t
+                t3 = t2 * t
+                wy0 = (one - three * t + three * t2 - t3) * sixth
+                wy1 = (four - six * t2 + three * t3) * sixth
+                wy3 = t3 * sixth
+                wy2 = one - wy0 - wy1 - wy3
+                ix, iy = int(fx), int(fy)
+                x0, x1 = min(max(ix - 1, 0), ws - 1), min(max(ix, 0), ws - 1)
+                x2, x3 = min(max(ix + 1, 0), ws - 1), min(max(ix + 2, 0), ws - 1)
+                y0, y1 = min(max(iy - 1, 0), hs - 1), min(max(iy, 0), hs - 1)
+                y2, y3 = min(max(iy + 1, 0), hs - 1), min(max(iy + 2, 0), hs - 1)
+                for c in range(nc):
+                    out[i, j, c] = (
+                        wy0 * (wx0 * coef[y0, x0, c] + wx1 * coef[y0, x1, c] + wx2 * coef[y0, x2, c]
+                               + wx3 * coef[y0, x3, c])
+                        + wy1 * (wx0 * coef[y1, x0, c] + wx1 * coef[y1, x1, c] + wx2 * coef[y1, x2, c]
+                                 + wx3 * coef[y1, x3, c])
+                        + wy2 * (wx0 * coef[y2, x0, c] + wx1 * coef[y2, x1, c] + wx2 * coef[y2, x2, c]
+                                 + wx3 * coef[y2, x3, c])
+                        + wy3 * (wx0 * coef[y3, x0, c] + wx1 * coef[y3, x1, c] + wx2 * coef[y3, x2, c]
+                                 + wx3 * coef[y3, x3, c]))
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
+    def accumulate(num, den, row0, col0, band0, values, weight):  # pragma: no cover - compiled
+        nc = values.shape[2]
+        for i in range(weight.shape[0]):
+            for j in range(weight.shape[1]):
+                wt = weight[i, j]
+                for c in range(nc):
+                    num[row0 + i, col0 + j, band0 + c] += wt * values[i, j, c]
+                den[row0 + i, col0 + j] += wt
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
+    def divide(num, den, band0, nc, out):  # pragma: no cover - compiled
+        for i in range(den.shape[0]):
+            for j in range(den.shape[1]):
+                d = den[i, j]
+                if d > 0:
+                    for c in range(band0, band0 + nc):
+                        out[i, j, c] = num[i, j, c] / d
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
+    def catmull_rom(nodes, kr, wr, kc, wc, out):  # pragma: no cover - compiled
+        h, w = kr.shape[0], kc.shape[0]
+        tmp = np.empty((nodes.shape[0], w), np.float64)
+        for r in range(nodes.shape[0]):
+            for j in range(w):
+                k = kc[j]
+                tmp[r, j] = (nodes[r, k] * wc[j, 0] + nodes[r, k + 1] * wc[j, 1]) + nodes[r, k + 2] * wc[j, 2] \
+                    + nodes[r, k + 3] * wc[j, 3]
+        for i in range(h):
+            k = kr[i]
+            for j in range(w):
+                out[i, j] = (tmp[k, j] * wr[i, 0] + tmp[k + 1, j] * wr[i, 1]) + tmp[k + 2, j] * wr[i, 2] \
+                    + tmp[k + 3, j] * wr[i, 3]
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
+    def box_average(src, out):  # pragma: no cover - compiled
+        hs, ws, nc = src.shape
+        for i in range(out.shape[0]):
+            for j in range(out.shape[1]):
+                for c in range(nc):
+                    total = 0.0
+                    count = 0
+                    for r in range(2 * i, min(2 * i + 2, hs)):
+                        for q in range(2 * j, min(2 * j + 2, ws)):
+                            x = src[r, q, c]
+                            if np.isfinite(x):
+                                total += np.float64(x)
+                                count += 1
+                    out[i, j, c] = np.float32(total / count) if count else np.float32(np.nan)
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
+    def feather(u, v, sx, sy, out):  # pragma: no cover - compiled
+        one, half, zero = np.float32(1.0), np.float32(0.5), np.float32(0.0)
+        for i in range(u.shape[0]):
+            for j in range(u.shape[1]):
+                x, y = u[i, j], v[i, j]
+                if not (np.isfinite(x) and np.isfinite(y)):
+                    out[i, j] = zero
+                    continue
+                wu = min(max(one - abs(sx * (x + half) - one), zero), one)
+                wv = min(max(one - abs(sy * (y + half) - one), zero), one)
+                out[i, j] = wu * wv
+
+    _CACHE["kernels"] = SimpleNamespace(spline=spline, accumulate=accumulate, divide=divide,
+                                        catmull_rom=catmull_rom, box_average=box_average, feather=feather)
+    return _CACHE["kernels"]

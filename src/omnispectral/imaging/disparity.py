@@ -596,14 +596,19 @@ def moved_by_parallax(image: np.ndarray, field: np.ndarray, inv_depth: np.ndarra
     one): what B saw at A's pixel ``p`` for the per-pixel inverse depth ``w``."""
     h, w = inv_depth.shape
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
-    wk = inv_depth.astype(np.float32)
-    mx = xx + wk * field[..., 0]
-    my = yy + wk * field[..., 1]
+    mx, my = _parallax_positions(xx, yy, field, inv_depth.astype(np.float32))
+    return cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(image.shape)
+
+
+def _parallax_positions(x: np.ndarray, y: np.ndarray, field: np.ndarray, inv_depth: np.ndarray):
+    """``p + w e(p) (+ w²/2 · second order)``: where B saw the content of A's pixels ``(x, y)`` (float32);
+    ``field`` is the epipolar field at those pixels."""
+    mx = x + inv_depth * field[..., 0]
+    my = y + inv_depth * field[..., 1]
     if field.shape[-1] == 4:
-        mx += 0.5 * wk * wk * field[..., 2]
-        my += 0.5 * wk * wk * field[..., 3]
-    return cv2.remap(image, mx.astype(np.float32), my.astype(np.float32), cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_REPLICATE).reshape(image.shape)
+        mx += 0.5 * inv_depth * inv_depth * field[..., 2]
+        my += 0.5 * inv_depth * inv_depth * field[..., 3]
+    return mx.astype(np.float32, copy=False), my.astype(np.float32, copy=False)
 
 
 def colour_map_a_to_b(a: np.ndarray, b: np.ndarray, sample: np.ndarray, max_samples: int = 20000) -> np.ndarray:
@@ -653,10 +658,11 @@ def settle_by_colour(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarray, 
     a = as_channels(ga_raw)
     b = as_channels(gb_raw)
     out = current.astype(np.float32).copy()
-    m = colour_map_a_to_b(a, moved_by_parallax(b, field, out), reliable & np.isfinite(out))
+    seen = moved_by_parallax(b, field, out)
+    m = colour_map_a_to_b(a, seen, reliable & np.isfinite(out))
     if not np.isfinite(m).all():
         return out
-    r_cur = _colour_residual(a, moved_by_parallax(b, field, out), m)
+    r_cur = _colour_residual(a, seen, m)
     typical = float(np.median(r_cur[reliable])) if reliable.any() else 0.0
     misfit = r_cur > max(COLOUR_MISFIT_MIN, 3 * typical)
     todo = todo & misfit
@@ -701,14 +707,9 @@ def settle_by_colour(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarray, 
 def _sample_moved(image: np.ndarray, field: np.ndarray, ys: np.ndarray, xs: np.ndarray,
                   inv_depth: np.ndarray) -> np.ndarray:
     """:func:`moved_by_parallax` at the pixels ``(ys, xs)`` only, ``(n, C)``."""
-    f = field[ys, xs]
-    mx = xs + inv_depth * f[:, 0]
-    my = ys + inv_depth * f[:, 1]
-    if field.shape[-1] == 4:
-        mx = mx + 0.5 * inv_depth**2 * f[:, 2]
-        my = my + 0.5 * inv_depth**2 * f[:, 3]
-    out = cv2.remap(image, mx.astype(np.float32)[None], my.astype(np.float32)[None], cv2.INTER_LINEAR,
-                    borderMode=cv2.BORDER_REPLICATE)
+    mx, my = _parallax_positions(xs.astype(np.float32), ys.astype(np.float32), field[ys, xs],
+                                 inv_depth.astype(np.float32))
+    out = cv2.remap(image, mx[None], my[None], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     return out.reshape(xs.size, image.shape[-1])
 
 

@@ -45,11 +45,21 @@ def compiled_kernels() -> SimpleNamespace | None:
         _CACHE["kernels"] = None
         return None
 
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False, inline="always")
+    def cubic_weights(t):  # pragma: no cover - compiled
+        """The four cubic B-spline weights at fraction ``t`` of the interval (the last from the sum to 1)."""
+        sixth = np.float32(1.0 / 6.0)
+        one, three, four, six = np.float32(1.0), np.float32(3.0), np.float32(4.0), np.float32(6.0)
+        t2 = t * t
+        t3 = t2 * t
+        w0 = (one - three * t + three * t2 - t3) * sixth
+        w1 = (four - six * t2 + three * t3) * sixth
+        w3 = t3 * sixth
+        return w0, w1, one - w0 - w1 - w3, w3
+
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
     def spline(coef, u, v, out):  # pragma: no cover - compiled (tested through remap)
         hs, ws, nc = coef.shape
-        sixth = np.float32(1.0 / 6.0)
-        one, three, four, six = np.float32(1.0), np.float32(3.0), np.float32(4.0), np.float32(6.0)
         lo_x, hi_x = np.float32(-2.0), np.float32(ws + 1)
         lo_y, hi_y = np.float32(-2.0), np.float32(hs + 1)
         for i in range(u.shape[0]):
@@ -63,20 +73,8 @@ def compiled_kernels() -> SimpleNamespace | None:
                 x = min(max(x, lo_x), hi_x)
                 y = min(max(y, lo_y), hi_y)
                 fx, fy = np.floor(x), np.floor(y)
-                t = x - fx
-                t2 = t * t
-                t3 = t2 * t
-                wx0 = (one - three * t + three * t2 - t3) * sixth
-                wx1 = (four - six * t2 + three * t3) * sixth
-                wx3 = t3 * sixth
-                wx2 = one - wx0 - wx1 - wx3
-                t = y - fy
-                t2 = t * t
-                t3 = t2 * t
-                wy0 = (one - three * t + three * t2 - t3) * sixth
-                wy1 = (four - six * t2 + three * t3) * sixth
-                wy3 = t3 * sixth
-                wy2 = one - wy0 - wy1 - wy3
+                wx0, wx1, wx2, wx3 = cubic_weights(x - fx)
+                wy0, wy1, wy2, wy3 = cubic_weights(y - fy)
                 ix, iy = int(fx), int(fy)
                 x0, x1 = min(max(ix - 1, 0), ws - 1), min(max(ix, 0), ws - 1)
                 x2, x3 = min(max(ix + 1, 0), ws - 1), min(max(ix + 2, 0), ws - 1)

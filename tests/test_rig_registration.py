@@ -457,3 +457,38 @@ def test_settle_by_colour_gives_a_uniform_post_its_depth_and_leaves_the_sky():
     np.testing.assert_array_equal(out[sky], 0.0)
     assert (sky & (before >= 1e-3)).sum() == 5 * 10
 
+
+
+def _thin_bar(shift_px: float):
+    """A dark uniform bar 10 px thick across a smooth bright sky (a post lying along the image rows),
+    moved ``shift_px`` down the columns in B, which sees through another filter."""
+    h, w = 128, 256
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    sky = np.stack([300 + 0.8 * xx, 400 + 0.5 * yy, 900 + 0.3 * xx], axis=-1)
+    rng = np.random.default_rng(3)
+    a, b_scene = sky.copy(), sky.copy()
+    a[60:70] = (20.0, 35.0, 60.0)
+    b_scene[60 + int(shift_px):70 + int(shift_px)] = (20.0, 35.0, 60.0)
+    mix = np.asarray([[0.6, 0.3, 0.1], [0.1, 0.2, 0.7], [0.3, 0.1, 0.6]], np.float32)
+    b = b_scene @ mix.T
+    return a + rng.normal(0, 0.5, a.shape).astype(np.float32), b + rng.normal(0, 0.5, b.shape).astype(np.float32)
+
+
+def test_edge_blocks_of_a_thin_near_object_are_not_outliers():
+    """A bar thinner than a block, lying across the epipolar lines (here the columns), is measured by a row
+    of edge blocks: equal shifts across the bar, arbitrary ones along it.  Whole-vector outlier tests
+    against all neighbours (flat sky blocks included) reject every one of them; the edge-aware test keeps
+    them, each within 0.25 px of the bar's shift."""
+    from omnispectral.imaging.disparity import measure_blocks
+    from omnispectral.imaging.registration import as_gray
+
+    a, b = _thin_bar(5.0)
+    ga, gb = as_gray(a), as_gray(b)
+    new = measure_blocks(ga, gb, 32, 0.3)
+    old = measure_blocks(ga, gb, 32, 0.3, edge_aware=False)
+    on_bar = np.abs(new.y_px - 65)[:, None] <= 8
+    on_bar = np.broadcast_to(on_bar, new.reliable.shape)
+    kept = new.reliable & on_bar
+    assert kept.sum() >= 8
+    np.testing.assert_allclose(new.dy[kept], 5.0, atol=0.25)
+    assert (old.reliable & on_bar).sum() <= kept.sum() // 4

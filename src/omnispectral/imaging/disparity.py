@@ -124,8 +124,8 @@ def block_size_for(width: int, height: int) -> int:
 
 
 def refine_block_shifts(a: np.ndarray, b: np.ndarray, y_px: np.ndarray, x_px: np.ndarray, dx: np.ndarray,
-                        dy: np.ndarray, block: int, passes: int = REFINE_PASSES) -> tuple[np.ndarray, np.ndarray,
-                                                                                           np.ndarray]:
+                        dy: np.ndarray, block: int, passes: int = REFINE_PASSES,
+                        edge_normal: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Sub-pixel block shifts without the window's pull: each pass resamples the moving image's block at
     the current estimate (bicubic) and adds the POC residual, which is then a small fraction of a pixel.
 
@@ -134,7 +134,10 @@ def refine_block_shifts(a: np.ndarray, b: np.ndarray, y_px: np.ndarray, x_px: np
     remaining shift, and so the pull, shrink geometrically (the same idea as
     :func:`~omnispectral.imaging.registration.phase_correlate`'s refinement, batched over blocks).
     ``a``, ``b``: preprocessed (H, W) float32; ``y_px, x_px``: block centres; ``dx, dy``: (ny, nx) start.
-    Returns refined ``dx, dy`` and the last pass's peak heights.
+    ``edge_normal`` (ny, nx, 2): for blocks that measure one direction only (an edge), the unit normal of
+    the edge, NaN for two-directional blocks; convergence is then judged across the edge only (along it
+    the shift is not observable and wanders from pass to pass).
+    Returns refined ``dx, dy`` and the last pass's peak heights (0 where the refinement did not converge).
     """
     half = (block - 1) / 2.0
     off = (np.arange(block) - half).astype(np.float32)
@@ -164,7 +167,11 @@ def refine_block_shifts(a: np.ndarray, b: np.ndarray, y_px: np.ndarray, x_px: np
             ddx[sl] += np.where(ok, rx, 0.0)
             ddy[sl] += np.where(ok, ry, 0.0)
             conf[sl] = np.where(ok, c, 0.0)
-            last[sl] = np.where(ok, np.hypot(rx, ry), np.inf)
+            step = np.hypot(rx, ry)
+            if edge_normal is not None:
+                nx_, ny_ = (edge_normal[..., 0].ravel()[sl], edge_normal[..., 1].ravel()[sl])
+                step = np.where(np.isfinite(nx_), np.abs(np.nan_to_num(nx_) * rx + np.nan_to_num(ny_) * ry), step)
+            last[sl] = np.where(ok, step, np.inf)
     # a block whose last correction is not small has not converged (flat or ambiguous content)
     conf = np.where(last <= CONVERGED_PX, conf, 0.0)
     return ddx.reshape(dx.shape), ddy.reshape(dy.shape), conf.reshape(dx.shape)
@@ -230,16 +237,65 @@ def block_structure(a: np.ndarray, y_px: np.ndarray, x_px: np.ndarray, block: in
     return textured, two_d, normal, tensor
 
 
-def measure_blocks(gray_a: np.ndarray, gray_b: np.ndarray, block: int, min_confidence: float) -> BlockShifts:
-    """Block grid, refined shifts (content at ``p`` in A is at ``p + d`` in B) and what they can be trusted for."""
+def measure_blocks(gray_a: np.ndarray, gray_b: np.ndarray, block: int, min_confidence: float, *,
+                   edge_aware: bool = True) -> BlockShifts:
+    """Block grid, refined shifts (content at ``p`` in A is at ``p + d`` in B) and what they can be trusted for.
+
+    A block is reliable when its POC peak is high, its refinement converged, it has texture, and it agrees
+    with its confident neighbours in what it measures (:func:`edge_aware_outliers`; with ``edge_aware``
+    False, in both components against the median of all neighbours, as :func:`block_disparity` judges)."""
     dm = block_disparity(gray_a, gray_b, block=block, step=block // 2, min_confidence=min_confidence)
     a = preprocess_image(gray_a, "sqrt")
     b = preprocess_image(gray_b, "sqrt")
-    dx, dy, conf = refine_block_shifts(a, b, dm.y_px, dm.x_px, dm.dx, dm.dy, block)
     textured, two_d, normal, tensor = block_structure(a, dm.y_px, dm.x_px, block)
-    moved = np.hypot(dx - dm.dx, dy - dm.dy) < 1.0
-    reliable = ~dm.low_confidence & ~dm.outlier & moved & (conf >= min_confidence) & textured
+    edge_normal = np.where(two_d[..., None], np.nan, normal) if edge_aware else None
+    dx, dy, conf = refine_block_shifts(a, b, dm.y_px, dm.x_px, dm.dx, dm.dy, block, edge_normal=edge_normal)
+    moved = np.hypot(dx - dm.dx, dy - dm.dy)
+    if edge_aware:  # an edge block's shift along its edge is not observable: judge the part across it
+        moved = np.where(two_d, moved, np.abs(normal[..., 0] * (dx - dm.dx) + normal[..., 1] * (dy - dm.dy)))
+    moved = moved < 1.0
+    confident = ~dm.low_confidence & moved & (conf >= min_confidence) & textured
+    outlier = edge_aware_outliers(dx, dy, confident, two_d, normal) if edge_aware else dm.outlier
+    reliable = confident & ~outlier
     return BlockShifts(dm.y_px, dm.x_px, dx, dy, conf, reliable, two_d & reliable, normal, tensor)
+
+
+#: Cosine above which a neighbour's edge normal counts as the same direction (within 45°).
+_SAME_NORMAL_COS = 0.7
+
+
+def edge_aware_outliers(dx: np.ndarray, dy: np.ndarray, confident: np.ndarray, two_d: np.ndarray,
+                        normal: np.ndarray, tol_px: float = 1.0) -> np.ndarray:
+    """Blocks more than ``tol_px`` from the median of their confident 3 × 3 neighbours (themselves included),
+    compared only in the components each block measures.
+
+    An edge block measures the shift across its edge only; along the edge its POC shift is arbitrary (the
+    aperture problem).  Comparing whole vectors, as :func:`block_disparity`'s ``outlier`` does, rejects
+    every block of a thin near object lying along the epipolar lines' normal -- a post whose long edges cut
+    the lines, measured by a row of edge blocks with equal shifts across and scattered shifts along it --
+    and lets flat blocks' noise set the median.  Here a block is compared along its edge normal ``n`` (and
+    along ``n``'s perpendicular too when it is two-directional) with the neighbours that measure that
+    component: confident two-directional blocks, or edge blocks whose normal is within 45° of it.
+    """
+    ny, nx = dx.shape
+    pad = ((1, 1), (1, 1))
+    px_, py_ = np.pad(dx.astype(np.float64), pad), np.pad(dy.astype(np.float64), pad)
+    pc, p2 = np.pad(confident, pad), np.pad(two_d, pad)
+    pnx, pny = np.pad(normal[..., 0], pad), np.pad(normal[..., 1], pad)
+    outlier = np.zeros((ny, nx), bool)
+    perp = np.stack([-normal[..., 1], normal[..., 0]], axis=-1)
+    for u, tested in ((normal, np.ones((ny, nx), bool)), (perp, two_d)):
+        ux, uy = u[..., 0], u[..., 1]
+        vals = np.full((9, ny, nx), np.nan)
+        for k, (oy, ox) in enumerate((oy, ox) for oy in range(3) for ox in range(3)):
+            sl = (slice(oy, oy + ny), slice(ox, ox + nx))
+            same = np.abs(pnx[sl] * ux + pny[sl] * uy) >= _SAME_NORMAL_COS
+            usable = pc[sl] & (p2[sl] | same)
+            vals[k] = np.where(usable, px_[sl] * ux + py_[sl] * uy, np.nan)
+        counted = np.isfinite(vals).any(axis=0)
+        med = np.nanmedian(np.where(counted[None], vals, 0.0), axis=0)
+        outlier |= tested & counted & (np.abs(dx * ux + dy * uy - med) > tol_px)
+    return outlier
 
 
 def epipolar_field(model_a: CameraModel, baseline_m: np.ndarray, pixels: np.ndarray | None = None,

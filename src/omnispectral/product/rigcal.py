@@ -122,7 +122,10 @@ def measure_direction(direction: int, image_a: np.ndarray, image_b: np.ndarray, 
     # scene as on a 1024-px sensor, at a quarter of the cost; positions are brought back to full pixels
     f = analysis_factor(model_a.width, model_a.height, CALIBRATION_ANALYSIS_PX)
     block = block_size_for(model_a.width // f, model_a.height // f)
-    bs = measure_blocks(as_gray(bin_image(image_a, f)), as_gray(bin_image(warped, f)), block, min_confidence)
+    # whole-vector outliers: the fit's far anchor is tuned on the blocks this rule keeps (the edge-aware
+    # rule of the per-pixel parallax adds edge blocks that moved the anchor by pixels on one session)
+    bs = measure_blocks(as_gray(bin_image(image_a, f)), as_gray(bin_image(warped, f)), block, min_confidence,
+                        edge_aware=False)
     conf = bs.confidence
     gy, gx = np.meshgrid(binned_to_full_px(bs.y_px, f), binned_to_full_px(bs.x_px, f), indexing="ij")
     tx, ty = gx + bs.dx * f, gy + bs.dy * f

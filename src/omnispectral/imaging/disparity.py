@@ -255,7 +255,10 @@ def measure_blocks(gray_a: np.ndarray, gray_b: np.ndarray, block: int, min_confi
         moved = np.where(two_d, moved, np.abs(normal[..., 0] * (dx - dm.dx) + normal[..., 1] * (dy - dm.dy)))
     moved = moved < 1.0
     confident = ~dm.low_confidence & moved & (conf >= min_confidence) & textured
-    outlier = edge_aware_outliers(dx, dy, confident, two_d, normal) if edge_aware else dm.outlier
+    # two-directional blocks keep the whole-vector test (a chart's corner blocks straddling the chart and
+    # its background measure the chart 0.3-0.5 px off and would hold its pixels there as a prior)
+    outlier = np.where(two_d, dm.outlier, edge_aware_outliers(dx, dy, confident, two_d, normal)) \
+        if edge_aware else dm.outlier
     reliable = confident & ~outlier
     return BlockShifts(dm.y_px, dm.x_px, dx, dy, conf, reliable, two_d & reliable, normal, tensor)
 

@@ -451,7 +451,11 @@ def _one(merged: str, out: str, width: str, region: str = "null", processes: str
     region = json.loads(region)
     kw = {"region": tuple(region)} if region else {}
     if int(processes):
+        import signal
+
         from omnispectral.mosaic.cluster import process_cluster
+
+        signal.signal(signal.SIGTERM, lambda *_: sys.exit(1))  # a killed run still stops its cluster (finally)
 
         t0 = time.perf_counter()
         with process_cluster(int(processes), directory=Path(out).parent / "cluster") as address, TreeRSS() as tree:

@@ -19,6 +19,7 @@ compared bit for bit with the first local one.  Load average noted before and af
 from __future__ import annotations
 
 import argparse
+import datetime as dt
 import json
 import os
 import signal
@@ -48,7 +49,7 @@ def prepare(work: Path, session: Path | None) -> MergedDirections:
             from omnispectral.capture.scenes import ProceduralOutdoorScene
 
             simulate_session(session, load_preset("small"), ProceduralOutdoorScene(time_hhmm="12:00"),
-                             progress=False)
+                             start=dt.datetime(2017, 6, 21, 12, 0, tzinfo=dt.UTC), progress=False)
     product = work / "product"
     if not (product / "product.json").is_file():
         process(session, product, progress=False, report=False)

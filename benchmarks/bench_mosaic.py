@@ -26,6 +26,10 @@ Cases:
     The paper's gigapixel configuration (60 × 21 = 1260 directions, 14.5° × 10.8°, 2048 × 1088):
     a 60000 × 30000 canvas of which a window of ≥ 1/8 of 60000 × 32000 pixels is stitched from the
     directions that overlap it (merged float16 images, one exposure each); throughput and peak RSS.
+    ``--whole``: the whole 60000 × 30000 canvas from all 1260 directions × 2 cameras, with no holes
+    expected and PSNR against the truth on 32 sampled windows of 512² (both poles among them; median
+    and worst); ``--sensor-scale 2`` renders 1024 × 544 sensors with the same field of view (the inputs
+    take a quarter of the disk).
 
 ``nona`` (Debian ``hugin-tools``; ``make bench-deps`` installs it) gets the same images as float
 TIFF and the same poses: yaw/pitch/roll decomposed from our camera-to-world rotation
@@ -79,16 +83,19 @@ def timelapse_cameras(width_px: int, height_px: int, hfov_deg: float = 95.0) -> 
                                                                                   misalignment_deg=MISALIGNMENT_B_DEG))}
 
 
-def gigapixel_cameras() -> dict[str, CameraModel]:
+def gigapixel_cameras(scale: int = 1) -> dict[str, CameraModel]:
     """The gigapixel telephoto as the paper states it: 14.5° × 10.8° on 2048 × 1088 px (landscape, k1 = -0.02).
 
     Square pixels would give 14.5° × 7.7°, less than the 60 × 21 grid's 8.6° tilt step (gaps between
-    rows); the stated angles need ``fy / fx = 0.71``, so the model takes them as they are.
+    rows); the stated angles need ``fy / fx = 0.71``, so the model takes them as they are.  ``scale``
+    divides the sensor (``2``: 1024 × 544) with the same field of view, so the same directions cover the
+    same canvas with fewer source pixels.
     """
-    fx = 1024.0 / np.tan(np.radians(14.5 / 2))
-    fy = 544.0 / np.tan(np.radians(10.8 / 2))
+    w, h = 2048 // scale, 1088 // scale
+    fx = (w / 2) / np.tan(np.radians(14.5 / 2))
+    fy = (h / 2) / np.tan(np.radians(10.8 / 2))
     dist = (-0.02, 0.0, 0.0, 0.0, 0.0)
-    return {c: CameraModel(2048, 1088, fx, fy, 1023.5, 543.5, dist,
+    return {c: CameraModel(w, h, fx, fy, (w - 1) / 2, (h - 1) / 2, dist,
                            Mounting(misalignment_deg=MISALIGNMENT_B_DEG if c == "B" else (0.0, 0.0, 0.0)))
             for c in ("A", "B")}
 
@@ -236,17 +243,54 @@ def case_speed(work: Path, interps=("cubic", "spline")) -> dict:
     return {"case": "speed", "width": width, "directions": 36, "results": rows}
 
 
-def run_one(merged: Path, out: Path, width: int, region=None, env: dict | None = None) -> dict:
+def run_one(merged: Path, out: Path, width: int, region=None, env: dict | None = None, processes: int = 0) -> dict:
     """One engine run in a fresh process under ``/usr/bin/time`` (its peak RSS: a child forked from this
-    process would inherit this process's high-water mark in ``ru_maxrss``)."""
-    cmd = ["/usr/bin/time", "-f", "MAXRSS_KB %M", sys.executable, __file__, "_one", str(merged), str(out), str(width)]
-    r = subprocess.run(cmd + ([json.dumps(region)] if region else []), capture_output=True, text=True, env=env)
+    process would inherit this process's high-water mark in ``ru_maxrss``).  ``processes``: on a cluster of
+    that many separate one-thread worker processes (:func:`omnispectral.mosaic.cluster.process_cluster`)
+    instead of two local threads; the summary then also has the process tree's peak RSS (sampled)."""
+    cmd = ["/usr/bin/time", "-f", "MAXRSS_KB %M", sys.executable, __file__, "_one", str(merged), str(out), str(width),
+           json.dumps(region), str(processes)]
+    r = subprocess.run(cmd, capture_output=True, text=True, env=env)
     if r.returncode != 0:
         raise RuntimeError(r.stderr[-2000:])
     summary = json.loads(r.stdout.strip().splitlines()[-1])
     kb = [line for line in r.stderr.splitlines() if line.startswith("MAXRSS_KB")][-1].split()[1]
     summary["peak_rss_mb"] = round(float(kb) / 1024.0, 1)
     return summary
+
+
+class TreeRSS:
+    """Peak of the summed RSS of this process and all its descendants, sampled every ``interval_s``."""
+
+    def __init__(self, interval_s: float = 0.5):
+        import threading
+
+        self.interval_s, self.peak_mb, self._stop = interval_s, 0.0, threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _sample(self) -> float:
+        import psutil
+
+        me = psutil.Process()
+        total = 0
+        for p in [me, *me.children(recursive=True)]:
+            try:
+                total += p.memory_info().rss
+            except psutil.Error:
+                pass
+        return total / 2**20
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.interval_s):
+            self.peak_mb = max(self.peak_mb, self._sample())
+
+    def __enter__(self) -> TreeRSS:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join()
 
 
 def _children_cpu_s() -> float:
@@ -330,33 +374,97 @@ def case_memory(work: Path, scales=(1, 2, 4)) -> dict:
     return {"case": "memory", "results": rows}
 
 
-def case_gigapixel(work: Path) -> dict:
+def case_gigapixel(work: Path, whole: bool = False, sensor_scale: int = 1, processes: int = 0,
+                   windows: int = 32) -> dict:
+    """A 240 Mpx share of the gigapixel canvas, or (``whole``) the whole 60000 × 30000 canvas from all 1260
+    directions × 2 cameras; ``sensor_scale`` divides the sensor (same field of view).  The whole run is
+    checked against the truth on ``windows`` sampled windows of 512² (the two poles among them).  ``processes``:
+    the mosaic on that many worker processes (:func:`run_one`) instead of two threads."""
     width, height = 60000, 30000
-    cameras = gigapixel_cameras()
+    cameras = gigapixel_cameras(sensor_scale)
     directions = grid(60, 21)
-    # window: >= 1/8 of 60000 x 32000 = 240 Mpx; 15000 x 16000 around the horizon facing lon 0
-    win_w, win_h = 15000, 16000
-    col0, row0 = width // 2 - win_w // 2, height // 2 - win_h // 2
-    region = (row0, row0 + win_h, col0, col0 + win_w)
-    lon0, lon1 = col0 * 360 / width - 180, (col0 + win_w) * 360 / width - 180
-    lat1, lat0 = 90 - row0 * 180 / height, 90 - (row0 + win_h) * 180 / height
-    share = [(p, t) for p, t in directions if lon0 - 9 <= p <= lon1 + 9 and lat0 - 7 <= t <= lat1 + 7]
-    print(f"  window {win_w} x {win_h} px ({win_w * win_h / 1e6:.0f} Mpx, lon {lon0:.1f}..{lon1:.1f}, "
-          f"lat {lat0:.1f}..{lat1:.1f}), {len(share)} of 1260 directions", flush=True)
+    region = None
+    share = directions
+    if not whole:
+        # window: >= 1/8 of 60000 x 32000 = 240 Mpx; 15000 x 16000 around the horizon facing lon 0
+        win_w, win_h = 15000, 16000
+        col0, row0 = width // 2 - win_w // 2, height // 2 - win_h // 2
+        region = (row0, row0 + win_h, col0, col0 + win_w)
+        lon0, lon1 = col0 * 360 / width - 180, (col0 + win_w) * 360 / width - 180
+        lat1, lat0 = 90 - row0 * 180 / height, 90 - (row0 + win_h) * 180 / height
+        share = [(p, t) for p, t in directions if lon0 - 9 <= p <= lon1 + 9 and lat0 - 7 <= t <= lat1 + 7]
+        print(f"  window {win_w} x {win_h} px ({win_w * win_h / 1e6:.0f} Mpx, lon {lon0:.1f}..{lon1:.1f}, "
+              f"lat {lat0:.1f}..{lat1:.1f}), {len(share)} of 1260 directions", flush=True)
     truth = load_panorama(1024)
-    merged = ensure_merged(work / "giga_merged", truth, cameras, share, "float16")
-    del truth
-    summary = run_one(work / "giga_merged", work / "giga.zarr", width, region)
-    size = sum(p.stat().st_size for p in (work / "giga.zarr").rglob("*") if p.is_file())
+    name = "giga_whole" if whole else "giga"
+    suffix = f"_s{sensor_scale}" if sensor_scale != 1 else ""
+    t0 = time.perf_counter()
+    merged = ensure_merged(work / f"{name}_merged{suffix}", truth, cameras, share, "float16")
+    render_s = time.perf_counter() - t0
     merged_size = sum(p.stat().st_size for p in merged.path.glob("*.npy"))
-    return {"case": "gigapixel", "window": [win_w, win_h], "n_directions": len(share), "summary": summary,
-            "store_bytes": size, "merged_bytes": merged_size}
+    print(f"  inputs: {len(share)} directions x 2 of {cameras['A'].width} x {cameras['A'].height}, "
+          f"{merged_size / 1e9:.2f} GB", flush=True)
+    out = work / f"{name}{suffix}.zarr"
+    load_before = os.getloadavg()
+    summary = run_one(merged.path, out, width, region, processes=processes)
+    load_after = os.getloadavg()
+    size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
+    result = {"case": "gigapixel", "whole": whole, "sensor": [cameras["A"].width, cameras["A"].height],
+              "n_directions": len(share), "processes": processes, "summary": summary, "store_bytes": size,
+              "merged_bytes": merged_size,
+              "render_s": round(render_s, 1), "load_before": [round(x, 2) for x in load_before],
+              "load_after": [round(x, 2) for x in load_after]}
+    if region is not None:
+        result["window"] = [region[3] - region[2], region[1] - region[0]]
+    if whole:
+        result["windows"] = window_psnr(PanoramaStore.open(out), truth, windows)
+    print(f"  mosaic {summary['seconds']['total']:.0f} s, {summary['megapixels_per_s']} Mpx/s (tiles), "
+          f"peak RSS {summary['peak_rss_mb']} MB, store {size / 1e9:.2f} GB, holes {summary['holes_px']}", flush=True)
+    return result
 
 
-def _one(merged: str, out: str, width: str, region: str | None = None) -> None:
-    """A single engine run in this process; prints its summary as JSON (used for peak RSS per run)."""
-    kw = {"region": tuple(json.loads(region))} if region else {}
-    summary = mosaic(merged, out, width=int(width), workers=2, overwrite=True, **kw)
+def window_psnr(store: PanoramaStore, truth: np.ndarray, n: int, size: int = 512, seed: int = 0) -> dict:
+    """PSNR (:func:`psnr`, the window's own peak) of ``n`` windows of ``size``² of the level-0 panorama against
+    the truth looked up along the same rays; the two polar windows plus ``n - 2`` at random (seeded)."""
+    from omnispectral.mosaic.maps import Canvas
+    from omnispectral.mosaic.synthetic import lookup, pad_over_poles
+
+    h, w = store.shapes[0]
+    canvas, padded = Canvas(w, h), pad_over_poles(np.asarray(truth, np.float32))
+    rng = np.random.default_rng(seed)
+    corners = [(0, int(rng.integers(0, w - size))), (h - size, int(rng.integers(0, w - size)))]
+    corners += [(int(rng.integers(0, h - size)), int(rng.integers(0, w - size))) for _ in range(n - 2)]
+    rows = []
+    for r0, c0 in corners:
+        est = store.read(0, slice(r0, r0 + size), slice(c0, c0 + size))
+        ref = lookup(padded, canvas.rays(np.arange(r0, r0 + size), np.arange(c0, c0 + size)), truth.shape[1],
+                     truth.shape[0])
+        rows.append({"row0": r0, "col0": c0, "holes": int((~np.isfinite(est)).any(axis=-1).sum()), **psnr(est, ref)})
+    worst = min(rows, key=lambda r: r["psnr_db"])
+    return {"n": len(rows), "size": size, "psnr_db_median": float(np.median([r["psnr_db"] for r in rows])),
+            "psnr_db_min": worst["psnr_db"], "worst": worst, "holes": sum(r["holes"] for r in rows), "rows": rows}
+
+
+def _one(merged: str, out: str, width: str, region: str = "null", processes: str = "0") -> None:
+    """A single engine run in this process (two threads, or a cluster of ``processes`` worker processes); prints
+    its summary as JSON (used for peak RSS per run)."""
+    region = json.loads(region)
+    kw = {"region": tuple(region)} if region else {}
+    if int(processes):
+        import signal
+
+        from omnispectral.mosaic.cluster import process_cluster
+
+        signal.signal(signal.SIGTERM, lambda *_: sys.exit(1))  # a killed run still stops its cluster (finally)
+
+        t0 = time.perf_counter()
+        with process_cluster(int(processes), directory=Path(out).parent / "cluster") as address, TreeRSS() as tree:
+            started = time.perf_counter() - t0
+            summary = mosaic(merged, out, width=int(width), scheduler=address, overwrite=True, **kw)
+        summary.update(cluster_start_s=round(started, 2), processes=int(processes),
+                       tree_peak_rss_mb=round(tree.peak_mb, 1))
+    else:
+        summary = mosaic(merged, out, width=int(width), workers=2, overwrite=True, **kw)
     print(json.dumps(summary))
 
 
@@ -374,6 +482,10 @@ def main() -> None:
     ap.add_argument("--json-out", type=Path)
     ap.add_argument("--repeat", type=int, default=3, help="versus: rounds (medians)")
     ap.add_argument("--baseline-src", type=Path, help="versus: also run the engine from this source tree")
+    ap.add_argument("--whole", action="store_true", help="gigapixel: the whole canvas from all 1260 directions")
+    ap.add_argument("--sensor-scale", type=int, default=1, help="gigapixel: sensor divided by this (same FOV)")
+    ap.add_argument("--processes", type=int, default=0,
+                    help="gigapixel: mosaic on this many Dask worker processes (default: two local threads)")
     args = ap.parse_args()
     if shutil.which("nona") is None and args.case in ("quality", "speed", "all"):
         print("nona not found: its rows are skipped (make bench-deps installs Debian's hugin-tools)", flush=True)
@@ -382,6 +494,8 @@ def main() -> None:
     for name in (CASES if args.case == "all" else [args.case]):
         print(f"{name}:", flush=True)
         kw = {"repeat": args.repeat, "baseline_src": args.baseline_src} if name == "versus" else {}
+        if name == "gigapixel":
+            kw = {"whole": args.whole, "sensor_scale": args.sensor_scale, "processes": args.processes}
         results.append(CASES[name](args.work, **kw))
     text = json.dumps(results, indent=2, default=str)
     if args.json_out:

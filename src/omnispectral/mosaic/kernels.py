@@ -57,6 +57,16 @@ def compiled_kernels() -> SimpleNamespace | None:
         w3 = t3 * sixth
         return w0, w1, one - w0 - w1 - w3, w3
 
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False, inline="always")
+    def spline_taps(r0, r1, r2, r3, x0, x1, x2, x3, wx, wy, c):  # pragma: no cover - compiled
+        """``Σ_k wy_k Σ_l wx_l r_k[x_l, c]`` over the 4 × 4 taps, in the definition's order (float32)."""
+        wx0, wx1, wx2, wx3 = wx
+        wy0, wy1, wy2, wy3 = wy
+        return (wy0 * (wx0 * r0[x0, c] + wx1 * r0[x1, c] + wx2 * r0[x2, c] + wx3 * r0[x3, c])
+                + wy1 * (wx0 * r1[x0, c] + wx1 * r1[x1, c] + wx2 * r1[x2, c] + wx3 * r1[x3, c])
+                + wy2 * (wx0 * r2[x0, c] + wx1 * r2[x1, c] + wx2 * r2[x2, c] + wx3 * r2[x3, c])
+                + wy3 * (wx0 * r3[x0, c] + wx1 * r3[x1, c] + wx2 * r3[x2, c] + wx3 * r3[x3, c]))
+
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
     def spline(coef, u, v, out):  # pragma: no cover - compiled (tested through remap)
         hs, ws, nc = coef.shape
@@ -78,18 +88,16 @@ def compiled_kernels() -> SimpleNamespace | None:
                 ix, iy = int(fx), int(fy)
                 x0, x1 = min(max(ix - 1, 0), ws - 1), min(max(ix, 0), ws - 1)
                 x2, x3 = min(max(ix + 1, 0), ws - 1), min(max(ix + 2, 0), ws - 1)
-                y0, y1 = min(max(iy - 1, 0), hs - 1), min(max(iy, 0), hs - 1)
-                y2, y3 = min(max(iy + 1, 0), hs - 1), min(max(iy + 2, 0), hs - 1)
-                for c in range(nc):
-                    out[i, j, c] = (
-                        wy0 * (wx0 * coef[y0, x0, c] + wx1 * coef[y0, x1, c] + wx2 * coef[y0, x2, c]
-                               + wx3 * coef[y0, x3, c])
-                        + wy1 * (wx0 * coef[y1, x0, c] + wx1 * coef[y1, x1, c] + wx2 * coef[y1, x2, c]
-                                 + wx3 * coef[y1, x3, c])
-                        + wy2 * (wx0 * coef[y2, x0, c] + wx1 * coef[y2, x1, c] + wx2 * coef[y2, x2, c]
-                                 + wx3 * coef[y2, x3, c])
-                        + wy3 * (wx0 * coef[y3, x0, c] + wx1 * coef[y3, x1, c] + wx2 * coef[y3, x2, c]
-                                 + wx3 * coef[y3, x3, c]))
+                # the four rows as views: 2.6x faster than indexing coef[y, x, c] (same sums, same order)
+                r0, r1 = coef[min(max(iy - 1, 0), hs - 1)], coef[min(max(iy, 0), hs - 1)]
+                r2, r3 = coef[min(max(iy + 1, 0), hs - 1)], coef[min(max(iy + 2, 0), hs - 1)]
+                wx, wy = (wx0, wx1, wx2, wx3), (wy0, wy1, wy2, wy3)
+                if nc == 3:  # the engine's case: a constant trip count lets LLVM unroll the channels
+                    for c in range(3):
+                        out[i, j, c] = spline_taps(r0, r1, r2, r3, x0, x1, x2, x3, wx, wy, c)
+                else:
+                    for c in range(nc):
+                        out[i, j, c] = spline_taps(r0, r1, r2, r3, x0, x1, x2, x3, wx, wy, c)
 
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
     def accumulate(num, den, row0, col0, band0, values, weight):  # pragma: no cover - compiled

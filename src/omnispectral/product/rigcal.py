@@ -70,7 +70,7 @@ MAX_INV_DEPTH_PER_M = 3.0
 #: Blocks whose structure measures the along-line shift at least this well (``gᵀJg/|g|²``) anchor infinity.
 ALONG_MIN_WEIGHT = 0.3
 #: Smallest share of the usable blocks that makes a cluster.
-FAR_MIN_FRACTION = 0.04
+FAR_MIN_FRACTION = 0.15
 
 
 def predict_b_px(model_a: CameraModel, model_b: CameraModel, a_px: np.ndarray, inv_depth_per_m) -> np.ndarray:

@@ -151,6 +151,8 @@ def refine_block_shifts(a: np.ndarray, b: np.ndarray, y_px: np.ndarray, x_px: np
     conf = np.zeros(ddx.size)
     last = np.zeros(ddx.size)
     per = max(1, _REMAP_ROWS // block)
+    if edge_normal is not None:
+        normal_x, normal_y = edge_normal[..., 0].ravel(), edge_normal[..., 1].ravel()
     for _ in range(passes):
         for s0 in range(0, ddx.size, per):
             sl = slice(s0, s0 + per)
@@ -169,7 +171,7 @@ def refine_block_shifts(a: np.ndarray, b: np.ndarray, y_px: np.ndarray, x_px: np
             conf[sl] = np.where(ok, c, 0.0)
             step = np.hypot(rx, ry)
             if edge_normal is not None:
-                nx_, ny_ = (edge_normal[..., 0].ravel()[sl], edge_normal[..., 1].ravel()[sl])
+                nx_, ny_ = normal_x[sl], normal_y[sl]
                 step = np.where(np.isfinite(nx_), np.abs(np.nan_to_num(nx_) * rx + np.nan_to_num(ny_) * ry), step)
             last[sl] = np.where(ok, step, np.inf)
     # a block whose last correction is not small has not converged (flat or ambiguous content)
@@ -269,36 +271,30 @@ _SAME_NORMAL_COS = 0.7
 
 def edge_aware_outliers(dx: np.ndarray, dy: np.ndarray, confident: np.ndarray, two_d: np.ndarray,
                         normal: np.ndarray, tol_px: float = 1.0) -> np.ndarray:
-    """Blocks more than ``tol_px`` from the median of their confident 3 × 3 neighbours (themselves included),
-    compared only in the components each block measures.
+    """Blocks whose shift across their edge is more than ``tol_px`` from the median of their confident 3 × 3
+    neighbours (themselves included) that measure that component: two-directional blocks, or edge blocks
+    whose normal is within 45° of theirs.  (:func:`measure_blocks` applies it to edge blocks only.)
 
     An edge block measures the shift across its edge only; along the edge its POC shift is arbitrary (the
     aperture problem).  Comparing whole vectors, as :func:`block_disparity`'s ``outlier`` does, rejects
     every block of a thin near object lying along the epipolar lines' normal -- a post whose long edges cut
     the lines, measured by a row of edge blocks with equal shifts across and scattered shifts along it --
-    and lets flat blocks' noise set the median.  Here a block is compared along its edge normal ``n`` (and
-    along ``n``'s perpendicular too when it is two-directional) with the neighbours that measure that
-    component: confident two-directional blocks, or edge blocks whose normal is within 45° of it.
+    and lets flat blocks' noise set the median.
     """
     ny, nx = dx.shape
     pad = ((1, 1), (1, 1))
     px_, py_ = np.pad(dx.astype(np.float64), pad), np.pad(dy.astype(np.float64), pad)
     pc, p2 = np.pad(confident, pad), np.pad(two_d, pad)
     pnx, pny = np.pad(normal[..., 0], pad), np.pad(normal[..., 1], pad)
-    outlier = np.zeros((ny, nx), bool)
-    perp = np.stack([-normal[..., 1], normal[..., 0]], axis=-1)
-    for u, tested in ((normal, np.ones((ny, nx), bool)), (perp, two_d)):
-        ux, uy = u[..., 0], u[..., 1]
-        vals = np.full((9, ny, nx), np.nan)
-        for k, (oy, ox) in enumerate((oy, ox) for oy in range(3) for ox in range(3)):
-            sl = (slice(oy, oy + ny), slice(ox, ox + nx))
-            same = np.abs(pnx[sl] * ux + pny[sl] * uy) >= _SAME_NORMAL_COS
-            usable = pc[sl] & (p2[sl] | same)
-            vals[k] = np.where(usable, px_[sl] * ux + py_[sl] * uy, np.nan)
-        counted = np.isfinite(vals).any(axis=0)
-        med = np.nanmedian(np.where(counted[None], vals, 0.0), axis=0)
-        outlier |= tested & counted & (np.abs(dx * ux + dy * uy - med) > tol_px)
-    return outlier
+    ux, uy = normal[..., 0], normal[..., 1]
+    vals = np.full((9, ny, nx), np.nan)
+    for k, (oy, ox) in enumerate((oy, ox) for oy in range(3) for ox in range(3)):
+        sl = (slice(oy, oy + ny), slice(ox, ox + nx))
+        usable = pc[sl] & (p2[sl] | (np.abs(pnx[sl] * ux + pny[sl] * uy) >= _SAME_NORMAL_COS))
+        vals[k] = np.where(usable, px_[sl] * ux + py_[sl] * uy, np.nan)
+    counted = np.isfinite(vals).any(axis=0)
+    med = np.nanmedian(np.where(counted[None], vals, 0.0), axis=0)
+    return counted & (np.abs(dx * ux + dy * uy - med) > tol_px)
 
 
 def epipolar_field(model_a: CameraModel, baseline_m: np.ndarray, pixels: np.ndarray | None = None,

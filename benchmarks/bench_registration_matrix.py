@@ -15,6 +15,8 @@ stands at latitude -10° instead of -15° so that it stays above the ground.
 
     python benchmarks/bench_registration_matrix.py --out /tmp/regmatrix            # the whole matrix
     python benchmarks/bench_registration_matrix.py --times 09:30 --seeds 5 --distances 2.5
+    python benchmarks/bench_registration_matrix.py --calibration chessboard --out /tmp/regmatrix-cb \
+        --reuse-paper /tmp/regmatrix/results.jsonl     # B's mounting from chessboard pairs per seed
 
 Results: one JSON line per run in OUT/results.jsonl (resumable: finished runs are skipped) and a
 Markdown table on stdout (also OUT/table.md).  Load average is recorded per run.
@@ -33,11 +35,13 @@ from pathlib import Path
 
 import numpy as np
 
+from omnispectral.capture.boardviews import simulate_board_views
 from omnispectral.capture.scenes import PanoramaScene, ProceduralOutdoorScene
 from omnispectral.capture.simulate import simulate_session
 from omnispectral.imaging.geometry import CameraModel
 from omnispectral.mosaic.sources import MergedDirections
 from omnispectral.product.process import process
+from omnispectral.product.rigboard import calibrate_chessboard_folder
 from omnispectral.product.rigcal import RigCalibration, predict_b_px
 from omnispectral.rig import load_preset
 
@@ -136,9 +140,20 @@ def truth_bands_delta_e(product: Path) -> dict | None:
             "truth_bands_de_max_patch": patches[worst]["name"]}
 
 
-def run_one(work: Path, key: dict, paper: dict | None = None) -> dict:
+def chessboard_calibration(out: Path, seed: int) -> Path:
+    """Camera B's mounting for ``seed`` from 12 simulated chessboard pairs (the rig of that seed), made once."""
+    folder = out / "chessboards" / f"seed_{seed}"
+    cal = folder / "rig-calibration.json"
+    if not cal.is_file():
+        simulate_board_views(folder, load_preset("small"), seed=seed)
+        calibrate_chessboard_folder(folder, cal)
+    return cal
+
+
+def run_one(work: Path, key: dict, paper: dict | None = None, rig_calibration: Path | None = None) -> dict:
     """Simulate one session and process it with both registrations (``paper``: that method's result of an
-    earlier run on the same frames, reused instead of processing again)."""
+    earlier run on the same frames, reused instead of processing again; ``rig_calibration``: camera B's
+    mounting from that file instead of fitted on the session)."""
     rig = load_preset("small")
     h, m = (int(x) for x in key["time"].split(":"))
     start = dt.datetime(2026, 3, 21, h, m, tzinfo=dt.UTC)
@@ -153,13 +168,15 @@ def run_one(work: Path, key: dict, paper: dict | None = None) -> dict:
     t0 = time.perf_counter()
     simulate_session(session, rig, scene, start=start, seed=key["seed"], progress=False)
     truth = json.loads((session / "ground_truth" / "ground_truth.json").read_text())
-    out = {**key, "simulate_s": time.perf_counter() - t0, "load": os.getloadavg()[0]}
+    out = {**key, "simulate_s": time.perf_counter() - t0, "load": os.getloadavg()[0],
+           "rig_calibration": "session" if rig_calibration is None else "chessboard"}
     for method in ("parallax", "paper"):
         if method == "paper" and paper is not None:
             out[method] = {**paper, "reused": True}
             continue
         t1 = time.perf_counter()
-        process(session, work / method, progress=False, registration=method)
+        process(session, work / method, progress=False, registration=method,
+                rig_calibration=rig_calibration if method == "parallax" else None)
         out[method] = {**accuracy(work / method), "process_s": time.perf_counter() - t1}
     out["parallax"]["infinity_error_px"] = infinity_error_px(work / "parallax", truth)
     if key["scene"] == "procedural":
@@ -235,6 +252,9 @@ def main(argv=None) -> int:
     ap.add_argument("--reuse-paper", nargs="*", default=[], metavar="RESULTS",
                     help="results.jsonl of earlier runs whose '--registration paper' results are reused for the "
                          "same runs (the simulator and that method unchanged since: same frames, same result)")
+    ap.add_argument("--calibration", choices=["session", "chessboard"], default="session",
+                    help="camera B's mounting: fitted on each session (default), or from 12 simulated chessboard pairs "
+                         "of the run's seed (calibrate rig --chessboard), made once per seed under OUT/chessboards")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -259,7 +279,8 @@ def main(argv=None) -> int:
         k = json.dumps(key, sort_keys=True)
         if k not in done:
             print(f"[{i + 1}/{len(keys)}] {key}", file=sys.stderr, flush=True)
-            done[k] = run_one(out / "work", key, paper.get(k))
+            cal = chessboard_calibration(out, key["seed"]) if args.calibration == "chessboard" else None
+            done[k] = run_one(out / "work", key, paper.get(k), cal)
             with open(results, "a") as fh:
                 fh.write(json.dumps(done[k]) + "\n")
         rows.append(done[k])

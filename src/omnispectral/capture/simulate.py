@@ -169,6 +169,11 @@ class RigRenderer:
         if self.electrons_per_unit is None:
             self.electrons_per_unit = calibrate_exposure(self.rig, self.scene, self.system)
 
+    def set_scene(self, scene) -> None:
+        """Render ``scene`` from now on (same cameras, rays and exposure scale; the frame cache is dropped)."""
+        self.scene = scene
+        self._last.clear()
+
     def band_matrix(self, camera: str) -> np.ndarray:
         """(3, n) sensitivity × filter × Δλ of one camera."""
         i = self.rig.camera_names.index(camera)

@@ -26,14 +26,14 @@ def calibrate_group(sub) -> argparse._SubParsersAction:
     return parser.get_default("calibrate_sub")
 
 
-def _board(text: str) -> tuple[int, int]:
+def board_arg(text: str) -> tuple[int, int]:
     try:
         return parse_board(text)
     except ConfigurationError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-def _positive_mm(text: str) -> float:
+def positive_mm_arg(text: str) -> float:
     try:
         value = float(text)
     except ValueError:
@@ -94,9 +94,9 @@ def add_commands(sub) -> None:
                     "focal lengths, principal point and OpenCV distortion coefficients. Images where the board "
                     "is not found are listed; too few boards is an error.")
     lens.add_argument("images", nargs="+", metavar="IMAGE", help="chessboard images from one camera")
-    lens.add_argument("--board", type=_board, required=True, metavar="COLSxROWS",
+    lens.add_argument("--board", type=board_arg, required=True, metavar="COLSxROWS",
                       help="inner corners per row x per column, e.g. 9x6")
-    lens.add_argument("--square-mm", type=_positive_mm, required=True, metavar="S", help="square side in mm")
+    lens.add_argument("--square-mm", type=positive_mm_arg, required=True, metavar="S", help="square side in mm")
     lens.add_argument("-o", "--output", required=True, metavar="LENS.json", help="camera model to write (JSON)")
     lens.add_argument("--model", choices=list(MODELS), default="standard",
                       help="distortion model: standard k1 k2 p1 p2 k3 (default), rational (+k4..k6), "

@@ -12,14 +12,18 @@ from rich.table import Table
 
 from omnispectral.apps.demo import run_demo
 from omnispectral.cli._common import ProgressBars, console, print_json
-from omnispectral.cli.lens import calibrate_group
+from omnispectral.cli.capture import rig_from_args
+from omnispectral.cli.lens import board_arg, calibrate_group, positive_mm_arg
+from omnispectral.errors import ConfigurationError
 from omnispectral.mosaic.interp import METHODS
 from omnispectral.product.exports import FORMATS, export_product
 from omnispectral.product.process import DEFAULT_INTERP, process
 from omnispectral.product.report import write_report
+from omnispectral.product.rigboard import calibrate_chessboard_folder
 from omnispectral.product.rigcal import calibrate_session
 from omnispectral.product.series import DEFAULT_REGIONS, parse_region, process_series
 from omnispectral.product.spectra import spectrum_at
+from omnispectral.rig import PRESETS
 
 
 def cmd_process(args) -> int:
@@ -175,16 +179,34 @@ def cmd_process_series(args) -> int:
 
 
 def cmd_calibrate_rig(args) -> int:
-    cal = calibrate_session(args.session, args.output, args.work)
+    if (args.session is None) == (args.chessboard is None):
+        raise ConfigurationError("give either a SESSION (fit from its images) or --chessboard DIR (chessboard "
+                                 "pairs)")
+    if args.chessboard is not None:
+        rig = rig_from_args(args) if (args.preset or args.rig) else None
+        cal = calibrate_chessboard_folder(args.chessboard, args.output, board=args.board, square_mm=args.square_mm,
+                                          rig=rig, refine_baseline=args.refine_baseline)
+    else:
+        cal = calibrate_session(args.session, args.output, args.work)
     if args.json:
         print_json(cal.to_dict())
         return 0
     d = cal.delta_deg
-    console.print(f"Camera B's mounting from {cal.n_inliers} of {cal.n_blocks} block measurements: "
-                  f"yaw {d[0]:+.3f}°, "
-                  f"pitch {d[1]:+.3f}°, roll {d[2]:+.3f}° from the rig file; RMS residual across the epipolar lines "
-                  f"{cal.rms_perpendicular_px:.3f} px; infinity anchored on "
-                  f"{cal.far_anchor.get('n_blocks', 0)} blocks.")
+    change = f"yaw {d[0]:+.4f}°, pitch {d[1]:+.4f}°, roll {d[2]:+.4f}° from the rig file"
+    if cal.method == "chessboard":
+        cb = cal.chessboard
+        sd = cb["std_deg"]
+        console.print(f"Camera B's mounting from {cb['n_pairs']} chessboard pairs ({cal.n_blocks} corners): {change} "
+                      f"(± {sd['yaw']:.4f}°, {sd['pitch']:.4f}°, {sd['roll']:.4f}°); corner residual RMS "
+                      f"A {cb['rms_a_px']:.3f} px, B {cb['rms_b_px']:.3f} px; baseline "
+                      f"{', '.join(f'{x:.2f}' for x in cal.mounting['baseline_mm'])} mm"
+                      f"{' (refined)' if cb['baseline_refined'] else ' (rig file)'}.")
+        for r in cb["rejected"]:
+            console.print(f"[yellow]skipped:[/yellow] {escape(r['name'])}: {escape(r['why'])}")
+    else:
+        console.print(f"Camera B's mounting from {cal.n_inliers} of {cal.n_blocks} block measurements: {change}; "
+                      f"RMS residual across the epipolar lines {cal.rms_perpendicular_px:.3f} px; infinity anchored on "
+                      f"{cal.far_anchor.get('n_blocks', 0)} blocks.")
     for w in cal.warnings():
         console.print(f"[yellow]warning:[/yellow] {escape(w)}")
     console.print(f"Written: {args.output} (use: omnispectral process SESSION -o PRODUCT --rig-calibration "
@@ -197,13 +219,29 @@ def add_commands(sub) -> None:
     ``calibrate rig``."""
 
     c = calibrate_group(sub).add_parser(
-        "rig", help="camera B's mounting relative to camera A, fitted from a session's images",
-        description="Merges the session's brackets and fits camera B's rotation relative to A from block "
-                    "correspondences of every direction (residuals across the epipolar lines; the farthest content "
-                    "taken to be at infinity). The file is reused with 'process --rig-calibration'.")
-    c.add_argument("session", metavar="SESSION")
+        "rig", help="camera B's mounting relative to camera A, from a session's images or from chessboard pairs",
+        description="Fits camera B's rotation relative to A. From a SESSION: block correspondences of every "
+                    "direction (residuals across the epipolar lines; the farthest content taken to be at infinity, "
+                    "so B's yaw is only as good as that content is far). From --chessboard DIR: pairs of images of "
+                    "a chessboard both cameras saw at once (DIR/A/NAME and DIR/B/NAME; stereo calibration with the "
+                    "rig file's lenses), which fixes the yaw too. The file is reused with "
+                    "'process --rig-calibration'.")
+    c.add_argument("session", metavar="SESSION", nargs="?", default=None)
     c.add_argument("-o", "--output", required=True, metavar="FILE.json")
     c.add_argument("--work", default=None, metavar="DIR", help="keep the merged directions here (default: temporary)")
+    c.add_argument("--chessboard", default=None, metavar="DIR",
+                   help="chessboard pairs in DIR/A and DIR/B (same file names), e.g. from simulate-chessboard")
+    c.add_argument("--board", type=board_arg, default=None, metavar="COLSxROWS",
+                   help="inner corners of the chessboard (default: DIR/board.json)")
+    c.add_argument("--square-mm", type=positive_mm_arg, default=None, metavar="S",
+                   help="square side in mm (default: DIR/board.json)")
+    c.add_argument("--refine-baseline", action="store_true",
+                   help="fit B's baseline too (default: the rig file's; the fit's spread grows)")
+    g = c.add_mutually_exclusive_group()
+    g.add_argument("--preset", choices=PRESETS, default=None, help="with --chessboard: a built-in rig (default: "
+                                                                   "DIR/rig.toml)")
+    g.add_argument("--rig", default=None, metavar="FILE.toml", help="with --chessboard: the rig file (default: "
+                                                                   "DIR/rig.toml)")
     c.add_argument("--json", action="store_true", help="print the calibration as JSON")
     c.set_defaults(func=cmd_calibrate_rig)
 

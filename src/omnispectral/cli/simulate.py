@@ -7,6 +7,7 @@ from pathlib import Path
 
 from rich.markup import escape
 
+from omnispectral.capture.boardviews import DEFAULT_BOARD, DEFAULT_SQUARE_MM, simulate_board_views
 from omnispectral.capture.devices import FakeClock
 from omnispectral.capture.drivers import rig_device_kind
 from omnispectral.capture.hardware import capture_darks, capture_with_devices, dry_run
@@ -15,6 +16,7 @@ from omnispectral.capture.simulate import simulate_session
 from omnispectral.capture.timelapse import parse_hhmm, parse_interval_s, run_timelapse, slot_times
 from omnispectral.cli._common import ProgressBars, console, print_json
 from omnispectral.cli.capture import add_rig_args, rig_from_args
+from omnispectral.cli.lens import board_arg, positive_mm_arg
 
 
 def _start_time(text: str, date: str | None) -> _dt.datetime:
@@ -40,6 +42,24 @@ def cmd_simulate(args) -> int:
         console.print(f"Session: {args.output}  (verify: omnispectral session verify {args.output})")
         console.print(f"Ground truth: {out['ground_truth']} (bands.npy in DN/s, spectral.npy, ground_truth.json)")
     return 0 if out["complete"] else 1
+
+
+def cmd_simulate_chessboard(args) -> int:
+    rig = rig_from_args(args, default_preset="small")
+    with ProgressBars(enabled=not args.json, transient=True) as bars:
+        out = simulate_board_views(args.output, rig, seed=args.seed, n_views=args.views, board=args.board,
+                                   square_mm=args.square_mm, noise=args.noise == "on",
+                                   mounting_error_deg=args.mounting_error,
+                                   progress=lambda i, n: bars("render", i, n))
+    if args.json:
+        print_json(out)
+    else:
+        dist = out["distance_m"]
+        console.print(f"Simulated {out['n_views']} chessboard pairs ({out['board'][0]}x{out['board'][1]} inner "
+                      f"corners, {out['square_mm']:g} mm squares, {min(dist):.2f}-{max(dist):.2f} m) of {rig.name} "
+                      f"into {args.output}/A and {args.output}/B (truth: {args.output}/ground_truth/views.json).")
+        console.print(f"Calibrate: omnispectral calibrate rig --chessboard {args.output} -o rig-calibration.json")
+    return 0
 
 
 def cmd_capture_darks(args) -> int:
@@ -161,7 +181,7 @@ def _add_session_args(p) -> None:
 
 
 def add_commands(sub) -> None:
-    """Register ``simulate``, ``capture`` and ``timelapse``."""
+    """Register ``simulate``, ``simulate-chessboard``, ``capture`` and ``timelapse``."""
     s = sub.add_parser("simulate", help="capture a simulated scene with the simulated rig (plus ground truth)",
                        description="Run the capture loop on the simulated rig: every sensor pixel through the rig's "
                                    "camera model, CMV2000 noise, frames and journal as from real hardware, and the "
@@ -169,6 +189,26 @@ def add_commands(sub) -> None:
                                    "Resumable.")
     _add_session_args(s)
     s.set_defaults(func=cmd_simulate)
+
+    b = sub.add_parser("simulate-chessboard", help="simulated chessboard pairs for 'calibrate rig --chessboard'",
+                       description="Render a chessboard at random poses in front of the simulated rig (head at pan = "
+                                   "tilt = 0), both cameras at once, camera B with the same unknown mounting error as "
+                                   "'simulate' draws for the same --seed: DIR/A/view_NN.tif and DIR/B/view_NN.tif "
+                                   "(16-bit RGB), DIR/board.json, DIR/rig.toml.")
+    add_rig_args(b)
+    b.add_argument("--views", type=int, default=12, metavar="N", help="board poses (default 12)")
+    b.add_argument("--board", type=board_arg, default=DEFAULT_BOARD, metavar="COLSxROWS",
+                   help="inner corners (default 9x6)")
+    b.add_argument("--square-mm", type=positive_mm_arg, default=DEFAULT_SQUARE_MM, metavar="S",
+                   help=f"square side in mm (default {DEFAULT_SQUARE_MM:g})")
+    b.add_argument("--noise", choices=["on", "off"], default="on", help="CMV2000 sensor noise")
+    b.add_argument("--seed", type=int, default=0, help="random seed of the poses, the noise and camera B's mounting "
+                                                       "error (the same error as 'simulate --seed')")
+    b.add_argument("--mounting-error", type=float, default=0.5, metavar="DEG",
+                   help="largest error of camera B's mounting per axis, as for 'simulate' (default 0.5)")
+    b.add_argument("-o", "--output", required=True, metavar="DIR")
+    b.add_argument("--json", action="store_true", help="print a JSON summary")
+    b.set_defaults(func=cmd_simulate_chessboard)
 
     c = sub.add_parser("capture", help="capture a session with the devices a rig file names",
                        description="Run the capture loop on the devices named in the rig file (GenICam cameras, "

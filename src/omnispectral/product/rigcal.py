@@ -71,6 +71,8 @@ MAX_INV_DEPTH_PER_M = 3.0
 ALONG_MIN_WEIGHT = 0.3
 #: Smallest share of the usable blocks that makes a cluster.
 FAR_MIN_FRACTION = 0.15
+#: A chessboard calibration whose B corners miss the fit by more than this RMS (px) is reported.
+CHESSBOARD_WARNING_PX = 0.5
 
 
 def predict_b_px(model_a: CameraModel, model_b: CameraModel, a_px: np.ndarray, inv_depth_per_m) -> np.ndarray:
@@ -166,6 +168,10 @@ class RigCalibration:
     directions: list[dict]
     source: str = ""
     created_utc: str = field(default_factory=lambda: _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"))
+    #: ``"scene"`` (fitted from a session's blocks, this module) or ``"chessboard"`` (:mod:`.rigboard`)
+    method: str = "scene"
+    #: the chessboard fit's board, views, residuals and standard deviations (``method == "chessboard"``)
+    chessboard: dict | None = None
 
     def apply(self, model_b: CameraModel) -> CameraModel:
         """Camera B's model with the calibrated mounting (lens unchanged)."""
@@ -176,13 +182,17 @@ class RigCalibration:
                f"{d['median_perpendicular_px']:.2f} px across the epipolar lines (bound {DIRECTION_WARNING_PX} px)"
                for d in self.directions if d["median_perpendicular_px"] is not None
                and d["median_perpendicular_px"] > DIRECTION_WARNING_PX]
-        if self.far_anchor.get("n_blocks", 0) < 5:
+        if self.method == "scene" and self.far_anchor.get("n_blocks", 0) < 5:
             out.append("too few far blocks to fix camera B's yaw at infinity; the rig file's yaw was kept")
+        if self.chessboard is not None and self.chessboard["rms_b_px"] > CHESSBOARD_WARNING_PX:
+            out.append(f"camera B's chessboard corners miss the fitted rig by {self.chessboard['rms_b_px']:.2f} px RMS "
+                       f"(bound {CHESSBOARD_WARNING_PX} px): check the pairs were taken at the same moment")
         return out
 
     def to_dict(self) -> dict:
         return {"format": CALIBRATION_FORMAT, "format_version": 1, "rig": self.rig_name,
-                "created_utc": self.created_utc, "source": self.source,
+                "created_utc": self.created_utc, "source": self.source, "method": self.method,
+                **({"chessboard": self.chessboard} if self.chessboard is not None else {}),
                 "camera_b_mounting": self.mounting, "delta_from_rig_file_deg":
                     dict(zip(("yaw", "pitch", "roll"), self.delta_deg, strict=True)),
                 "n_blocks": self.n_blocks, "n_inliers": self.n_inliers,
@@ -215,7 +225,7 @@ class RigCalibration:
         return cls(data.get("rig", ""), data["camera_b_mounting"], delta,
                    int(data["n_blocks"]), int(data["n_inliers"]), float(data["rms_perpendicular_px"]),
                    data.get("far_anchor", {}), data.get("directions", []), source or data.get("source", ""),
-                   data.get("created_utc", ""))
+                   data.get("created_utc", ""), data.get("method", "scene"), data.get("chessboard"))
 
 
 def _epipolar(model_a, model_b, a_px, w) -> tuple[np.ndarray, np.ndarray]:

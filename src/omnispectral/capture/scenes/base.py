@@ -70,6 +70,22 @@ def equirect_directions(width: int, height: int, row_start: int = 0, row_stop: i
     return lonlat_to_direction(lon[None, :], lat[:, None])
 
 
+def render_rows(directions, origin_m, table: np.ndarray, shade: Callable) -> np.ndarray:
+    """Radiance ``(..., m)`` float32 of scenes whose ray sees one row of ``table`` times a weight.
+
+    ``shade(d (N, 3) float64, o (3,))`` returns each ray's row in ``table`` and its weight (``None``: 1);
+    rays are traced in blocks of :data:`RAY_BLOCK`.
+    """
+    d, lead = as_directions(directions)
+    o = as_origin(origin_m)
+    out = np.empty((d.shape[0], table.shape[1]), np.float32)
+    for b0 in range(0, d.shape[0], RAY_BLOCK):
+        b1 = min(d.shape[0], b0 + RAY_BLOCK)
+        row, weight = shade(d[b0:b1].astype(np.float64), o)
+        out[b0:b1] = table[row] if weight is None else table[row] * weight[:, None].astype(np.float32)
+    return out.reshape(*lead, table.shape[1])
+
+
 def _check_grid(width: int, height: int) -> None:
     if int(width) != width or int(height) != height or width < 1 or height < 1:
         raise ConfigurationError(f"an equirectangular grid needs positive integer width and height, "

@@ -27,12 +27,11 @@ import cv2
 import numpy as np
 
 from omnispectral.capture.scenes.base import (
-    RAY_BLOCK,
     BandProjectionCache,
     Scene,
-    as_directions,
     as_origin,
     direction_to_lonlat,
+    render_rows,
     resample_matrix,
 )
 from omnispectral.capture.scenes.cube import check_cube, load_reflectance_cube
@@ -185,14 +184,7 @@ class IndoorScene(Scene):
         return self._render(directions, origin_m, table)
 
     def _render(self, directions, origin_m, table: np.ndarray) -> np.ndarray:
-        d, lead = as_directions(directions)
-        o = as_origin(origin_m)
-        out = np.empty((d.shape[0], table.shape[1]), np.float32)
-        for b0 in range(0, d.shape[0], RAY_BLOCK):
-            b1 = min(d.shape[0], b0 + RAY_BLOCK)
-            row, weight = self.shade(d[b0:b1].astype(np.float64), o)
-            out[b0:b1] = table[row] * weight[:, None].astype(np.float32)
-        return out.reshape(*lead, table.shape[1])
+        return render_rows(directions, origin_m, table, self.shade)
 
     # -- tracing ----------------------------------------------------------------------------------
     def shade(self, d: np.ndarray, o: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

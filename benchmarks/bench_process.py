@@ -34,12 +34,15 @@ def main() -> None:
     ap.add_argument("--width", type=int, default=7260)
     ap.add_argument("--keep", action="store_true", help="keep the product")
     ap.add_argument("--report", action="store_true", help="also write the report (accuracy at full size)")
+    ap.add_argument("--rig-calibration", default=None, metavar="FILE.json",
+                    help="camera B's mounting from this file (e.g. calibrate rig --chessboard) instead of fitted")
     args = ap.parse_args()
     out = Path(args.out) if args.out else Path(args.session).parent / "product-bench"
     if out.exists():
         shutil.rmtree(out)
     t0 = time.perf_counter()
-    index = process(args.session, out, width=args.width, report=args.report, progress=stage_progress)
+    index = process(args.session, out, width=args.width, report=args.report, progress=stage_progress,
+                    rig_calibration=args.rig_calibration)
     wall = time.perf_counter() - t0
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     print(json.dumps({"wall_s": round(wall, 1), "peak_rss_gib": round(rss, 2), "size": [index["width"],

@@ -182,6 +182,17 @@ def test_process_series_stacks_slots_and_tracks_region_spectra(tmp_path, capsys)
     blue = lambda s: s[:, wl < 480].sum(axis=1) / s[:, wl > 600].sum(axis=1)  # noqa: E731
     assert np.all(blue(sky) > blue(ground))
     assert (tmp_path / "out" / "region_spectra.png").stat().st_size > 10_000
+    # a calibration file (e.g. from chessboard pairs) is used for every slot, the first included
+    first = sorted(p for p in (tmp_path / "out").iterdir() if (p / "product.json").is_file())[0]
+    cal = json.loads((first / "rig-calibration.json").read_text())
+    cal["camera_b_mounting"]["misalignment_deg"]["yaw"] += 0.05
+    (tmp_path / "cal.json").write_text(json.dumps(cal))
+    assert main(["process-series", str(tmp_path / "series"), "-o", str(tmp_path / "out2"), "--json",
+                 "--rig-calibration", str(tmp_path / "cal.json")]) == 0
+    capsys.readouterr()
+    used = [json.loads((p / "product.json").read_text())["registration"]["rig_calibration"]["camera_b_mounting"]
+            for p in sorted((tmp_path / "out2").iterdir()) if (p / "product.json").is_file()]
+    assert len(used) == 3 and all(u == cal["camera_b_mounting"] for u in used)
 
 
 def test_process_resumes_without_redoing_finished_work(tiny_session, tmp_path):

@@ -15,6 +15,7 @@ from omnispectral.capture.simulate import true_mounting_error_deg
 from omnispectral.cli import main
 from omnispectral.imaging.geometry import CameraModel
 from omnispectral.imaging.lens import find_board, read_gray8
+from omnispectral.product.align import OFF_MODEL_WARNING_DEG
 from omnispectral.product.rigboard import calibrate_chessboard_folder
 from omnispectral.product.rigcal import RigCalibration
 from omnispectral.rig import load_preset, rig_from_dict
@@ -103,18 +104,26 @@ def test_calibrate_rig_chessboard_cli_and_bad_input(boards, tmp_path, capsys):
     assert cal.chessboard["n_pairs"] == 7 and [r["name"] for r in cal.chessboard["rejected"]] == ["view_03.tif"]
 
 
-def test_process_uses_a_chessboard_calibration(tmp_path):
+def few_directions_rig():
+    """The small rig's cameras on a coarser grid (12 directions, 6 exposures): quick sessions, full-size blocks."""
+    text = RIG.toml_text
+    for old, new in (("count = 15", "count = 6"), ("shortest_s = 0.000015", "shortest_s = 0.0002"),
+                     ("n_pan = 12", "n_pan = 6"), ("n_tilt = 3", "n_tilt = 2")):
+        assert old in text
+        text = text.replace(old, new)
+    return rig_from_dict(tomllib.loads(text), "few", text)
+
+
+def test_process_uses_a_chessboard_calibration_and_says_when_it_no_longer_fits(tmp_path):
     from omnispectral.capture.scenes import ProceduralOutdoorScene
     from omnispectral.capture.simulate import simulate_session
     from omnispectral.product.process import process
-    from tests.test_product import NOON, tiny_rig
+    from tests.test_product import NOON
 
-    rig = tiny_rig()
+    rig = few_directions_rig()
     simulate_session(tmp_path / "s", rig, ProceduralOutdoorScene(time_hhmm="12:00"), start=NOON,
-                     ground_truth_width=128, progress=False, seed=3)
-    # the tiny rig's 96-px sensor is too coarse to find a board in; B's mounting does not depend on the
-    # lenses, so pairs from the small rig with the same seed (the same mechanics) calibrate it
-    simulate_board_views(tmp_path / "cb", RIG, seed=3, n_views=6)
+                     ground_truth_width=256, progress=False, seed=3)
+    simulate_board_views(tmp_path / "cb", rig, seed=3, n_views=6)
     calibrate_chessboard_folder(tmp_path / "cb", tmp_path / "cal.json")
     index = process(tmp_path / "s", tmp_path / "p", progress=False, rig_calibration=tmp_path / "cal.json")
     reg = index["registration"]
@@ -123,3 +132,16 @@ def test_process_uses_a_chessboard_calibration(tmp_path):
     used = RigCalibration.load(tmp_path / "p" / "rig-calibration.json")
     assert infinity_error_px(rig.camera_model("A"), used.apply(rig.camera_model("B")),
                              CameraModel.from_dict(truth["camera_b_true"]["model"])) < 0.05
+    assert not reg["warnings"]
+    across = [abs(d["across_line_offset_deg"]) for d in reg["directions"]]
+    # a calibration that no longer fits (camera B knocked 2° in pitch since): process says so
+    moved = json.loads((tmp_path / "cal.json").read_text())
+    moved["camera_b_mounting"]["misalignment_deg"]["pitch"] += 2.0
+    (tmp_path / "moved.json").write_text(json.dumps(moved))
+    index = process(tmp_path / "s", tmp_path / "p2", progress=False, rig_calibration=tmp_path / "moved.json")
+    warned = [w for w in index["registration"]["warnings"] if "does not fit this session" in w]
+    moved_across = [abs(d["across_line_offset_deg"]) for d in index["registration"]["directions"]]
+    # the right model leaves a fraction of the bound; 2° of pitch (~5 px here) shows in every direction and
+    # is reported wherever the POC is confident
+    assert max(across) < 0.75 * OFF_MODEL_WARNING_DEG
+    assert min(moved_across) > 1.5 and len(warned) >= 8, (moved_across, warned)

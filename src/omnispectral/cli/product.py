@@ -168,7 +168,7 @@ def cmd_demo(args) -> int:
 def cmd_process_series(args) -> int:
     regions = dict(parse_region(r) for r in args.region) if args.region else dict(DEFAULT_REGIONS)
     with ProgressBars(enabled=not args.json) as bars:
-        out = process_series(args.series, args.output, regions, progress=bars)
+        out = process_series(args.series, args.output, regions, progress=bars, rig_calibration=args.rig_calibration)
     if args.json:
         print_json(out)
     else:
@@ -284,6 +284,8 @@ def add_commands(sub) -> None:
                                     "every time (paper Fig. 13) as JSON and PNG.")
     ps.add_argument("series", metavar="SERIES")
     ps.add_argument("-o", "--output", required=True, metavar="OUT")
+    ps.add_argument("--rig-calibration", default=None, metavar="FILE.json",
+                    help="camera B's mounting for every slot (default: fitted on the first slot, reused)")
     ps.add_argument("--region", action="append", default=None, metavar="NAME:LON0,LON1,LAT0,LAT1",
                     help="region to analyse (repeat; default: sky 45-75° and ground -75 to -45° all around)")
     ps.add_argument("--json", action="store_true")

@@ -45,7 +45,7 @@ from omnispectral.locking import directory_lock
 from omnispectral.mosaic import engine
 from omnispectral.mosaic.sources import MergedDirections, MergedDirectionsWriter
 from omnispectral.mosaic.store import PanoramaStore
-from omnispectral.product.align import align_direction, parallax_direction
+from omnispectral.product.align import align_direction, off_model_warnings, parallax_direction
 from omnispectral.product.estimator import rig_estimator
 from omnispectral.product.fingerprint import product_fingerprint
 from omnispectral.product.layout import MERGED, PANORAMA, PRODUCT_FORMAT, RIG_CALIBRATION, product_paths
@@ -285,7 +285,8 @@ def _process_locked(session_path: Path, paths: dict, calibration, *, width, tile
                                "min_confidence": DEFAULT_MIN_CONFIDENCE if min_confidence is None else min_confidence,
                                "directions": alignments} if registration == "paper" else
                               {"method": "parallax", "rig_calibration": calibration.to_dict(),
-                               "warnings": calibration.warnings(), "directions": parallax_stats}),
+                               "warnings": calibration.warnings() + off_model_warnings(parallax_stats),
+                               "directions": parallax_stats}),
              "skipped_directions": [{"direction": d, "problems": p} for d, p in sorted(bad.items())],
              "session_check": {k: check[k] for k in ("n_planned", "n_ok", "n_missing", "n_damaged")},
              "mosaic": {k: v for k, v in summary.items() if k not in ("output",)},

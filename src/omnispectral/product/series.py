@@ -49,10 +49,12 @@ def region_pixels(box, height: int, width: int) -> tuple[slice, slice]:
 
 
 def process_series(series: str | Path, output: str | Path, regions: dict | None = None, stack_width: int = 1024,
-                   progress=None) -> dict:
+                   progress=None, rig_calibration: str | Path | None = None) -> dict:
     """Process every complete slot of a series, stack the panoramas and analyse region spectra over time.
 
-    ``progress(stage, done, total)`` follows the slots (stage ``slots``) and each slot's processing.
+    Camera B's mounting comes from ``rig_calibration`` (e.g. ``calibrate rig --chessboard``) for every slot,
+    else it is fitted on the first slot and reused for the others.  ``progress(stage, done, total)`` follows
+    the slots (stage ``slots``) and each slot's processing.
     """
     import zarr  # lazy: zarr costs ~0.25 s to import; only the time stack needs it here
 
@@ -67,7 +69,7 @@ def process_series(series: str | Path, output: str | Path, regions: dict | None 
     regions = regions or DEFAULT_REGIONS
     out.mkdir(parents=True, exist_ok=True)
     products, times = [], []
-    calibration = None  # camera B's mounting is fitted on the first slot and reused for the others
+    calibration = rig_calibration  # else fitted on the first slot and reused for the others
     for i, e in enumerate(slots):
         prod = out / e["session"]
         if not (prod / "product.json").exists():

@@ -133,15 +133,14 @@ def test_process_uses_a_chessboard_calibration_and_says_when_it_no_longer_fits(t
     assert infinity_error_px(rig.camera_model("A"), used.apply(rig.camera_model("B")),
                              CameraModel.from_dict(truth["camera_b_true"]["model"])) < 0.05
     assert not reg["warnings"]
-    across = [abs(d["across_line_offset_deg"]) for d in reg["directions"]]
+    across = [d["median_across_deg"] for d in reg["directions"] if d["n_across_blocks"] >= 8]
     # a calibration that no longer fits (camera B knocked 2° in pitch since): process says so
     moved = json.loads((tmp_path / "cal.json").read_text())
     moved["camera_b_mounting"]["misalignment_deg"]["pitch"] += 2.0
     (tmp_path / "moved.json").write_text(json.dumps(moved))
     index = process(tmp_path / "s", tmp_path / "p2", progress=False, rig_calibration=tmp_path / "moved.json")
     warned = [w for w in index["registration"]["warnings"] if "does not fit this session" in w]
-    moved_across = [abs(d["across_line_offset_deg"]) for d in index["registration"]["directions"]]
-    # the right model leaves a fraction of the bound; 2° of pitch (~5 px here) shows in every direction and
-    # is reported wherever the POC is confident
-    assert max(across) < 0.75 * OFF_MODEL_WARNING_DEG
-    assert min(moved_across) > 1.5 and len(warned) >= 8, (moved_across, warned)
+    moved_across = [d["median_across_deg"] for d in index["registration"]["directions"] if d["n_across_blocks"] >= 8]
+    # the right model leaves a fraction of the bound; 2° of pitch (~5 px here) shows wherever blocks measure
+    assert len(across) >= 6 and max(across) < 0.6 * OFF_MODEL_WARNING_DEG
+    assert len(warned) >= 6 and min(moved_across) > 1.0, (moved_across, warned)

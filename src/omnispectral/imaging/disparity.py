@@ -343,6 +343,11 @@ class BlockParallax:
     measured: np.ndarray
     confidence: np.ndarray
     perpendicular_px: np.ndarray
+    #: the shift no depth explains (px, J-norm), on reliable blocks with structure across the epipolar lines
+    #: (``pᵀJp / |e|² ≥ 0.3``, ``p ⟂ e``), whatever its size; NaN elsewhere.  Edges parallel to the lines
+    #: count with their whole measured shift (no depth moves them).  Says whether the rig model fits
+    #: this direction at all
+    across_px: np.ndarray | None = None
 
 
 def block_parallax(gray_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, field: np.ndarray, *,
@@ -368,9 +373,15 @@ def block_parallax(gray_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, f
     inside = _blocks_seen(seen, y_px, x_px, block)
     measured = (bs.reliable & inside & (along_weight >= MIN_ALONG_WEIGHT) & (perp <= max_perpendicular_px)
                 & (e_len > 1e-6))
+    across_weight = (ey * (jxx * ey - jxy * ex) - ex * (jxy * ey - jyy * ex)) / np.maximum(e_len**2, 1e-12)
+    # an edge (nearly) parallel to the line: a depth would have to be absurd to explain its shift, so all of it
+    # is across (the J-projection above would "explain" it with w → ∞)
+    whole = np.sqrt(np.maximum(dx * (jxx * dx + jxy * dy) + dy * (jxy * dx + jyy * dy), 0.0))
+    across = np.where(bs.reliable & inside & (across_weight >= MIN_ALONG_WEIGHT) & (e_len > 1e-6),
+                      np.where(along_weight >= MIN_ALONG_WEIGHT, perp, whole), np.nan)
     w = np.where(measured, w, 0.0)
     return BlockParallax(y_px, x_px, w.astype(np.float32), measured, bs.confidence.astype(np.float32),
-                         perp.astype(np.float32))
+                         perp.astype(np.float32), across.astype(np.float32))
 
 
 def _blocks_seen(seen: np.ndarray, y_px: np.ndarray, x_px: np.ndarray, block: int) -> np.ndarray:
@@ -816,7 +827,12 @@ class Parallax:
 
     def stats(self) -> dict:
         w = self.blocks.inv_depth_per_m[self.blocks.measured]
+        across = self.blocks.across_px
+        across = across[np.isfinite(across)] if across is not None else np.zeros(0)
         return {"n_blocks": int(self.blocks.measured.size), "n_measured": int(self.blocks.measured.sum()),
+                "n_across_blocks": int(across.size),
+                # in the analysis grid's px (binned for large sensors: see parallax_direction's degrees)
+                "median_across_px": float(np.median(across)) if across.size else None,
                 "occluded_fraction": float(self.occluded.mean()),
                 "nearest_m": float(1.0 / w.max()) if w.size and w.max() > 0 else None,
                 "median_perpendicular_px": float(np.median(np.abs(self.blocks.perpendicular_px[self.blocks.measured])))

@@ -24,6 +24,7 @@ import numpy as np
 
 from omnispectral.imaging.disparity import (
     CALIBRATION_ANALYSIS_PX,
+    PARALLAX_ANALYSIS_PX,
     analysis_factor,
     bin_image,
     epipolar_field,
@@ -204,52 +205,33 @@ class DirectionParallax:
     far_offset_a_px: tuple[float, float]
     far_confidence: float
     parallax: object
-    #: :func:`across_line_offset` of the direction against the model (px of A, degrees) and its POC confidence
-    across_line: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: degrees per pixel of the grid the parallax was analysed on (binned for large sensors)
+    analysis_deg_per_px: float = 0.0
 
     def stats(self) -> dict:
-        return {**self.parallax.stats(), "far_offset_px": list(self.offset_px),
-                "far_confidence": self.far_confidence, "across_line_offset_px": self.across_line[0],
-                "across_line_offset_deg": self.across_line[1], "across_line_confidence": self.across_line[2]}
+        st = self.parallax.stats()
+        across = st.get("median_across_px")
+        return {**st, "median_across_deg": None if across is None else across * self.analysis_deg_per_px,
+                "far_offset_px": list(self.offset_px), "far_confidence": self.far_confidence}
 
 
-#: A direction whose B image sits farther than this (degrees) off the rig model *across* the epipolar lines
-#: disagrees with the model: no depth moves content that way (0.5 px on the small rig, 4 px at full scale;
-#: the right model leaves up to ~0.15° on the small rig's texture-poor directions).
-OFF_MODEL_WARNING_DEG = 0.2
+#: A direction whose reliable blocks sit, in the median, farther than this (degrees) off the rig model
+#: *across* the epipolar lines disagrees with the model: no depth moves content that way.
+OFF_MODEL_WARNING_DEG = 0.3
+#: ... judged on at least this many blocks.
+OFF_MODEL_MIN_BLOCKS = 8
 
 
-def across_line_offset(image_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, field: np.ndarray
-                       ) -> tuple[float, float]:
-    """The part of B's whole-direction POC shift against A that lies across the epipolar lines (px of A,
-    signed) and its confidence.  Parallax moves content along the lines only, so with the right rig model
-    this is near 0 whatever the depths; a camera B that moved since its calibration shows here.  Large
-    images are measured binned to about 1024 px."""
-    if seen.mean() < 0.05:
-        return 0.0, 0.0
-    f = analysis_factor(seen.shape[1], seen.shape[0], CALIBRATION_ANALYSIS_PX)
-    valid = bin_image(seen.astype(np.float32), f) > 0.999
-    reg = phase_correlate(bin_image(image_a, f), bin_image(warped_b, f), reference_valid=valid, moving_valid=valid)
-    e = field[..., :2][seen]
-    e = e[np.isfinite(e).all(axis=1)]
-    if not np.isfinite([reg.dx, reg.dy]).all() or e.size == 0:
-        return 0.0, 0.0
-    ex, ey = np.median(e, axis=0)
-    n = np.hypot(ex, ey)
-    across = (float(reg.dy) * ex - float(reg.dx) * ey) / n * f if n > 0 else 0.0
-    return float(across), float(reg.confidence)
-
-
-def off_model_warnings(direction_stats: list[dict], min_confidence: float = DEFAULT_MIN_CONFIDENCE) -> list[str]:
-    """Warnings for the directions whose B image sits off the rig model across the epipolar lines
-    (:func:`across_line_offset` beyond :data:`OFF_MODEL_WARNING_DEG`): camera B moved since the calibration
-    was made, or the file is another rig's.  ``direction_stats``: each direction's parallax statistics."""
-    bad = [d for d in direction_stats if d.get("across_line_offset_deg") is not None
-           and d.get("across_line_confidence", 0.0) >= min_confidence
-           and abs(d["across_line_offset_deg"]) > OFF_MODEL_WARNING_DEG]
-    return [f"direction {d['direction']}: camera B's image sits {abs(d['across_line_offset_deg']):.2f}° "
-            f"({abs(d['across_line_offset_px']):.1f} px) off the rig model across the epipolar lines (bound "
-            f"{OFF_MODEL_WARNING_DEG}°; no depth explains it): the rig calibration does not fit this session "
+def off_model_warnings(direction_stats: list[dict]) -> list[str]:
+    """Warnings for the directions whose reliable blocks mostly sit off the rig model across the epipolar
+    lines (``median_across_deg`` beyond :data:`OFF_MODEL_WARNING_DEG` on at least
+    :data:`OFF_MODEL_MIN_BLOCKS` blocks): camera B moved since the calibration was made, or the file is
+    another rig's.  ``direction_stats``: each direction's parallax statistics."""
+    bad = [d for d in direction_stats if (d.get("n_across_blocks") or 0) >= OFF_MODEL_MIN_BLOCKS
+           and d.get("median_across_deg") is not None and d["median_across_deg"] > OFF_MODEL_WARNING_DEG]
+    return [f"direction {d['direction']}: camera B's {d['n_across_blocks']} reliable blocks sit "
+            f"{d['median_across_deg']:.2f}° off the rig model across the epipolar lines (median; bound "
+            f"{OFF_MODEL_WARNING_DEG}°, no depth explains it): the rig calibration does not fit this session "
             "(camera B moved, or another rig's file?)" for d in bad]
 
 
@@ -295,14 +277,14 @@ def parallax_direction(image_a: np.ndarray, image_b: np.ndarray, model_a: Camera
     first = parallax_map(image_a, warped, seen, model_a, c, field, ground_inv_depth=ground)
     far = seen & (np.abs(first.inv_depth_per_m) * np.hypot(field[..., 0], field[..., 1]) < FAR_PARALLAX_PX)
     d, conf = far_offset(image_a, warped, far, max_offset_px=MAX_FAR_OFFSET_DEG * model_a.width / model_a.hfov_deg)
-    across_px, across_conf = across_line_offset(image_a, warped, seen, field)
-    across = (across_px, across_px * model_a.hfov_deg / model_a.width, across_conf)
+    deg_per_px = model_a.hfov_deg / model_a.width * analysis_factor(model_a.width, model_a.height,
+                                                                    PARALLAX_ANALYSIS_PX)
     if d == (0.0, 0.0):
-        return DirectionParallax((0.0, 0.0), d, conf, first, across)
+        return DirectionParallax((0.0, 0.0), d, conf, first, deg_per_px)
     e2 = np.maximum(np.sum(field[..., :2] ** 2, axis=-1), 1e-12)
     near = first.inv_depth_per_m > 0
     inv_depth = np.where(near, np.maximum(first.inv_depth_per_m - (d[0] * field[..., 0] + d[1] * field[..., 1]) / e2,
                                           0.0), 0.0).astype(np.float32)
     second = replace(first, inv_depth_per_m=inv_depth)
     off = offset_jacobian(model_a, model_b, 0.0, 0.0) @ np.array(d)
-    return DirectionParallax((float(off[0]), float(off[1])), d, conf, second, across)
+    return DirectionParallax((float(off[0]), float(off[1])), d, conf, second, deg_per_px)

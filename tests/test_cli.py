@@ -15,7 +15,7 @@ def run(*args):
 
 
 @pytest.mark.parametrize("args", [[], ["spectral"], ["spectral", "evaluate"], ["spectral", "select-filters"],
-                                  ["spectral", "list"]])
+                                  ["spectral", "list"], ["calibrate", "rig"], ["simulate-chessboard"]])
 def test_help_everywhere(args):
     r = run(*args, "--help")
     assert r.returncode == 0 and "usage:" in r.stdout

@@ -114,7 +114,7 @@ def few_directions_rig():
     return rig_from_dict(tomllib.loads(text), "few", text)
 
 
-def test_process_uses_a_chessboard_calibration_and_says_when_it_no_longer_fits(tmp_path):
+def test_process_uses_a_chessboard_calibration_and_says_when_it_no_longer_fits(tmp_path, capsys):
     from omnispectral.capture.scenes import ProceduralOutdoorScene
     from omnispectral.capture.simulate import simulate_session
     from omnispectral.product.process import process
@@ -144,3 +144,7 @@ def test_process_uses_a_chessboard_calibration_and_says_when_it_no_longer_fits(t
     # the right model leaves a fraction of the bound; 2° of pitch (~5 px here) shows wherever blocks measure
     assert len(across) >= 6 and max(across) < 0.6 * OFF_MODEL_WARNING_DEG
     assert len(warned) >= 6 and min(moved_across) > 1.0, (moved_across, warned)
+    # the session's own fit stays available and says what it cannot do
+    assert main(["calibrate", "rig", str(tmp_path / "s"), "-o", str(tmp_path / "scene.json")]) == 0
+    assert "calibrate rig --chessboard" in capsys.readouterr().out
+    assert RigCalibration.load(tmp_path / "scene.json").method == "scene"

@@ -206,7 +206,8 @@ def cmd_calibrate_rig(args) -> int:
     else:
         console.print(f"Camera B's mounting from {cal.n_inliers} of {cal.n_blocks} block measurements: {change}; "
                       f"RMS residual across the epipolar lines {cal.rms_perpendicular_px:.3f} px; infinity anchored on "
-                      f"{cal.far_anchor.get('n_blocks', 0)} blocks.")
+                      f"{cal.far_anchor.get('n_blocks', 0)} blocks (the yaw is only as good as that content is far: "
+                      "chessboard pairs fix it, 'calibrate rig --chessboard').")
     for w in cal.warnings():
         console.print(f"[yellow]warning:[/yellow] {escape(w)}")
     console.print(f"Written: {args.output} (use: omnispectral process SESSION -o PRODUCT --rig-calibration "

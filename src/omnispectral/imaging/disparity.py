@@ -93,6 +93,8 @@ COLOUR_MISFIT_MIN = 0.3
 #: Two pixels are taken for one surface when their colours in A differ by at most this fraction of
 #: their summed magnitudes (shading within a surface moves both brightness and colour a little).
 SAME_SURFACE_COLOUR = 0.1
+#: Share of a block's pixels B must see for the block to be measured.
+MIN_BLOCK_SEEN = 0.95
 #: Minimum POC peak height of a block measurement.
 PARALLAX_MIN_CONFIDENCE = 0.3
 #: Inverse depth change (1/m) used for the finite difference of the epipolar field.
@@ -385,13 +387,14 @@ def block_parallax(gray_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, f
 
 
 def _blocks_seen(seen: np.ndarray, y_px: np.ndarray, x_px: np.ndarray, block: int) -> np.ndarray:
-    """Blocks lying wholly where the warped B image has data."""
+    """Blocks lying (nearly) wholly where the warped B image has data: at least :data:`MIN_BLOCK_SEEN` of
+    their pixels (a block along A's frame edge that B misses by a row still measures its content)."""
     integral = cv2.integral(seen.astype(np.uint8))
     y0 = np.clip(np.rint(y_px - (block - 1) / 2).astype(int), 0, seen.shape[0] - block)
     x0 = np.clip(np.rint(x_px - (block - 1) / 2).astype(int), 0, seen.shape[1] - block)
     a, b = y0[:, None], x0[None, :]
     total = integral[a + block, b + block] - integral[a, b + block] - integral[a + block, b] + integral[a, b]
-    return total == block * block
+    return total >= MIN_BLOCK_SEEN * block * block
 
 
 def fill_blocks(bp: BlockParallax, ground_inv_depth: np.ndarray | None = None, radius: int = 2) -> np.ndarray:

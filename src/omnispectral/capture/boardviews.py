@@ -21,6 +21,7 @@ import math
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import tifffile
 
@@ -62,10 +63,8 @@ def random_board_pose(rng: np.random.Generator, model_a, board: tuple[int, int],
 
 
 def _rotation(axis: np.ndarray, angle_deg: float) -> np.ndarray:
-    """Rodrigues' rotation matrix about a unit ``axis``."""
-    a = math.radians(angle_deg)
-    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    return np.eye(3) + math.sin(a) * k + (1 - math.cos(a)) * (k @ k)
+    """Rotation matrix by ``angle_deg`` about a unit ``axis`` (``cv2.Rodrigues``)."""
+    return cv2.Rodrigues(np.asarray(axis, np.float64) * math.radians(angle_deg))[0]
 
 
 def board_fully_seen(scene: ChessboardScene, models: dict, margin_squares: float = 1.5) -> bool:

@@ -373,13 +373,13 @@ def block_parallax(gray_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, f
     perp = np.sqrt(np.maximum(rx * (jxx * rx + jxy * ry) + ry * (jxy * rx + jyy * ry), 0.0))
     along_weight = eje / np.maximum(e_len**2, 1e-12)
     inside = _blocks_seen(seen, y_px, x_px, block)
-    measured = (bs.reliable & inside & (along_weight >= MIN_ALONG_WEIGHT) & (perp <= max_perpendicular_px)
-                & (e_len > 1e-6))
+    usable = bs.reliable & inside & (e_len > 1e-6)
+    measured = usable & (along_weight >= MIN_ALONG_WEIGHT) & (perp <= max_perpendicular_px)
     across_weight = (ey * (jxx * ey - jxy * ex) - ex * (jxy * ey - jyy * ex)) / np.maximum(e_len**2, 1e-12)
     # an edge (nearly) parallel to the line: a depth would have to be absurd to explain its shift, so all of it
     # is across (the J-projection above would "explain" it with w → ∞)
     whole = np.sqrt(np.maximum(dx * (jxx * dx + jxy * dy) + dy * (jxy * dx + jyy * dy), 0.0))
-    across = np.where(bs.reliable & inside & (across_weight >= MIN_ALONG_WEIGHT) & (e_len > 1e-6),
+    across = np.where(usable & (across_weight >= MIN_ALONG_WEIGHT),
                       np.where(along_weight >= MIN_ALONG_WEIGHT, perp, whole), np.nan)
     w = np.where(measured, w, 0.0)
     return BlockParallax(y_px, x_px, w.astype(np.float32), measured, bs.confidence.astype(np.float32),

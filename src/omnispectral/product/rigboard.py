@@ -170,10 +170,10 @@ def fit_b_mounting_to_boards(pairs: list[BoardPair], model_a: CameraModel, model
     jtj = sol.jac.T @ sol.jac
     cov = sigma2 * np.linalg.pinv(jtj)
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    centres_m = board_points_world_mm(model_a, obj, p).mean(axis=1) / 1000.0
     per_view = []
     for k, pair in enumerate(used):
-        dist_m = float(np.linalg.norm(board_points_world_mm(model_a, obj, p[k:k + 1])[0].mean(axis=0))) / 1000.0
-        per_view.append({"name": pair.name, "distance_m": dist_m,
+        per_view.append({"name": pair.name, "distance_m": float(np.linalg.norm(centres_m[k])),
                          "rms_a_px": float(np.sqrt(np.mean(np.sum(r[0, k] ** 2, axis=-1)))),
                          "rms_b_px": float(np.sqrt(np.mean(np.sum(r[1, k] ** 2, axis=-1))))})
     rms_b = float(np.sqrt(np.mean(np.sum(r[1] ** 2, axis=-1))))

@@ -296,6 +296,8 @@ def write_ground_truth(directory: str | Path, renderer: RigRenderer, width: int,
     patches = renderer.scene.colorchecker_patches() if hasattr(renderer.scene, "colorchecker_patches") else []
     chart = {}
     if patches:
+        for p in patches:
+            p["radiance_spread"] = patch_radiance_spread(renderer.scene, p["lon_deg"], p["lat_deg"], p["half_size_deg"])
         rays = lonlat_to_ray(np.array([p["lon_deg"] for p in patches]), np.array([p["lat_deg"] for p in patches]))
         radiance = renderer.scene.spectral_radiance(rays) * np.float32(scale)
         refl = np.array([p["reflectance"] for p in patches], np.float32)
@@ -321,6 +323,19 @@ def write_ground_truth(directory: str | Path, renderer: RigRenderer, width: int,
             "scene": _jsonable(renderer.scene.describe()), "colorchecker_patches": _jsonable(patches), **chart}
     atomic_write_json(out / "ground_truth.json", meta)
     return meta
+
+
+def patch_radiance_spread(scene, lon_deg: float, lat_deg: float, half_size_deg: float, n: int = 9) -> float:
+    """``(max − min) / mean`` of the radiance (summed over wavelength) at ``n × n`` directions spread over the
+    central 80 % of a chart patch: 0 for a uniformly lit patch, of order 1 where a shadow edge crosses it.
+    A patch that is not one colour has no single reference spectrum (the one at its centre describes
+    only part of what a panorama pixel there integrates)."""
+    g = np.linspace(-0.8, 0.8, n) * half_size_deg
+    lat = lat_deg + g[:, None] + 0.0 * g[None, :]
+    lon = lon_deg + g[None, :] / max(np.cos(np.radians(lat_deg)), 0.05) + 0.0 * g[:, None]
+    radiance = np.asarray(scene.spectral_radiance(lonlat_to_ray(lon.ravel(), lat.ravel())), np.float64).sum(axis=1)
+    mean = float(np.mean(radiance))
+    return float((radiance.max() - radiance.min()) / mean) if mean > 0 else 0.0
 
 
 def _fill_equirect(arr: np.ndarray, fn, rows_per_chunk: int, supersample: int = 2) -> None:

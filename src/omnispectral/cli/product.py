@@ -143,6 +143,9 @@ def _print_accuracy(acc: dict | None) -> None:
                   "RGB 0.0255 (paper 0.0530)")
         t.add_row("ColorChecker ΔE*ab mean / max", f"{cc['delta_e_ab']:.2f} / {cc['delta_e_ab_max']:.2f}",
                   "0.87 / 2.56 (paper 1.49)" if six else "RGB 5.67 (paper 6.12)")
+        for x in cc.get("not_uniformly_lit", []):
+            t.add_row(f"  not scored: {x['name']}", f"ΔE*ab {x['delta_e_ab']:.2f}",
+                      f"shadow edge across the patch (radiance spread {x['radiance_spread']:.0%})")
     console.print(t)
 
 

@@ -13,11 +13,16 @@ PNG plots.  Accuracy against the simulator's ground truth (``SESSION/ground_trut
   area-averaged onto it), over the same kind of pixels.
 - ``colorchecker``: the 24 patches located in the panorama from their directions (mean of the six
   bands within half the patch's angular size), estimated, against the patch spectral radiance:
-  NRMSE and ΔE*ab (CIE 1976, white = a perfect diffuser at the chart), per patch and mean.
+  NRMSE and ΔE*ab (CIE 1976, white = a perfect diffuser at the chart), per patch and mean.  A patch
+  crossed by a shadow edge (the ground truth's ``radiance_spread`` over the patch above
+  :data:`MAX_PATCH_RADIANCE_SPREAD`) is not one colour: its centre's spectrum is no reference for what
+  the panorama integrates there.  It is listed under ``not_uniformly_lit`` with its ΔE*ab and left
+  out of the mean, max and NRMSE (``n_patches_scored``).
 """
 
 from __future__ import annotations
 
+import html
 import json
 from pathlib import Path
 
@@ -33,6 +38,10 @@ from omnispectral.product.layout import open_product, product_paths
 from omnispectral.product.rigcal import DIRECTION_WARNING_PX
 from omnispectral.product.spectra import bands_to_linear_srgb
 from omnispectral.spectral.metrics import colour_differences, nrmse
+
+#: A chart patch whose radiance varies more than this over its central 80 % (``(max − min) / mean``) is
+#: crossed by a shadow edge and is not scored (module docstring).  Sky light varies < 1 % over a patch.
+MAX_PATCH_RADIANCE_SPREAD = 0.05
 
 
 def _resize_to(image: np.ndarray, height: int, width: int) -> np.ndarray:
@@ -133,13 +142,26 @@ def accuracy(bands: np.ndarray, estimator, gt_dir: Path, shortest_s: float, max_
         de = np.full(len(patches), np.nan)
         errs[seen] = nrmse(est[seen], true[seen])
         de[seen] = colour_differences(est[seen], true[seen], white, wl)["delta_e_ab"]
-        out["colorchecker"] = {"n_patches_seen": int(seen.sum()), "nrmse": float(np.nanmean(errs)),
-                               "delta_e_ab": float(np.nanmean(de)),
-                               "delta_e_ab_max": float(np.nanmax(de)),
-                               "per_patch": [{"name": p["name"], "nrmse": float(e), "delta_e_ab": float(d)}
-                                             for p, e, d in zip(patches, errs, de, strict=True)],
+        out["colorchecker"] = {**chart_scores(patches, errs, de, seen),
                                "estimated": est.tolist(), "true": true.tolist(), "wavelength_nm": wl.tolist()}
     return out
+
+
+def chart_scores(patches: list[dict], nrmse_per_patch: np.ndarray, delta_e_ab: np.ndarray, seen: np.ndarray) -> dict:
+    """Mean and max ΔE*ab and mean NRMSE over the chart's seen, uniformly lit patches (module docstring);
+    patches crossed by a shadow edge are listed under ``not_uniformly_lit`` with their ΔE*ab."""
+    spread = np.array([float(p.get("radiance_spread", 0.0)) for p in patches])
+    scored = seen & (spread <= MAX_PATCH_RADIANCE_SPREAD)
+    if not scored.any():  # every seen patch crossed by a shadow: score them all rather than none
+        scored = seen
+    return {"n_patches_seen": int(seen.sum()), "n_patches_scored": int(scored.sum()),
+            "nrmse": float(np.mean(nrmse_per_patch[scored])), "delta_e_ab": float(np.mean(delta_e_ab[scored])),
+            "delta_e_ab_max": float(np.max(delta_e_ab[scored])),
+            "not_uniformly_lit": [{"name": p["name"], "radiance_spread": float(sp), "delta_e_ab": float(d)}
+                                  for p, sp, d, ok, s in zip(patches, spread, delta_e_ab, scored, seen, strict=True)
+                                  if s and not ok],
+            "per_patch": [{"name": p["name"], "nrmse": float(e), "delta_e_ab": float(d), "scored": bool(ok)}
+                          for p, e, d, ok in zip(patches, nrmse_per_patch, delta_e_ab, scored, strict=True)]}
 
 
 def _plot_registration(alignments: list[dict], path: Path) -> None:
@@ -261,7 +283,10 @@ def _html(report: dict) -> str:
                     f"<tr><td>spectral NRMSE (panorama)</td><td>{acc['spectral_nrmse']:.4f}</td></tr>"
                     + (f"<tr><td>ColorChecker NRMSE</td><td>{cc['nrmse']:.4f}</td></tr>"
                        f"<tr><td>ColorChecker ΔE*ab (mean / max)</td><td>{cc['delta_e_ab']:.2f} / "
-                       f"{cc['delta_e_ab_max']:.2f}</td></tr>" if cc else "") + "</table>"
+                       f"{cc['delta_e_ab_max']:.2f}</td></tr>" if cc else "")
+                    + "".join(f"<tr><td>not scored: {html.escape(x['name'])}</td><td>shadow edge (radiance "
+                              f"spread {x['radiance_spread']:.0%}), ΔE*ab {x['delta_e_ab']:.2f}</td></tr>"
+                              for x in cc.get("not_uniformly_lit", [])) + "</table>"
                     + ('<img src="colorchecker.png" width="900">' if cc else ""))
     if report.get("registration_method") == "none":
         reg_html = "<p>One camera: nothing to register.</p>"

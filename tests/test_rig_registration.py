@@ -12,8 +12,10 @@ from omnispectral.capture.plan import make_plan
 from omnispectral.capture.scenes import PanoramaScene, ProceduralOutdoorScene
 from omnispectral.capture.simulate import RigRenderer, true_mounting_error_deg
 from omnispectral.imaging.disparity import (
+    BlockParallax,
     LocalLinearScore,
     epipolar_field,
+    fill_blocks,
     fill_from_neighbours,
     refine_block_shifts,
     shifted_positions,
@@ -492,3 +494,23 @@ def test_edge_blocks_of_a_thin_near_object_are_not_outliers():
     assert kept.sum() >= 8
     np.testing.assert_allclose(new.dy[kept], 5.0, atol=0.25)
     assert (old.reliable & on_bar).sum() <= kept.sum() // 4
+
+
+def test_an_unmeasured_block_takes_one_neighbours_surface_not_a_blend():
+    """Five measured blocks on a near chart (w ≈ 0.7 1/m) and one on the far background (w ≈ 0) around an
+    unmeasured block: it takes a chart value (a mean, 0.58, would be a surface that is not there); a
+    block with no measured neighbour within two blocks falls back to the ground plane, else infinity."""
+    w = np.zeros((6, 8))
+    measured = np.zeros((6, 8), bool)
+    for (r, c), v in {(0, 3): 0.702, (0, 4): 0.686, (1, 4): 0.646, (1, 5): 0.681, (2, 4): 0.697,
+                      (1, 1): 0.0}.items():
+        w[r, c], measured[r, c] = v, True
+    bp = BlockParallax(np.arange(6) * 16.0, np.arange(8) * 16.0, w, measured, measured * 0.8,
+                       np.zeros((6, 8)))
+    filled = fill_blocks(bp)
+    np.testing.assert_array_equal(filled[measured], w[measured].astype(np.float32))
+    assert filled[1, 3] in w[measured].astype(np.float32) and filled[1, 3] > 0.6
+    assert filled[5, 0] == 0.0                                   # nothing within reach: infinity
+    ground = np.full((6, 8), 0.4)
+    assert fill_blocks(bp, ground)[5, 0] == pytest.approx(0.4)  # ... or the ground plane where known
+    assert fill_blocks(bp, ground)[1, 3] == filled[1, 3]         # a measured neighbour beats the ground

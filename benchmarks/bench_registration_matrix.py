@@ -2,7 +2,7 @@
 
 Every run simulates a session of the ``small`` preset (camera B mounted with an unknown error of up
 to 0.5° per axis drawn from the seed; the scene's materials and skyline drawn from the seed too),
-then processes it twice: ``--registration parallax`` (rig calibration + per-pixel parallax, the
+then processes it with ``--registration parallax`` (rig calibration + per-pixel parallax, the
 default) and ``--registration paper`` (one POC offset per direction).  Per run it records the
 ColorChecker ΔE*ab (mean, max) and NRMSE, the six-band PSNR of both, the rig calibration's largest
 error at infinity over the sensor (against the simulator's true mounting, which processing never
@@ -15,11 +15,12 @@ stands at latitude -10° instead of -15° so that it stays above the ground.
 
     python benchmarks/bench_registration_matrix.py --out /tmp/regmatrix            # the whole matrix
     python benchmarks/bench_registration_matrix.py --times 09:30 --seeds 5 --distances 2.5
-    python benchmarks/bench_registration_matrix.py --calibration chessboard --out /tmp/regmatrix-cb \
-        --reuse-paper /tmp/regmatrix/results.jsonl     # B's mounting from chessboard pairs per seed
+    python benchmarks/bench_registration_matrix.py --calibration session chessboard --out /tmp/regmatrix
+        # each session processed with B's mounting fitted on it and from chessboard pairs of its seed
 
-Results: one JSON line per run in OUT/results.jsonl (resumable: finished runs are skipped) and a
-Markdown table on stdout (also OUT/table.md).  Load average is recorded per run.
+Results: one JSON line per run and calibration in OUT/results.jsonl (resumable: finished runs are
+skipped) and a Markdown table per calibration on stdout (also OUT/table-CAL.md).  Load average is
+recorded per run.
 """
 
 from __future__ import annotations
@@ -152,10 +153,13 @@ def chessboard_calibration(out: Path, seed: int) -> Path:
     return cal
 
 
-def run_one(work: Path, key: dict, paper: dict | None = None, rig_calibration: Path | None = None) -> dict:
-    """Simulate one session and process it with both registrations (``paper``: that method's result of an
-    earlier run on the same frames, reused instead of processing again; ``rig_calibration``: camera B's
-    mounting from that file instead of fitted on the session)."""
+def run_one(work: Path, key: dict, paper: dict | None = None,
+            calibrations: dict[str, Path | None] | None = None) -> list[dict]:
+    """Simulate one session and process it with the paper's registration once and with the parallax
+    registration once per calibration (``calibrations``: name → camera B's mounting file, or ``None`` for
+    the mounting fitted on the session; default ``{"session": None}``); ``paper``: that method's result of
+    an earlier run on the same frames, reused instead of processing again.  One row per calibration."""
+    calibrations = calibrations or {"session": None}
     rig = load_preset("small")
     h, m = (int(x) for x in key["time"].split(":"))
     start = dt.datetime(2026, 3, 21, h, m, tzinfo=dt.UTC)
@@ -170,22 +174,27 @@ def run_one(work: Path, key: dict, paper: dict | None = None, rig_calibration: P
     t0 = time.perf_counter()
     simulate_session(session, rig, scene, start=start, seed=key["seed"], progress=False)
     truth = json.loads((session / "ground_truth" / "ground_truth.json").read_text())
-    out = {**key, "simulate_s": time.perf_counter() - t0, "load": os.getloadavg()[0],
-           "rig_calibration": "session" if rig_calibration is None else "chessboard"}
-    for method in ("parallax", "paper"):
-        if method == "paper" and paper is not None:
-            out[method] = {**paper, "reused": True}
-            continue
+    common = {**key, "simulate_s": time.perf_counter() - t0, "load": os.getloadavg()[0]}
+    if paper is not None:
+        common["paper"] = {**paper, "reused": True}
+    else:
         t1 = time.perf_counter()
-        process(session, work / method, progress=False, registration=method,
-                rig_calibration=rig_calibration if method == "parallax" else None)
-        out[method] = {**accuracy(work / method), "process_s": time.perf_counter() - t1}
-    out["parallax"]["infinity_error_px"] = infinity_error_px(work / "parallax", truth)
-    if key["scene"] == "procedural":
-        out["parallax"].update(chart_errors_px(work / "parallax", scene, truth) or {})
-        out["truth_bands"] = truth_bands_delta_e(work / "parallax")
+        process(session, work / "paper", progress=False, registration="paper")
+        common["paper"] = {**accuracy(work / "paper"), "process_s": time.perf_counter() - t1}
+    rows = []
+    for name, cal in calibrations.items():
+        out = work / f"parallax-{name}"
+        t1 = time.perf_counter()
+        process(session, out, progress=False, registration="parallax", rig_calibration=cal)
+        row = {**common, "rig_calibration": name,
+               "parallax": {**accuracy(out), "process_s": time.perf_counter() - t1,
+                            "infinity_error_px": infinity_error_px(out, truth)}}
+        if key["scene"] == "procedural":
+            row["parallax"].update(chart_errors_px(out, scene, truth) or {})
+            row["truth_bands"] = truth_bands_delta_e(out)
+        rows.append(row)
     shutil.rmtree(work, ignore_errors=True)
-    return out
+    return rows
 
 
 def fmt(x, spec=".2f") -> str:
@@ -254,41 +263,49 @@ def main(argv=None) -> int:
     ap.add_argument("--reuse-paper", nargs="*", default=[], metavar="RESULTS",
                     help="results.jsonl of earlier runs whose '--registration paper' results are reused for the "
                          "same runs (the simulator and that method unchanged since: same frames, same result)")
-    ap.add_argument("--calibration", choices=["session", "chessboard"], default="session",
-                    help="camera B's mounting: fitted on each session (default), or from 12 simulated chessboard pairs "
-                         "of the run's seed (calibrate rig --chessboard), made once per seed under OUT/chessboards")
+    ap.add_argument("--calibration", nargs="+", choices=["session", "chessboard"], default=["session"],
+                    help="camera B's mounting: fitted on each session (default), and/or from 12 simulated chessboard "
+                         "pairs of the run's seed (calibrate rig --chessboard), made once per seed under "
+                         "OUT/chessboards; several: each session is simulated once and processed with each")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     results = out / "results.jsonl"
-    done = {}
+
+    def run_key(r: dict) -> str:
+        return json.dumps({k: r.get(k) for k in ("scene", "time", "seed", "distance_m")}, sort_keys=True)
+
+    done: dict[tuple[str, str], dict] = {}
     if results.exists():
         for line in results.read_text().splitlines():
             r = json.loads(line)
-            done[json.dumps({k: r.get(k) for k in ("scene", "time", "seed", "distance_m")}, sort_keys=True)] = r
+            done[(run_key(r), r.get("rig_calibration", "session"))] = r
     paper = {}
     for f in args.reuse_paper:
         for line in Path(f).read_text().splitlines():
             r = json.loads(line)
-            paper[json.dumps({k: r.get(k) for k in ("scene", "time", "seed", "distance_m")}, sort_keys=True)] = \
-                r["paper"]
+            paper[run_key(r)] = r["paper"]
     keys = [{"scene": "procedural", "time": t, "seed": s, "distance_m": d}
             for t in args.times for s in args.seeds for d in args.distances]
     keys += [{"scene": p, "time": "12:00", "seed": s, "distance_m": None} for p in args.panoramas
              for s in args.seeds[:1]] if SHARED.is_dir() else []
-    rows = []
     for i, key in enumerate(keys):
-        k = json.dumps(key, sort_keys=True)
-        if k not in done:
-            print(f"[{i + 1}/{len(keys)}] {key}", file=sys.stderr, flush=True)
-            cal = chessboard_calibration(out, key["seed"]) if args.calibration == "chessboard" else None
-            done[k] = run_one(out / "work", key, paper.get(k), cal)
-            with open(results, "a") as fh:
-                fh.write(json.dumps(done[k]) + "\n")
-        rows.append(done[k])
-    text = table(rows) + "\n\n" + summary(rows)
-    (out / "table.md").write_text(text + "\n")
-    print(text)
+        k = run_key(key)
+        todo = [c for c in args.calibration if (k, c) not in done]
+        if todo:
+            print(f"[{i + 1}/{len(keys)}] {key} {todo}", file=sys.stderr, flush=True)
+            cals = {c: chessboard_calibration(out, key["seed"]) if c == "chessboard" else None for c in todo}
+            for row in run_one(out / "work", key, paper.get(k), cals):
+                done[(k, row["rig_calibration"])] = row
+                with open(results, "a") as fh:
+                    fh.write(json.dumps(row) + "\n")
+    texts = []
+    for c in args.calibration:
+        rows = [done[(run_key(key), c)] for key in keys]
+        text = f"## B's mounting: {c}\n\n" + table(rows) + "\n\n" + summary(rows)
+        (out / f"table-{c}.md").write_text(text + "\n")
+        texts.append(text)
+    print("\n\n".join(texts))
     return 0
 
 

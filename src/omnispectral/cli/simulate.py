@@ -168,7 +168,8 @@ def _add_scene_args(p) -> None:
                    help="frames as RGB (default) or as the raw RGGB Bayer mosaics of single-sensor cameras "
                         "(CFA layout in the rig snapshot and the journal; process demosaics)")
     p.add_argument("--gt-width", type=int, default=None, metavar="W",
-                   help="width of the ground-truth panorama (default: the paper's 7260 px scaled to the sensor)")
+                   help="width of the ground-truth panorama (default: the width process gives the panorama, "
+                        "camera A's native width)")
 
 
 def _add_session_args(p) -> None:

@@ -119,6 +119,12 @@ def lonlat_to_equirect_pixel(lon_deg, lat_deg, width: int, height: int) -> tuple
     return col, row
 
 
+def native_width(fx_px: float) -> int:
+    """Equirect panorama width whose pixel matches a sensor's on its optical axis: ``2π f`` rounded to an
+    even number (the mosaic's default width; the simulator's ground truth is rendered on the same grid)."""
+    return max(8, 2 * round(np.pi * fx_px))
+
+
 def lonlat_to_ray(lon_deg, lat_deg) -> np.ndarray:
     """Unit world rays ``(..., 3)``: ``(-cos lat sin lon, sin lat, cos lat cos lon)``."""
     lon = np.radians(_f64(lon_deg))

@@ -37,6 +37,7 @@ import cv2
 import numpy as np
 
 from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.imaging.geometry import native_width
 from omnispectral.mosaic.blending import (
     BLENDS,
     DEFAULT_MULTIBAND_LEVELS,
@@ -66,11 +67,6 @@ N_BANDS = 6
 #: Registration-quality layer of a panorama whose camera B carries parallax maps: blended registration
 #: confidence (0..1) and occluded (1 where every direction that sees the pixel with B has it hidden).
 N_QUALITY = 2
-
-
-def native_width(fx_px: float) -> int:
-    """Panorama width whose pixel matches the sensor's on its optical axis: ``2π f`` rounded to an even number."""
-    return max(8, 2 * round(np.pi * fx_px))
 
 
 # ------------------------------------------------------------------------------------------ the job

@@ -231,6 +231,11 @@ def summary(rows: list[dict]) -> str:
                        f"{max(dmax):.2f}; runs within ΔE ≤ 2 / max ≤ 6 / NRMSE ≤ 0.02: {ok} of {len(de)}")
     inf = [r["parallax"]["infinity_error_px"] for r in rows]
     out.append(f"rig calibration error at infinity: median {np.median(inf):.3f} px, worst {max(inf):.3f} px")
+    par = [r["parallax"]["chart_parallax_error_px"] for r in rows
+           if r["parallax"].get("chart_parallax_error_px") is not None]
+    if par:
+        out.append(f"chart parallax error (median over the chart's pixels): median {np.median(par):.3f} px, worst "
+                   f"{max(par):.3f} px; runs ≤ 0.3 px: {sum(x <= 0.3 for x in par)} of {len(par)}")
     reg = [r["parallax"]["chart_registration_error_px"] for r in rows
            if r["parallax"].get("chart_registration_error_px") is not None]
     if reg:

@@ -190,6 +190,13 @@ def ground_inverse_depth(model_a: CameraModel, pan_deg: float, tilt_deg: float, 
 
 #: Pixels whose parallax is below this (px) take part in the per-direction offset at infinity.
 FAR_PARALLAX_PX = 0.25
+#: The per-direction offset at infinity is applied only when the rig model states no uncertainty at
+#: infinity or one above this (px): POC on a direction's far pixels measures a few hundredths of a pixel at
+#: best, and where the far mask holds near content the parallax left at 0 (ground beside a horizon)
+#: it is biased by that content's parallax (17:00 seed 0: 0.38 px in the direction holding the sun,
+#: against a chessboard model good to 0.01 px).  A session-fitted model is known to ~0.4 px along the
+#: lines, so its directions keep the offset.
+FAR_OFFSET_MIN_STD_PX = 0.05
 #: Largest per-direction offset at infinity accepted on top of the rig calibration, as an angle (1 px of
 #: the 256-px sensor): the rig model's yaw rests on the scene's farthest content and can miss by ~0.15°,
 #: which is 3.5 px at full scale (a 1-px cap there left the direction holding the sun 3 px off).
@@ -212,7 +219,8 @@ class DirectionParallax:
         st = self.parallax.stats()
         across = st.get("median_across_px")
         return {**st, "median_across_deg": None if across is None else across * self.analysis_deg_per_px,
-                "far_offset_px": list(self.offset_px), "far_confidence": self.far_confidence}
+                "far_offset_px": list(self.offset_px), "far_offset_measured_a_px": list(self.far_offset_a_px),
+                "far_confidence": self.far_confidence}
 
 
 #: A direction whose reliable blocks sit, in the median, farther than this (degrees) off the rig model
@@ -256,7 +264,7 @@ def far_offset(image_a: np.ndarray, warped_b: np.ndarray, far: np.ndarray,
 
 def parallax_direction(image_a: np.ndarray, image_b: np.ndarray, model_a: CameraModel, model_b: CameraModel,
                        pan_deg: float = 0.0, tilt_deg: float = 0.0,
-                       ground_height_m: float | None = None) -> DirectionParallax:
+                       ground_height_m: float | None = None, apply_far_offset: bool = True) -> DirectionParallax:
     """Camera B against A for one direction, B's model being the calibrated one (``product.rigcal``):
 
     1. per-pixel parallax (:func:`omnispectral.imaging.disparity.parallax_map`) against the rig model;
@@ -267,6 +275,9 @@ def parallax_direction(image_a: np.ndarray, image_b: np.ndarray, model_a: Camera
     3. the parallax relative to the shifted model: content at ``p`` was found at ``p + w e`` and B now
        starts from ``p + d``, so ``w' = w − (d·e)/|e|²`` (clamped at 0; ``d`` is at most a pixel, its
        part across the line is what the offset corrects).
+
+    With ``apply_far_offset=False`` (a rig model more certain than the offset's measurement,
+    :data:`FAR_OFFSET_MIN_STD_PX`) the offset is measured and reported but not applied.
     """
 
     maps = cached_maps(model_a, model_b)
@@ -279,7 +290,7 @@ def parallax_direction(image_a: np.ndarray, image_b: np.ndarray, model_a: Camera
     d, conf = far_offset(image_a, warped, far, max_offset_px=MAX_FAR_OFFSET_DEG * model_a.width / model_a.hfov_deg)
     deg_per_px = model_a.hfov_deg / model_a.width * analysis_factor(model_a.width, model_a.height,
                                                                     PARALLAX_ANALYSIS_PX)
-    if d == (0.0, 0.0):
+    if d == (0.0, 0.0) or not apply_far_offset:
         return DirectionParallax((0.0, 0.0), d, conf, first, deg_per_px)
     e2 = np.maximum(np.sum(field[..., :2] ** 2, axis=-1), 1e-12)
     near = first.inv_depth_per_m > 0

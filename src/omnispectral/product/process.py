@@ -45,7 +45,7 @@ from omnispectral.locking import directory_lock
 from omnispectral.mosaic import engine
 from omnispectral.mosaic.sources import MergedDirections, MergedDirectionsWriter
 from omnispectral.mosaic.store import PanoramaStore
-from omnispectral.product.align import align_direction, off_model_warnings, parallax_direction
+from omnispectral.product.align import FAR_OFFSET_MIN_STD_PX, align_direction, off_model_warnings, parallax_direction
 from omnispectral.product.estimator import rig_estimator
 from omnispectral.product.fingerprint import product_fingerprint
 from omnispectral.product.layout import MERGED, PANORAMA, PRODUCT_FORMAT, RIG_CALIBRATION, product_paths
@@ -178,10 +178,13 @@ def register_parallax(merged, calibration=None, progress=None, timings: dict | N
     todo = [d for d in writer.meta["directions"] if "parallax" not in d["images"]["B"]
             or not (merged.path / d["images"]["B"]["parallax"]["file"]).is_file()]
 
+    std_px = calibration.infinity_std_px(model_b)
+    apply_far = std_px is None or std_px > FAR_OFFSET_MIN_STD_PX
+
     def measure(d: dict):
         i = int(d["index"])
         return i, parallax_direction(sources[(i, "A")].read(), sources[(i, "B")].read(), model_a, model_b,
-                                     float(d["pan_deg"]), float(d["tilt_deg"]))
+                                     float(d["pan_deg"]), float(d["tilt_deg"]), apply_far_offset=apply_far)
 
     n_total, n_done = len(writer.meta["directions"]), len(writer.meta["directions"]) - len(todo)
     for k, (i, reg) in enumerate(ordered_thread_map(measure, todo)):  # written in order, as they come

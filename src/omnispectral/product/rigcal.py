@@ -177,6 +177,18 @@ class RigCalibration:
         """Camera B's model with the calibrated mounting (lens unchanged)."""
         return replace(model_b, mounting=Mounting.from_dict(self.mounting))
 
+    def infinity_std_px(self, model_b: CameraModel) -> float | None:
+        """The standard deviation (px) of B's predicted position of points at infinity that the calibration
+        states for itself (a chessboard fit's covariance, :mod:`.rigboard`): yaw and pitch move B's image
+        by ``f · σ``, roll by up to the half-diagonal ``· σ``.  ``None`` when it states none (a session's
+        blocks fix the yaw along the epipolar lines only to a few tenths of a pixel: module docstring)."""
+        std = (self.chessboard or {}).get("std_deg")
+        if not std:
+            return None
+        s = np.radians([float(std[k]) for k in ("yaw", "pitch", "roll")])
+        half_diagonal_px = 0.5 * np.hypot(model_b.width, model_b.height)
+        return float(np.hypot(model_b.fx * np.hypot(s[0], s[1]), half_diagonal_px * s[2]))
+
     def warnings(self) -> list[str]:
         out = [f"direction {d['direction']}: camera B disagrees with the rig model by "
                f"{d['median_perpendicular_px']:.2f} px across the epipolar lines (bound {DIRECTION_WARNING_PX} px)"

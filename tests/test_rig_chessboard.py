@@ -15,9 +15,9 @@ from omnispectral.capture.simulate import true_mounting_error_deg
 from omnispectral.cli import main
 from omnispectral.imaging.geometry import CameraModel
 from omnispectral.imaging.lens import find_board, read_gray8
-from omnispectral.product.align import OFF_MODEL_WARNING_DEG
+from omnispectral.product.align import FAR_OFFSET_MIN_STD_PX, OFF_MODEL_WARNING_DEG
 from omnispectral.product.rigboard import calibrate_chessboard_folder
-from omnispectral.product.rigcal import RigCalibration
+from omnispectral.product.rigcal import RigCalibration, adjusted_model
 from omnispectral.rig import load_preset, rig_from_dict
 from tests.test_rig_registration import infinity_error_px
 
@@ -61,9 +61,28 @@ def test_chessboard_pairs_recover_b_mounting_at_infinity(boards, tmp_path):
     np.testing.assert_allclose(cal.delta_deg, true_mounting_error_deg(1), atol=0.012)
     assert cal.chessboard["std_deg"]["yaw"] < 0.01 and cal.chessboard["rms_b_px"] < 0.2
     assert not cal.warnings()
+    # the uncertainty it states at infinity covers its actual error, and is far below what a per-direction
+    # offset at infinity measures (process then does not apply those offsets)
+    std_px = cal.infinity_std_px(nominal_b)
+    assert 0.001 < std_px < FAR_OFFSET_MIN_STD_PX
+    assert infinity_error_px(ma, cal.apply(nominal_b), true_b) < 5 * std_px
     # the file round-trips with its method and chessboard record
     again = RigCalibration.load(tmp_path / "cal.json")
     assert again.method == "chessboard" and again.chessboard["n_pairs"] == 8 and again.mounting == cal.mounting
+
+
+def test_stated_uncertainty_at_infinity_follows_the_geometry():
+    """``infinity_std_px`` against B's predicted positions at infinity moved by one standard deviation of
+    each angle; a calibration fitted on a session's blocks states none."""
+    mb, ma = RIG.camera_model("B"), RIG.camera_model("A")
+    sigma = {"yaw": 0.01, "pitch": 0.004, "roll": 0.02}
+    cal = RigCalibration("small", mb.mounting.to_dict(), (0.0, 0.0, 0.0), 1, 1, 0.0, {}, [], method="chessboard",
+                         chessboard={"std_deg": sigma})
+    moved = [infinity_error_px(ma, adjusted_model(mb, d), mb) for d in
+             ((sigma["yaw"], 0, 0), (0, sigma["pitch"], 0), (0, 0, sigma["roll"]))]
+    assert cal.infinity_std_px(mb) == pytest.approx(float(np.sqrt(np.sum(np.square(moved)))), rel=0.25)
+    scene = RigCalibration("small", mb.mounting.to_dict(), (0.0, 0.0, 0.0), 1, 1, 0.0, {}, [])
+    assert scene.infinity_std_px(mb) is None
 
 
 def test_refined_baseline_finds_a_camera_mounted_off_the_rig_file(tmp_path):
@@ -133,6 +152,9 @@ def test_process_uses_a_chessboard_calibration_and_says_when_it_no_longer_fits(t
     assert infinity_error_px(rig.camera_model("A"), used.apply(rig.camera_model("B")),
                              CameraModel.from_dict(truth["camera_b_true"]["model"])) < 0.05
     assert not reg["warnings"]
+    # the board's model is trusted at infinity: the directions' offsets there are measured, not applied
+    assert all(d["far_offset_px"] == [0.0, 0.0] for d in reg["directions"])
+    assert any(d["far_offset_measured_a_px"] != [0.0, 0.0] for d in reg["directions"])
     across = [d["median_across_deg"] for d in reg["directions"] if d["n_across_blocks"] >= 8]
     # a calibration that no longer fits (camera B knocked 2° in pitch since): process says so
     moved = json.loads((tmp_path / "cal.json").read_text())

@@ -123,7 +123,7 @@ def truth_bands_delta_e(product: Path) -> dict | None:
     few pixels wide can miss the bounds here already (the patch's central pixel mixes its neighbours and
     the gaps between them): such a run's failure is the evaluation's, not the registration's."""
     from omnispectral.product.layout import open_product
-    from omnispectral.product.report import MAX_PATCH_RADIANCE_SPREAD, _resize_to, patch_bands
+    from omnispectral.product.report import _resize_to, chart_scores, patch_bands
     from omnispectral.spectral.metrics import colour_differences
 
     index, store, estimator = open_product(product)
@@ -136,11 +136,11 @@ def truth_bands_delta_e(product: Path) -> dict | None:
     bands = np.array([patch_bands(truth, p["lon_deg"], p["lat_deg"], 0.5 * p["half_size_deg"]) for p in patches])
     de = colour_differences(estimator.estimate(bands), np.load(gt / "colorchecker_radiance.npy"),
                             np.load(gt / "colorchecker_white.npy"), np.asarray(estimator.wavelength_nm))["delta_e_ab"]
-    # scored as the report scores them: patches crossed by a shadow edge are left out
-    de = np.where([p.get("radiance_spread", 0.0) <= MAX_PATCH_RADIANCE_SPREAD for p in patches], de, np.nan)
-    worst = int(np.nanargmax(de))
-    return {"truth_bands_de_mean": float(np.nanmean(de)), "truth_bands_de_max": float(de[worst]),
-            "truth_bands_de_max_patch": patches[worst]["name"]}
+    # scored as the report scores them (patches crossed by a shadow edge left out)
+    scores = chart_scores(patches, np.zeros(len(patches)), de, np.isfinite(de))
+    worst = max((p for p in scores["per_patch"] if p["scored"]), key=lambda p: p["delta_e_ab"])
+    return {"truth_bands_de_mean": scores["delta_e_ab"], "truth_bands_de_max": scores["delta_e_ab_max"],
+            "truth_bands_de_max_patch": worst["name"]}
 
 
 def chessboard_calibration(out: Path, seed: int) -> Path:

@@ -335,8 +335,8 @@ def patch_radiance_spread(scene, lon_deg: float, lat_deg: float, half_size_deg: 
     A patch that is not one colour has no single reference spectrum (the one at its centre describes
     only part of what a panorama pixel there integrates)."""
     g = np.linspace(-0.8, 0.8, n) * half_size_deg
-    lat = lat_deg + g[:, None] + 0.0 * g[None, :]
-    lon = lon_deg + g[None, :] / max(np.cos(np.radians(lat_deg)), 0.05) + 0.0 * g[:, None]
+    dlon, dlat = np.meshgrid(g / max(np.cos(np.radians(lat_deg)), 0.05), g)
+    lon, lat = lon_deg + dlon, lat_deg + dlat
     radiance = np.asarray(scene.spectral_radiance(lonlat_to_ray(lon.ravel(), lat.ravel())), np.float64).sum(axis=1)
     mean = float(np.mean(radiance))
     return float((radiance.max() - radiance.min()) / mean) if mean > 0 else 0.0

@@ -403,9 +403,7 @@ def fill_blocks(bp: BlockParallax, ground_inv_depth: np.ndarray | None = None, r
     of a near chart's blocks and one of the background beside it is neither (08:00 seed 5, chart at
     1.5 m: five chart blocks and one far block gave a surface 0.9 px behind the chart)."""
     w = np.where(bp.measured, bp.inv_depth_per_m, np.nan).astype(np.float64)
-    h, wd = w.shape
-    padded = np.pad(w, radius, mode="constant", constant_values=np.nan)
-    stack = np.stack([padded[dy:dy + h, dx:dx + wd] for dy in range(2 * radius + 1) for dx in range(2 * radius + 1)])
+    stack = neighbourhood_stack(w, radius)
     has = np.isfinite(stack).any(axis=0)
     neighbours = np.full(w.shape, np.nan)
     if has.any():
@@ -799,6 +797,14 @@ def _add_peak(top1: np.ndarray, top2: np.ndarray, peak: np.ndarray) -> tuple[np.
     return np.maximum(top1, peak), top2
 
 
+def neighbourhood_stack(values: np.ndarray, radius: int) -> np.ndarray:
+    """``((2r + 1)², H, W)``: every value of each pixel's ``(2r + 1)²`` neighbourhood (NaN beyond the border;
+    NaN values stay NaN, so ``np.nan*`` reductions over axis 0 see only the known neighbours)."""
+    h, w = values.shape
+    padded = np.pad(values, radius, mode="constant", constant_values=np.nan)
+    return np.stack([padded[dy:dy + h, dx:dx + w] for dy in range(2 * radius + 1) for dx in range(2 * radius + 1)])
+
+
 def fill_from_neighbours(values: np.ndarray, fill: np.ndarray, sources: np.ndarray, radius: int = 2,
                          passes: int = 3) -> np.ndarray:
     """Replace the ``fill`` pixels by the median of the ``sources`` pixels within ``radius`` (repeated
@@ -807,13 +813,10 @@ def fill_from_neighbours(values: np.ndarray, fill: np.ndarray, sources: np.ndarr
     out = values.astype(np.float32).copy()
     known = sources & ~fill
     todo = fill.copy()
-    h, w = out.shape
     for _ in range(passes):
         if not todo.any() or not known.any():
             break
-        padded = np.pad(np.where(known, out, np.nan), radius, mode="constant", constant_values=np.nan)
-        stack = np.stack([padded[dy:dy + h, dx:dx + w] for dy in range(2 * radius + 1)
-                          for dx in range(2 * radius + 1)])[:, todo]
+        stack = neighbourhood_stack(np.where(known, out, np.nan), radius)[:, todo]
         has = np.isfinite(stack).any(axis=0)
         if not has.any():
             break

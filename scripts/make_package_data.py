@@ -43,6 +43,21 @@ def wratten_34a() -> None:
     )
 
 
+def wratten_96() -> None:
+    src = SHARED / "filter_transmittance" / "wratten_visible_400-700nm_10nm_percent.csv"
+    with open(src) as fh:
+        rows = list(csv.reader(fh))
+    header, data = rows[0], np.array(rows[1:], dtype=float)
+    col = header.index("96")
+    write_csv(
+        OUT / "filters" / "wratten_96.csv", data[:, 0], {"Wratten 96 (ND 1.0)": data[:, col]},
+        "Kodak Wratten No. 96 neutral density 1.0 spectral transmittance in PERCENT, 400-700 nm / 10 nm.\n"
+        "Source: Kodak publication 'Kodak Wratten Filters for Scientific and Technical Use' (A. C. Peed Jr.),\n"
+        "as tabulated in m-lohmann/SpectralVis.jl (MIT) data/spectra/spectrum_Wratten.jl; column '96'\n"
+        "identified as ND 1.0 by its flat ~9 % transmittance (shared/data/filter_transmittance/SOURCE.txt).",
+    )
+
+
 def vrhel() -> None:
     folder = SHARED / "reflectance" / "vrhel_isetcam"
     sets = {"vrhel_objects": "Objects_Vhrel.mat", "vrhel_munsell": "MunsellSamples_Vhrel.mat",
@@ -62,4 +77,5 @@ def vrhel() -> None:
 
 if __name__ == "__main__":
     wratten_34a()
+    wratten_96()
     vrhel()

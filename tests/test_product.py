@@ -40,7 +40,8 @@ def test_product_accuracy_against_ground_truth(product):
     assert acc["colorchecker"]["nrmse"] < 0.02 and acc["colorchecker"]["delta_e_ab"] < 2.0
     assert set(report["timings_s"]) >= {"hdr_merge", "registration", "mosaic", "estimator"}
     assert len(report["registration"]) == 36 and (root / "p" / "report" / "report.html").exists()
-    assert index["session_check"]["n_ok"] == 1080 and index["skipped_directions"] == []
+    check = index["session_check"]  # the regular frames and the sun bracket(s)
+    assert check["n_ok"] == check["n_planned"] > 1080 and index["skipped_directions"] == []
 
 
 @pytest.mark.slow

@@ -203,6 +203,39 @@ class BracketSpec:
         return float(sum(self.exposures_s))
 
 
+#: Exposure index of the first frame of a direction's sun bracket (its files are ``A_e100.tif`` …): far from
+#: any regular bracket (at most 64 exposures), so the two never share a key in the journal.
+SUN_EXPOSURE_BASE = 100
+#: Neutral-density filter of the presets' sun bracket (Kodak Wratten No. 96 at optical density 3.0).
+DEFAULT_SUN_FILTER = "wratten-96-nd3"
+
+
+@dataclass(frozen=True)
+class SunBracketSpec:
+    """The attenuated bracket shot through a neutral-density filter in every direction that holds the sun.
+
+    A direction holds the sun when camera A's shortest regular exposure clips (``clip_fraction`` of the
+    maximum code in at least ``min_clipped_px`` pixels); the capture then inserts ``filter`` in front of both
+    lenses (``changer``: ``"simulated"`` for the simulated rig, ``"manual"`` asks the operator), shoots
+    ``exposures_s`` on both cameras and removes the filter.  ``change_s`` is the time to insert or remove it.
+    """
+
+    filter: str = DEFAULT_SUN_FILTER
+    exposures_s: tuple[float, ...] = (0.00096, 0.00024, 0.00006, 0.000015)
+    changer: str = "simulated"
+    change_s: float = 2.0
+    clip_fraction: float = 0.98
+    min_clipped_px: int = 1
+
+    @property
+    def total_s(self) -> float:
+        return float(sum(self.exposures_s))
+
+
+#: How the neutral-density filter of the sun bracket gets in front of the lenses.
+SUN_FILTER_CHANGERS = ("simulated", "manual")
+
+
 @dataclass(frozen=True)
 class GridSpec:
     """Direction grid: explicit counts, or an overlap from which the counts follow (see ``plan``)."""
@@ -225,6 +258,8 @@ class Rig:
     grid: GridSpec
     source: str = ""
     toml_text: str = ""
+    #: the sun bracket (``[sun]`` table), or ``None``: a saturated sun then stays a lower bound
+    sun: SunBracketSpec | None = None
 
     @property
     def camera_a(self) -> CameraSpec:
@@ -408,6 +443,36 @@ def _bracket(r: _Reader) -> BracketSpec:
     return BracketSpec(tuple(float(t) for t in np.geomspace(longest, shortest, count)))
 
 
+def _sun(r: _Reader | None) -> SunBracketSpec | None:
+    """The ``[sun]`` table (see :class:`SunBracketSpec`), or ``None`` without one."""
+    if r is None:
+        return None
+    default = SunBracketSpec()
+    name = r.get("filter", str, default.filter)
+    try:
+        load_filter(name)
+    except (ConfigurationError, InputFileError) as exc:
+        r.fail("filter", str(exc))
+    times = r.get("exposures_s", list, list(default.exposures_s))
+    if len(times) < 1 or not all(isinstance(t, int | float) and not isinstance(t, bool) and t > 0 for t in times):
+        r.fail("exposures_s", f"expected a list of positive seconds, got {times!r}")
+    try:
+        check_exposure_times(times, "exposures_s")
+    except ConfigurationError as exc:
+        r.fail("exposures_s", str(exc).removeprefix("exposures_s: "))
+    if len(times) > 64:
+        r.fail("exposures_s", f"{len(times)} exposures is above the limit of 64")
+    changer = r.get("changer", str, default.changer)
+    if changer not in SUN_FILTER_CHANGERS:
+        r.fail("changer", f"expected one of {SUN_FILTER_CHANGERS}, got {changer!r}")
+    clip = r.get("clip_fraction", float, default.clip_fraction, positive=True)
+    if clip > 1:
+        r.fail("clip_fraction", f"must be in (0, 1], got {clip}")
+    return SunBracketSpec(name, tuple(sorted((float(t) for t in times), reverse=True)), changer,
+                          r.get("change_s", float, default.change_s, minimum=0.0), clip,
+                          r.get("min_clipped_px", int, default.min_clipped_px, positive=True))
+
+
 def rig_from_dict(data: dict, source: str = "<rig>", toml_text: str = "") -> Rig:
     """Validate a parsed rig description (see the module docstring for the layout)."""
     top = _Reader(data, "", source)
@@ -458,7 +523,8 @@ def rig_from_dict(data: dict, source: str = "<rig>", toml_text: str = "") -> Rig
     if grid.n_pan is not None and grid.n_tilt is not None and grid.n_pan * grid.n_tilt > MAX_DIRECTIONS:
         g.fail("n_pan", f"{grid.n_pan} x {grid.n_tilt} directions is above the limit of {MAX_DIRECTIONS}")
     return Rig(top.get("name", str, Path(source).stem), top.get("description", str, ""), cameras, mounting, head,
-               _bracket(top.table("bracket")), grid, source, toml_text)
+               _bracket(top.table("bracket")), grid, source, toml_text,
+               _sun(top.table("sun") if "sun" in data else None))
 
 
 def load_rig(path: str | Path) -> Rig:
@@ -529,4 +595,6 @@ def rig_toml(rig: Rig) -> str:
     d = drop_none(rig.to_dict())
     d.pop("source", None)
     d["bracket"] = {"exposures_s": list(rig.bracket.exposures_s)}
+    if rig.sun is not None:
+        d["sun"] = {**d["sun"], "exposures_s": list(rig.sun.exposures_s)}
     return tomli_w.dumps(d)

@@ -29,7 +29,7 @@ import numpy as np
 from omnispectral.capture.scenes.base import resample_matrix
 from omnispectral.errors import ConfigurationError
 from omnispectral.product.saturation import saturated_mask, saturation_level_dn_s
-from omnispectral.product.spectra import estimate_image, open_product
+from omnispectral.product.spectra import SunOverlay, estimate_image, open_product
 
 #: Default largest environment width picked when no level is given (px).
 DEFAULT_MAX_WIDTH = 1024
@@ -128,16 +128,18 @@ def choose_level(shapes: list[tuple[int, int]], level: int | None, max_width: in
 
 
 def environment_from_bands(bands: np.ndarray, estimator, units: str, saturated: np.ndarray | None = None,
-                           info: dict | None = None, linear_map: tuple | None = None) -> EnvironmentMap:
+                           info: dict | None = None, linear_map: tuple | None = None,
+                           sun: SunOverlay | None = None) -> EnvironmentMap:
     """Environment map from six-band radiance ``(H, W, 6)``: uncovered pixels filled, per-pixel mixture
-    estimate (or one ``linear_map = (M (n, 6), b (n,))``), clipped at 0."""
+    estimate (or one ``linear_map = (M (n, 6), b (n,))``), clipped at 0; the recovered sun's pixels
+    (``sun``) take its measured spectrum (:class:`~omnispectral.product.spectra.SunOverlay`)."""
 
     filled_bands, filled = fill_uncovered(np.asarray(bands, np.float32))
     filled_bands = np.maximum(filled_bands, 0.0)
     if linear_map is not None:
         spectra = filled_bands @ np.asarray(linear_map[0], np.float32).T + np.asarray(linear_map[1], np.float32)
     else:
-        spectra = estimate_image(filled_bands, estimator)
+        spectra = estimate_image(filled_bands, estimator, sun=sun)
     spectra = np.maximum(spectra, 0.0)
     return EnvironmentMap(spectra.astype(np.float32), np.asarray(estimator.wavelength_nm, float), units,
                           filled_bands, saturated, filled, dict(info or {}))
@@ -152,7 +154,10 @@ def environment_from_product(product: str | Path, level: int | None = None, max_
     clip = saturation_level_dn_s(store.attrs())
     sat = saturated_mask(store, level, bands, clip) if clip is not None else None
     units = f"{index.get('units', 'DN per second of exposure')} per unit of the system matrix"
+    sun_record = (store.attrs().get("omnispectral") or {}).get("sun") or {}
     env = environment_from_bands(bands, estimator, units, sat,
                                  {"source": str(Path(product).resolve()), "level": level,
-                                  "saturation_level_dn_s": clip})
+                                  "saturation_level_dn_s": clip,
+                                  "sun": {k: sun_record.get(k) for k in ("method", "recovered", "note")}},
+                                 sun=SunOverlay.of(store, level, bands.shape[:2]))
     return env, estimator

@@ -191,17 +191,68 @@ class SimulatedHead:
         pass
 
 
-def frame_rng(seed: int, camera: str, pan_deg: float, tilt_deg: float, exposure_s: float) -> np.random.Generator:
+def frame_rng(seed: int, camera: str, pan_deg: float, tilt_deg: float, exposure_s: float,
+              filter_name: str | None = None) -> np.random.Generator:
     """The noise stream of one simulated frame, spawned from the seed, the camera, the direction (its
-    exact pan/tilt) and the exposure (``numpy.random.SeedSequence``): a frame's noise does not depend
-    on what was rendered before it, so a resumed or retried simulation gives the same frames."""
+    exact pan/tilt), the exposure and the filter in front of the lens, if any (``numpy.random.SeedSequence``):
+    a frame's noise does not depend on what was rendered before it, so a resumed or retried simulation
+    gives the same frames."""
     words = np.array([pan_deg, tilt_deg, exposure_s], np.float64).view(np.uint32)
     entropy = [int(seed) % (1 << 63), *camera.encode("utf-8")[:8], *(int(w) for w in words)]
+    if filter_name:
+        entropy += [0x46494C54, *filter_name.encode("utf-8")[:32]]
     return np.random.default_rng(np.random.SeedSequence(entropy))
 
 
-#: ``render(camera_name, pan_deg, tilt_deg, exposure_s, rng) -> uint16 frame`` of a simulated camera.
-Renderer = Callable[[str, float, float, float, np.random.Generator], np.ndarray]
+#: ``render(camera_name, pan_deg, tilt_deg, exposure_s, rng) -> uint16 frame`` of a simulated camera; with a
+#: filter in front of the lens the camera adds ``filter_name=NAME``.
+Renderer = Callable[..., np.ndarray]
+
+
+@runtime_checkable
+class FilterChanger(Protocol):
+    """Puts a filter in front of both lenses and takes it away (the sun bracket's neutral density)."""
+
+    def insert(self, filter_name: str) -> None: ...
+
+    def remove(self) -> None: ...
+
+
+class SimulatedFilterChanger:
+    """A filter slider in front of the simulated cameras: each move takes ``change_s`` of clock time."""
+
+    def __init__(self, cameras: dict, clock: Clock, change_s: float = 2.0):
+        self.cameras, self.clock, self.change_s = cameras, clock, float(change_s)
+        self.filter_name: str | None = None
+
+    def insert(self, filter_name: str) -> None:
+        self.clock.sleep(self.change_s)
+        self.filter_name = filter_name
+        for cam in self.cameras.values():
+            cam.filter_name = filter_name
+
+    def remove(self) -> None:
+        self.clock.sleep(self.change_s)
+        self.filter_name = None
+        for cam in self.cameras.values():
+            cam.filter_name = None
+
+
+class ManualFilterChanger:
+    """The operator places and removes the filter: ``ask(message)`` returns once it is done (the command line
+    waits for Enter on its terminal)."""
+
+    def __init__(self, ask: Callable[[str], None]):
+        self.ask = ask
+        self.filter_name: str | None = None
+
+    def insert(self, filter_name: str) -> None:
+        self.ask(f"put the {filter_name} filter in front of both lenses, then press Enter")
+        self.filter_name = filter_name
+
+    def remove(self) -> None:
+        self.ask(f"take the {self.filter_name} filter away from the lenses, then press Enter")
+        self.filter_name = None
 
 
 @dataclass
@@ -220,6 +271,8 @@ class SimulatedCamera:
     metadata: dict = field(default_factory=dict)
     exposure_s: float = 0.01
     frames_read: int = 0
+    #: the filter a :class:`SimulatedFilterChanger` put in front of the lens (``None``: none)
+    filter_name: str | None = None
     _pending: tuple | None = None
 
 
@@ -231,7 +284,7 @@ class SimulatedCamera:
 
     def trigger(self) -> None:
         pan, tilt = self.head.true_position
-        self._pending = (pan, tilt, self.exposure_s, self.clock.now(), self.clock.monotonic())
+        self._pending = (pan, tilt, self.exposure_s, self.clock.now(), self.clock.monotonic(), self.filter_name)
 
     def read_frame(self, timeout_s: float) -> tuple[np.ndarray, dict]:
         if self._pending is None:
@@ -242,10 +295,12 @@ class SimulatedCamera:
             self.faults.timeouts -= 1
             self.clock.sleep(timeout_s)
             raise DeviceTimeout(f"camera {self.name}: no frame within {timeout_s} s")
-        pan, tilt, exposure, t0, t0_mono = self._pending
+        pan, tilt, exposure, t0, t0_mono, filt = self._pending
         # the frame exists after exposure + read-out (cameras triggered together overlap in time)
         self.clock.sleep(t0_mono + exposure + self.readout_s - self.clock.monotonic())
-        frame = self.render(self.name, pan, tilt, exposure, frame_rng(self.seed, self.name, pan, tilt, exposure))
+        rng = frame_rng(self.seed, self.name, pan, tilt, exposure, filt)
+        frame = (self.render(self.name, pan, tilt, exposure, rng) if filt is None
+                 else self.render(self.name, pan, tilt, exposure, rng, filter_name=filt))
         self._pending = None
         self.frames_read += 1
         # the simulated clock's exact state (float seconds) lets a resumed simulation continue bit-identically

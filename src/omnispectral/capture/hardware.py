@@ -10,11 +10,12 @@ session; running the same command again resumes it after its last complete frame
 from __future__ import annotations
 
 import logging
+import sys
 from pathlib import Path
 
 from omnispectral.capture import drivers
 from omnispectral.capture.darks import record_darks
-from omnispectral.capture.devices import DeviceError, SimulatedHead, SystemClock
+from omnispectral.capture.devices import DeviceError, ManualFilterChanger, SimulatedHead, SystemClock
 from omnispectral.capture.plan import format_duration, make_plan
 from omnispectral.capture.run import RetryPolicy, run_capture
 from omnispectral.capture.session import Session
@@ -35,8 +36,28 @@ def _open_head(rig: Rig):
     return drivers.open_head(rig)
 
 
-def capture_with_devices(output: str | Path, rig: Rig, *, progress=None) -> dict:
-    """Capture (or resume) a session at ``output`` with the rig's real devices; returns the run summary."""
+def real_filter_changer(rig: Rig, ask=None):
+    """The sun bracket's filter changer on real devices: ``changer = "manual"`` asks the operator through
+    ``ask(message)`` (default: a prompt on the terminal); a ``"simulated"`` changer has nothing to move on a
+    real rig, so the sun bracket is not shot (logged) and the saturated sun stays a lower bound."""
+    if rig.sun is None:
+        return None
+    if rig.sun.changer == "manual":
+        return ManualFilterChanger(ask or _ask_on_terminal)
+    log.warning("%s: [sun] changer = %r has no device on a real rig: no sun bracket (set changer = \"manual\")",
+                rig.source, rig.sun.changer)
+    return None
+
+
+def _ask_on_terminal(message: str) -> None:
+    """Print ``message`` on standard error and wait for Enter on standard input."""
+    print(f"omnispectral capture: {message}", file=sys.stderr, flush=True)
+    sys.stdin.readline()
+
+
+def capture_with_devices(output: str | Path, rig: Rig, *, progress=None, ask=None) -> dict:
+    """Capture (or resume) a session at ``output`` with the rig's real devices; returns the run summary.
+    ``ask(message)`` waits for the operator to move the sun bracket's filter (:func:`real_filter_changer`)."""
     if drivers.rig_device_kind(rig) != "real":
         raise ConfigurationError(f"{rig.source}: the rig's devices are all simulated; use 'omnispectral simulate'")
     plan = make_plan(rig)
@@ -47,7 +68,8 @@ def capture_with_devices(output: str | Path, rig: Rig, *, progress=None) -> dict
         cams, system = drivers.open_cameras(rig)
         session.log_event("devices", head=_head_info(rig, head), cameras={n: getattr(c, "info", {})
                                                                          for n, c in cams.items()})
-        result = run_capture(session, head, cams, SystemClock(), policy_of(rig), progress).to_dict()
+        result = run_capture(session, head, cams, SystemClock(), policy_of(rig), progress,
+                             real_filter_changer(rig, ask)).to_dict()
     except DeviceError as exc:  # opening failed: nothing captured this time, the session stays resumable
         session.log_event("stop", reason=str(exc), frames_done=len(session.completed()))
         n_done = len(session.completed())

@@ -48,7 +48,7 @@ from omnispectral.fingerprint import differences
 from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text, is_temp_name
 from omnispectral.limits import check_image_shape
 from omnispectral.locking import LOCK_NAME, directory_lock
-from omnispectral.rig import CAMERA_NAMES, Rig, rig_from_dict, rig_toml
+from omnispectral.rig import CAMERA_NAMES, SUN_EXPOSURE_BASE, Rig, rig_from_dict, rig_toml
 from omnispectral.threads import ordered_thread_map
 
 FORMAT_VERSION = 1
@@ -456,6 +456,21 @@ def _frame_problem(s: Session, key: tuple[int, str, int], rec: dict | None, chec
     return None
 
 
+def sun_directions(session: Session, records: dict) -> list[int]:
+    """Directions that hold the sun: those with a ``sun`` event or any frame of a sun bracket."""
+    found = {int(e["direction"]) for e in session.events() if e.get("event") == "sun" and "direction" in e}
+    found |= {k[0] for k in records if k[2] >= SUN_EXPOSURE_BASE}
+    return sorted(found)
+
+
+def sun_bracket_keys(session: Session, plan: Plan, records: dict, cameras: tuple[str, ...]) -> list[tuple]:
+    """Every frame key of the sun brackets the capture started (all of their exposures, both cameras)."""
+    if not plan.sun_bracket:
+        return []
+    n = len(plan.sun_bracket["exposures_s"])
+    return [(d, c, SUN_EXPOSURE_BASE + k) for d in sun_directions(session, records) for c in cameras for k in range(n)]
+
+
 def verify_session(path: str | Path, check_pixels: bool = False, checksums: bool = True,
                    workers: int | None = None) -> dict:
     """Completeness and integrity of a session against its plan; names every missing or damaged frame.
@@ -474,6 +489,7 @@ def verify_session(path: str | Path, check_pixels: bool = False, checksums: bool
     j = read_journal(s.journal_path)
     cameras = s.cameras()
     expected = [(d.index, c, k) for d in plan.directions for c in cameras for k in range(len(plan.exposures_s))]
+    expected += sun_bracket_keys(s, plan, j.records, cameras)
 
     def check(key):
         return _frame_problem(s, key, j.records.get(key), checksums, check_pixels)

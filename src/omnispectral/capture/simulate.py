@@ -24,18 +24,28 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
 
-from omnispectral.capture.devices import FakeClock, SimulatedCamera, SimulatedHead
+from omnispectral.capture.devices import FakeClock, SimulatedCamera, SimulatedFilterChanger, SimulatedHead
 from omnispectral.capture.plan import make_plan
 from omnispectral.capture.resume import resume_simulated_devices
 from omnispectral.capture.run import RetryPolicy, run_capture
+from omnispectral.capture.scenes.base import SunDisk, scene_sun_disk
 from omnispectral.capture.session import Session
 from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.bayer import mosaic
-from omnispectral.imaging.geometry import CameraModel, equirect_pixel_to_lonlat, lonlat_to_ray, native_width
+from omnispectral.imaging.geometry import (
+    CameraModel,
+    equirect_pixel_to_lonlat,
+    lonlat_to_ray,
+    native_width,
+    ray_to_lonlat,
+)
+from omnispectral.imaging.sundisk import disk_samples, n_radial_for_pixel, splat_camera, splat_equirect
 from omnispectral.io import atomic_path, atomic_write_json
 from omnispectral.locking import directory_lock
 from omnispectral.rig import CameraSpec, Rig, camera_model, rig_with_camera_settings
+from omnispectral.spectral.library import load_filter
 from omnispectral.spectral.noise import SensorNoiseModel
 from omnispectral.spectral.system import MultibandSystem
 
@@ -44,6 +54,15 @@ GROUND_TRUTH_FORMAT = "omnispectral-ground-truth"
 
 #: Largest error (deg, per axis) of camera B's true mounting against the rig file's in a simulation.
 DEFAULT_MOUNTING_ERROR_DEG = 0.5
+
+#: Veiling glare added by a filter in front of the lens: this fraction of the light the filter passes is
+#: scattered (haze of the gelatin, reflections between filter and front element) into a halo around its
+#: source; the rest forms the image.  Our modelling choice (0.5 % in a Gaussian of 2°), not a measurement
+#: of the Wratten 96 nor a datasheet value (veiling glare of an optical system is defined and measured in
+#: ISO 9358:1994); it exists so that processing, which does not know it, must measure around it.
+FILTER_VEIL_FRACTION = 0.005
+#: Standard deviation (deg) of the filter's Gaussian veil around each source.
+FILTER_VEIL_SIGMA_DEG = 2.0
 
 
 def true_mounting_error_deg(seed: int, max_error_deg: float = DEFAULT_MOUNTING_ERROR_DEG) -> tuple[float, float, float]:
@@ -136,8 +155,8 @@ class DarkRenderer:
         self._rng = np.random.default_rng([int(self.seed), 0x4441524B])
 
     def __call__(self, camera: str, pan_deg: float, tilt_deg: float, exposure_s: float,
-                 rng: np.random.Generator) -> np.ndarray:
-        cam = self.rig.cameras[camera]
+                 rng: np.random.Generator, filter_name: str | None = None) -> np.ndarray:
+        cam = self.rig.cameras[camera]  # a filter in front of a capped lens changes nothing
         zeros = np.zeros((cam.height_px, cam.width_px, 3), np.float32)
         return raw_frame(cam, zeros, exposure_s, self._rng if self.noise else None)
 
@@ -159,6 +178,8 @@ class RigRenderer:
     models: dict = field(init=False)
     _rays: dict = field(init=False, default_factory=dict)
     _last: dict = field(init=False, default_factory=dict)
+    _filters: dict = field(init=False, default_factory=dict)
+    _sun_samples: dict = field(init=False, default_factory=dict)
 
     def __post_init__(self):
         self.system = self.rig.system(np.asarray(self.scene.wavelength_nm))
@@ -172,11 +193,24 @@ class RigRenderer:
         """Render ``scene`` from now on (same cameras, rays and exposure scale; the frame cache is dropped)."""
         self.scene = scene
         self._last.clear()
+        self._sun_samples.clear()
 
-    def band_matrix(self, camera: str) -> np.ndarray:
-        """(3, n) sensitivity × filter × Δλ of one camera."""
+    def filter_transmittance(self, filter_name: str) -> np.ndarray:
+        """``(n,)`` transmittance of a filter (:func:`~omnispectral.spectral.library.load_filter`) on the scene's
+        wavelength grid (linear interpolation; a filter that does not cover the grid is refused)."""
+        if filter_name not in self._filters:
+            wl = np.asarray(self.scene.wavelength_nm, np.float64)
+            self._filters[filter_name] = load_filter(filter_name).resample(wl).values[0]
+        return self._filters[filter_name]
+
+    def band_matrix(self, camera: str, filter_name: str | None = None) -> np.ndarray:
+        """(3, n) sensitivity × filter × Δλ of one camera; with ``filter_name`` also × that filter's
+        transmittance (a filter held in front of the lens, e.g. the sun bracket's neutral density)."""
         i = self.rig.camera_names.index(camera)
-        return self.system.matrix[3 * i:3 * i + 3]
+        matrix = self.system.matrix[3 * i:3 * i + 3]
+        if filter_name is None:
+            return matrix
+        return matrix * self.filter_transmittance(filter_name)[None, :]
 
     def camera_rays(self, camera: str) -> tuple[np.ndarray, np.ndarray]:
         """Unit camera-frame rays (H*W*s², 3) of ``s × s`` points spread evenly over every pixel's area
@@ -197,28 +231,91 @@ class RigRenderer:
         s2 = max(1, int(self.supersample)) ** 2
         return self.camera_rays(camera)[1].reshape(m.height, m.width, s2).all(axis=2)
 
-    def electrons_per_second(self, camera: str, pan_deg: float, tilt_deg: float) -> np.ndarray:
-        """Noise-free photo-electrons per second of each pixel, ``(H, W, 3)`` float32 (cached per direction)."""
-        key = (pan_deg, tilt_deg)
+    def electrons_per_second(self, camera: str, pan_deg: float, tilt_deg: float,
+                             filter_name: str | None = None) -> np.ndarray:
+        """Noise-free photo-electrons per second of each pixel, ``(H, W, 3)`` float32 (cached per direction and filter).
+
+        The scene's rays give each pixel its mean radiance over ``supersample²`` points; a scene's
+        analytic sun (:meth:`~omnispectral.capture.scenes.base.Scene.sun_disk`) is left out of them and
+        added exactly (:meth:`sun_image`).  With ``filter_name`` the bands are × the filter's
+        transmittance and the filter's veil (:func:`filter_veil`) spreads part of the light.
+        """
+        key = (pan_deg, tilt_deg, filter_name)
         if self._last.get(camera, (None,))[0] == key:
             return self._last[camera][1]
         m = self.models[camera]
         rays, valid = self.camera_rays(camera)
         world = rays @ m.camera_to_world(pan_deg, tilt_deg).T
         origin_m = m.camera_center_mm(pan_deg, tilt_deg) / 1000.0
+        matrix = self.band_matrix(camera, filter_name)
+        sun = scene_sun_disk(self.scene)
+        no_disk = {"sun_disk": False} if sun is not None else {}
         bands = np.zeros((rays.shape[0], 3), np.float32)
         if valid.any():
-            bands[valid] = self.scene.band_radiance(world[valid], self.band_matrix(camera), origin_m=origin_m)
+            bands[valid] = self.scene.band_radiance(world[valid], matrix, origin_m=origin_m, **no_disk)
         s2 = max(1, int(self.supersample)) ** 2
-        img = (bands.reshape(m.height, m.width, s2, 3).mean(axis=2) * np.float32(self.electrons_per_unit))
-        self._last[camera] = (key, img.astype(np.float32))
+        img = bands.reshape(m.height, m.width, s2, 3).mean(axis=2)
+        if sun is not None:
+            img += self.sun_image(camera, pan_deg, tilt_deg, sun, matrix)
+        img *= np.float32(self.electrons_per_unit)
+        if filter_name is not None:
+            img = filter_veil(img, np.radians(FILTER_VEIL_SIGMA_DEG) * 0.5 * (m.fx + m.fy))
+        img = img.astype(np.float32)
+        self._last[camera] = (key, img)
         return img
 
+    def sun_image(self, camera: str, pan_deg: float, tilt_deg: float, sun: SunDisk, matrix: np.ndarray) -> np.ndarray:
+        """``(H, W, 3)`` float32 mean band radiance of the sun's disk in each pixel of ``camera``.
+
+        Stratified disk samples (:func:`~omnispectral.imaging.sundisk.disk_samples`, about 80 cells per
+        pixel side), each tested for visibility from the camera's centre with the scene's own ray casting,
+        are splatted into the pixels they are imaged on as ``Σ w / Ω_pixel``
+        (:func:`~omnispectral.imaging.sundisk.splat_camera`) times the disk's band radiance: the frame
+        holds exactly the visible disk's energy, ``Σ value · Ω_pixel = L · Ω_visible``.
+        """
+        m = self.models[camera]
+        out = np.zeros((m.height, m.width, 3), np.float32)
+        f_px = max(m.fx, m.fy)
+        _, near = m.world_to_pixel(sun.direction[None], pan_deg, tilt_deg, margin_px=sun.radius_rad * f_px + 2.0)
+        if not near[0]:
+            return out
+        dirs, weights = self._disk_samples(sun, 1.0 / f_px)
+        origin_m = m.camera_center_mm(pan_deg, tilt_deg) / 1000.0
+        vis = np.asarray(sun.visible(dirs, origin_m), bool)
+        rows, cols, frac = splat_camera(m, dirs[vis], weights[vis], pan_deg, tilt_deg)
+        keep = self.pixel_valid(camera)[rows, cols]
+        out[rows[keep], cols[keep]] = (frac[keep, None] * sun.band_radiance(matrix)[None, :]).astype(np.float32)
+        return out
+
+    def _disk_samples(self, sun: SunDisk, pixel_rad: float) -> tuple[np.ndarray, np.ndarray]:
+        n = n_radial_for_pixel(sun.radius_rad, pixel_rad)
+        key = (tuple(np.round(sun.direction, 15)), sun.radius_rad, n)
+        if key not in self._sun_samples:
+            if len(self._sun_samples) > 4:
+                self._sun_samples.clear()
+            self._sun_samples[key] = disk_samples(sun.direction, sun.radius_rad, n)
+        return self._sun_samples[key]
+
     def __call__(self, camera: str, pan_deg: float, tilt_deg: float, exposure_s: float,
-                 rng: np.random.Generator) -> np.ndarray:
+                 rng: np.random.Generator, filter_name: str | None = None) -> np.ndarray:
+        """A raw frame of ``camera`` at the head's ``(pan_deg, tilt_deg)``, with ``filter_name`` in front of the
+        lens if given (:meth:`electrons_per_second`); noise from ``rng`` unless :attr:`noise` is off."""
         cam = self.rig.cameras[camera]
-        return raw_frame(cam, self.electrons_per_second(camera, pan_deg, tilt_deg), exposure_s,
+        return raw_frame(cam, self.electrons_per_second(camera, pan_deg, tilt_deg, filter_name), exposure_s,
                          rng if self.noise else None)
+
+
+def filter_veil(image: np.ndarray, sigma_px: float, fraction: float = FILTER_VEIL_FRACTION) -> np.ndarray:
+    """``(1 − f) · image + f · (image ∗ G_σ)``: a filter's veiling glare (:data:`FILTER_VEIL_FRACTION`).
+
+    ``G_σ`` is a normalised Gaussian of ``sigma_px`` (the :data:`FILTER_VEIL_SIGMA_DEG` at the focal length;
+    a pixel's solid angle varies little over a few degrees, so energy per pixel stands for energy per
+    steradian).  Light scattered beyond the sensor's edge is lost; light from sources outside the field of
+    view is not scattered in (its veil is missing near the frame's borders).  Energy is conserved on the
+    sensor up to those borders.
+    """
+    blurred = ndimage.gaussian_filter(image, (sigma_px, sigma_px, 0.0), mode="constant", truncate=4.0)
+    return (1.0 - fraction) * image + fraction * blurred
 
 
 def simulated_dark_cameras(rig: Rig, seed: int = 0, noise: bool = True) -> dict[str, SimulatedCamera]:
@@ -272,7 +369,9 @@ def write_ground_truth(directory: str | Path, renderer: RigRenderer, width: int,
     ``bands.npy`` ``(H, W, m)``: noise-free response of the rig's bands (``A:R … B:B``, or ``A:R, A:G, A:B`` for
     a one-camera rig) in DN per second of exposure
     (what the HDR merge of a noise-free capture gives), seen from the head's rotation centre, averaged
-    over each pixel's area (2 × 2 points, like the sensor's pixels).
+    over each pixel's area (2 × 2 points, like the sensor's pixels); a scene's analytic sun is not
+    point-sampled but added exactly (:func:`add_sun_disk_equirect`: every pixel gets the visible part of
+    the disk it covers, so the truth holds the sun's energy on any grid).
     ``spectral.npy`` ``(h, w, n)`` at ``spectral_width``: spectral radiance in DN/s per unit of the
     system matrix (``bands = spectral @ matrix.T``), i.e. the unit a Wiener estimate of the bands is in.
     ``wavelength_nm.npy``, ``system_matrix.npy`` ``(m, n)``; for scenes with a chart
@@ -284,16 +383,24 @@ def write_ground_truth(directory: str | Path, renderer: RigRenderer, width: int,
     height = width // 2
     scale = renderer.electrons_per_unit / renderer.rig.camera_a.noise_model().gain_e_per_dn
     matrix = renderer.system.matrix
+    scene = renderer.scene
+    sun = scene_sun_disk(scene)
+    no_disk = {"sun_disk": False} if sun is not None else {}
     with atomic_path(out / "bands.npy") as tmp:
         arr = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float32, shape=(height, width, matrix.shape[0]))
-        _fill_equirect(arr, lambda rays: renderer.scene.band_radiance(rays, matrix) * np.float32(scale),
+        _fill_equirect(arr, lambda rays: scene.band_radiance(rays, matrix, **no_disk) * np.float32(scale),
                        rows_per_chunk)
+        if sun is not None:
+            add_sun_disk_equirect(arr, sun, sun.band_radiance(matrix) * scale)
         arr.flush()
         del arr
     sw = min(spectral_width, width)
     sh = sw // 2
     spectral = np.empty((sh, sw, matrix.shape[1]), np.float32)
-    _fill_equirect(spectral, lambda rays: renderer.scene.spectral_radiance(rays) * np.float32(scale), rows_per_chunk)
+    _fill_equirect(spectral, lambda rays: scene.spectral_radiance(rays, **no_disk) * np.float32(scale),
+                   rows_per_chunk)
+    if sun is not None:
+        add_sun_disk_equirect(spectral, sun, sun.spectral_radiance * scale)
     _save_npy(out / "spectral.npy", spectral)
     _save_npy(out / "wavelength_nm.npy", np.asarray(renderer.system.wavelength_nm, np.float32))
     _save_npy(out / "system_matrix.npy", matrix.astype(np.float32))
@@ -320,6 +427,10 @@ def write_ground_truth(directory: str | Path, renderer: RigRenderer, width: int,
                     "world +Y up, longitude 0 = +Z, longitude +90 = -X (omnispectral.imaging.geometry)",
             "viewpoint": "the head's rotation centre (camera A's optical centre)",
             "electrons_per_unit": renderer.electrons_per_unit, "dn_per_second_per_unit": scale,
+            **({"sun_disk": {"direction": [float(x) for x in sun.direction], "radius_rad": sun.radius_rad,
+                             "rendering": "exact: visible fraction of the disk in every pixel "
+                                          "(omnispectral.imaging.sundisk), not point-sampled"}}
+               if sun is not None else {}),
             **({"camera_b_true": {"mounting_error_deg": list(renderer.b_mounting_error_deg),
                                   "model": renderer.models["B"].to_dict(),
                                   "note": "what processing must estimate; never read by processing"}}
@@ -342,17 +453,60 @@ def patch_radiance_spread(scene, lon_deg: float, lat_deg: float, half_size_deg: 
     return float((radiance.max() - radiance.min()) / mean) if mean > 0 else 0.0
 
 
-def _fill_equirect(arr: np.ndarray, fn, rows_per_chunk: int, supersample: int = 2) -> None:
+def render_equirect_bands(scene, matrix: np.ndarray, width: int, row_start: int = 0, row_stop: int | None = None,
+                          rows_per_chunk: int = 64) -> np.ndarray:
+    """Band radiance ``(rows, W, m)`` float32 (scene units) of rows ``row_start:row_stop`` of the W × W/2 truth grid,
+    as :func:`write_ground_truth` renders it (2 × 2 points per pixel, the analytic sun added exactly), unscaled."""
+    height = width // 2
+    row_stop = height if row_stop is None else row_stop
+    sun = scene_sun_disk(scene)
+    no_disk = {"sun_disk": False} if sun is not None else {}
+    arr = np.empty((row_stop - row_start, width, np.atleast_2d(matrix).shape[0]), np.float32)
+    _fill_equirect(arr, lambda rays: scene.band_radiance(rays, matrix, **no_disk), rows_per_chunk,
+                   row_offset=row_start, height=height)
+    if sun is not None:
+        add_sun_disk_equirect(arr, sun, sun.band_radiance(matrix), row_offset=row_start, height=height)
+    return arr
+
+
+def add_sun_disk_equirect(arr: np.ndarray, sun: SunDisk, values: np.ndarray, row_offset: int = 0,
+                          height: int | None = None, origin_m=(0.0, 0.0, 0.0)) -> None:
+    """Add a uniform disk of per-channel radiance ``values (c,)`` exactly to an equirect array, in place.
+
+    ``arr (rows, W, c)`` holds rows ``row_offset:`` of a W × ``height`` grid (default: all of it).  The
+    disk's stratified samples (:func:`~omnispectral.imaging.sundisk.disk_samples`, ≥ 20 k and about 80
+    cells per pixel side, so that each pixel's value is within ≈ 0.3 % of the disk's radiance of its
+    exact coverage, :func:`~omnispectral.imaging.sundisk.equirect_disk_coverage`) are tested with
+    ``sun.visible`` from ``origin_m`` and splatted as ``Σ w / Ω_pixel`` (a building or hill edge across
+    the disk is honoured), so ``Σ added · Ω_pixel = values · Ω_visible``.
+    """
+    width = arr.shape[1]
+    height = arr.shape[0] if height is None else int(height)
+    _, lat = ray_to_lonlat(sun.direction)
+    cos_lat = np.cos(min(np.radians(abs(float(lat))) + sun.radius_rad, 0.5 * np.pi))
+    pixel_rad = min(np.pi / height, 2.0 * np.pi / width * max(float(cos_lat), 1e-6))
+    dirs, weights = disk_samples(sun.direction, sun.radius_rad, n_radial_for_pixel(sun.radius_rad, pixel_rad))
+    vis = np.asarray(sun.visible(dirs, origin_m), bool)
+    rows, cols, frac = splat_equirect(dirs[vis], weights[vis], width, height)
+    sel = (rows >= row_offset) & (rows < row_offset + arr.shape[0])
+    add = frac[sel, None] * np.asarray(values, np.float64).reshape(1, -1)
+    arr[rows[sel] - row_offset, cols[sel]] += add.astype(arr.dtype)
+
+
+def _fill_equirect(arr: np.ndarray, fn, rows_per_chunk: int, supersample: int = 2, row_offset: int = 0,
+                   height: int | None = None) -> None:
     """Fill an equirect array with ``fn(rays)`` averaged over ``supersample²`` points spread over each pixel's
     area: the truth is the mean radiance of the pixel's solid angle, as the simulated sensor's pixels
-    integrate over their area (:attr:`RigRenderer.supersample`), so that edges compare like with like."""
+    integrate over their area (:attr:`RigRenderer.supersample`), so that edges compare like with like.
+    ``arr`` holds rows ``row_offset:`` of a grid ``height`` rows high (default: all of it)."""
 
-    h, w = arr.shape[:2]
+    n_rows, w = arr.shape[:2]
+    h = n_rows if height is None else int(height)
     s = max(1, int(supersample))
     sub = (np.arange(s) + 0.5) / s - 0.5
-    for r0 in range(0, h, rows_per_chunk):
-        r1 = min(h, r0 + rows_per_chunk)
-        row, col, dr, dc = np.meshgrid(np.arange(r0, r1), np.arange(w), sub, sub, indexing="ij")
+    for r0 in range(0, n_rows, rows_per_chunk):
+        r1 = min(n_rows, r0 + rows_per_chunk)
+        row, col, dr, dc = np.meshgrid(np.arange(r0, r1) + row_offset, np.arange(w), sub, sub, indexing="ij")
         rays = lonlat_to_ray(*equirect_pixel_to_lonlat((col + dc).ravel(), (row + dr).ravel(), w, h))
         values = np.asarray(fn(rays), np.float32)
         arr[r0:r1] = values.reshape(r1 - r0, w, s * s, -1).mean(axis=2)
@@ -404,9 +558,10 @@ def simulate_session(output: str | Path, rig: Rig, scene, *, start: _dt.datetime
                                    seed=seed * 2 + i, metadata=raw_metadata(rig.cameras[c]))
                 for i, c in enumerate(rig.camera_names)}
         resume_simulated_devices(session, clock, head)
+        filters = SimulatedFilterChanger(cams, clock, rig.sun.change_s) if rig.sun is not None else None
         result = run_capture(session, head, cams, clock,
                              RetryPolicy(rig.head.retries, rig.head.timeout_s, rig.head.position_tolerance_deg),
-                             progress)
+                             progress, filters)
         gt_dir = session.path / "ground_truth"
         if not (gt_dir / "ground_truth.json").exists():
             write_ground_truth(gt_dir, renderer, ground_truth_width or default_ground_truth_width(rig))

@@ -23,6 +23,7 @@ from omnispectral.product.rigboard import calibrate_chessboard_folder
 from omnispectral.product.rigcal import calibrate_session
 from omnispectral.product.series import DEFAULT_REGIONS, parse_region, process_series
 from omnispectral.product.spectra import spectrum_at
+from omnispectral.product.sun import SUN_METHODS
 from omnispectral.rig import PRESETS
 
 
@@ -32,7 +33,7 @@ def cmd_process(args) -> int:
                         scheduler=args.scheduler, skip_bad=args.skip_bad, min_confidence=args.min_confidence,
                         hdr_weight=args.hdr_weight, progress=bars, verify_checksums=not args.sizes_only,
                         registration=args.registration, rig_calibration=args.rig_calibration,
-                        overwrite=args.overwrite)
+                        overwrite=args.overwrite, sun=args.sun)
     if args.json:
         print_json(index)
         return 0
@@ -55,6 +56,7 @@ def _print_summary(index: dict) -> None:
                   f"({len(reg)} directions; {how}; {len(index['skipped_directions'])} directions skipped as bad).")
     for w in registration.get("warnings", []):
         console.print(f"[yellow]warning:[/yellow] {escape(w)}")
+    _print_sun(index.get("sun") or {})
     t = Table(title="Timings")
     for k in index["timings_s"]:
         t.add_column(k, justify="right")
@@ -62,6 +64,16 @@ def _print_summary(index: dict) -> None:
     console.print(t)
     for d in index["skipped_directions"]:
         console.print(f"[yellow]skipped direction {d['direction']}:[/yellow] {'; '.join(d['problems'][:3])}")
+
+
+def _print_sun(sun: dict) -> None:
+    """One line on the sun: how it was recovered and where, or that the panorama holds a lower bound."""
+    if sun.get("recovered"):
+        console.print(f"sun recovered ({sun['method']}, {sun.get('filter', '')}): lon {sun['lon_deg']:.2f}°, "
+                      f"lat {sun['lat_deg']:.2f}°, {sun.get('n_pixels_painted', 0)} panorama pixels hold it "
+                      f"({sun['file']}).")
+    elif sun.get("method") is not None and sun.get("note"):
+        console.print(f"[yellow]sun:[/yellow] {escape(sun['note'])}")
 
 
 def cmd_spectrum(args) -> int:
@@ -268,6 +280,9 @@ def add_commands(sub) -> None:
                         "offset per direction")
     p.add_argument("--rig-calibration", default=None, metavar="FILE.json",
                    help="camera B's mounting from 'omnispectral calibrate rig' (default: fitted from this session)")
+    p.add_argument("--sun", default="auto", choices=list(SUN_METHODS),
+                   help="how the saturated sun is recovered: auto (the attenuated bracket when the session has "
+                        "one), nd-bracket, or none (keep the lower bound)")
     p.add_argument("--min-confidence", type=float, default=None, help="with --registration paper: POC confidence "
                                                                       "below which the calibrated offset is used")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="Dask distributed scheduler address")

@@ -36,7 +36,7 @@ from omnispectral.imaging.bracket import FLOAT_IMAGE_SUFFIXES, write_float_image
 from omnispectral.io import atomic_path
 from omnispectral.product.layout import open_product
 from omnispectral.product.saturation import saturated_mask, saturation_level_dn_s
-from omnispectral.product.spectra import bands_to_linear_srgb, estimate_image
+from omnispectral.product.spectra import SunOverlay, bands_to_linear_srgb, estimate_image
 from omnispectral.spectral.colour import spectra_to_linear_srgb, srgb_encode
 
 SPECTRAL_LAYOUT_VERSION = "1.0"
@@ -237,19 +237,20 @@ def export_product(product: str | Path, fmt: str, output: str | Path, region: tu
     attrs = {"omnispectral_product": Path(product).resolve().name, "omnispectral_units": units,
              "omnispectral_region": f"level {level} rows {r0}-{r1} cols {c0}-{c1}",
              "omnispectral_geometry": "equirectangular; row 0 at latitude +90 of the full panorama, column 0 at -180"}
+    sun = SunOverlay.of(store, level, bands.shape[:2], (r0, c0))
     if fmt in ("png", "jpg"):
-        path = write_preview(output, bands_to_linear_srgb(bands, estimator))
+        path = write_preview(output, bands_to_linear_srgb(bands, estimator, sun))
     elif fmt in ("rgb-exr", "hdr"):
-        rgb = bands_to_linear_srgb(bands, estimator)
+        rgb = bands_to_linear_srgb(bands, estimator, sun)
         path = write_rgb_exr(output, rgb, attrs) if fmt == "rgb-exr" else write_radiance_hdr(output, rgb)
     elif fmt == "uncertainty":
-        spectra, std = estimate_image(bands, estimator, with_std=True)
+        spectra, std = estimate_image(bands, estimator, with_std=True, sun=sun)
         rms = np.sqrt(np.mean(std**2, axis=2))
         rel = rms / np.maximum(np.sqrt(np.mean(spectra**2, axis=2)), 1e-30)
 
         path = write_float_image(output, np.stack([rel, rms], axis=2), ["relative_std", "std_rms"], attrs)
     else:
-        spectra = estimate_image(bands, estimator)
+        spectra = estimate_image(bands, estimator, sun=sun)
         if fmt == "spectral-exr":
             path = write_spectral_exr(output, spectra, wl, units=units, attributes=attrs, half=half)
         else:

@@ -20,7 +20,9 @@ Stages (each timed, with progress; the whole run is resumable):
    few pixels wide) radiometrically right — on the ``small`` demo the chart patches read +5 % (cubic)
    and +10 % (spline) too bright, and the six-band PSNR against the truth is 45.7 dB (linear) vs
    39.1 (cubic) and 33.3 (spline);
-4. **estimator**: the Wiener estimator for the rig's bands (ColorChecker held out), stored in the
+4. **sun**: the saturated sun measured from the attenuated bracket and painted into the panorama
+   (:mod:`omnispectral.product.sun`; ``sun.json``), or recorded as a lower bound;
+5. **estimator**: the Wiener estimator for the rig's bands (ColorChecker held out), stored in the
    panorama's attributes and in ``product.json``: spectra are computed on demand from the bands.
 
 ``PRODUCT/product.json`` indexes it all (see docs/product.md).
@@ -52,6 +54,7 @@ from omnispectral.product.layout import MERGED, PANORAMA, PRODUCT_FORMAT, RIG_CA
 from omnispectral.product.merge import merge_session
 from omnispectral.product.report import write_report
 from omnispectral.product.rigcal import RigCalibration, calibrate_from_merged
+from omnispectral.product.sun import SUN_FILE, paint_sun, recover_sun, sun_summary
 from omnispectral.threads import ordered_thread_map
 
 #: ``progress(stage, done, total)``: how far a named stage of a long run is (the command line draws it).
@@ -204,12 +207,15 @@ def process(session: str | Path, output: str | Path, *, width: int | None = None
             interp: str | None = None, scheduler=None, workers: int | None = None, skip_bad: bool = False,
             min_confidence: float | None = None, hdr_weight: str = "noise", report: bool = True,
             progress: ProgressCallback | None = None, verify_checksums: bool = True, registration: str = "parallax",
-            rig_calibration: str | Path | None = None, overwrite: bool = False) -> dict:
+            rig_calibration: str | Path | None = None, overwrite: bool = False, sun: str = "auto") -> dict:
     """Run stages 1-4 (module docstring) and write ``product.json`` and, by default, the report.
 
     ``hdr_weight`` defaults to the inverse-variance weight: the paper's triangle weight lets 1-DN
     values of the shortest exposures bias dark regions upwards (+36 % at 360 DN in the longest
     exposure on the simulated rig; docs/benchmarks.md), which would show in the spectra.
+
+    ``sun`` chooses how the saturated sun is recovered (:mod:`omnispectral.product.sun`: ``auto``,
+    ``nd-bracket``, ``none``); the product records the method and ``sun.json``.
 
     ``progress(stage, done, total)`` is called as each stage advances (``merge``, ``parallax`` or
     ``merge + register``, then the mosaic's ``tiles`` and ``pyramid``); the command line draws it.
@@ -226,12 +232,12 @@ def process(session: str | Path, output: str | Path, *, width: int | None = None
                                scheduler=scheduler, workers=workers, skip_bad=skip_bad,
                                min_confidence=min_confidence, hdr_weight=hdr_weight, report=report,
                                progress=progress, verify_checksums=verify_checksums, registration=registration,
-                               rig_calibration=rig_calibration, overwrite=overwrite)
+                               rig_calibration=rig_calibration, overwrite=overwrite, sun_method=sun)
 
 
 def _process_locked(session_path: Path, paths: dict, calibration, *, width, tile, interp, scheduler, workers,
                     skip_bad, min_confidence, hdr_weight, report, progress, verify_checksums, registration,
-                    rig_calibration, overwrite) -> dict:
+                    rig_calibration, overwrite, sun_method="auto") -> dict:
     """:func:`process` while holding the product's lock."""
     clean_temp_files(paths["root"])
     timings: dict[str, float] = {}
@@ -269,11 +275,19 @@ def _process_locked(session_path: Path, paths: dict, calibration, *, width, tile
                             (lambda stage, _result, done, total: progress(stage, done, total)),
                             overwrite=overwrite or state == "overwritten", **kwargs)
     timings["mosaic"] = time.perf_counter() - t1
+    t_sun = time.perf_counter()
+    sun = recover_sun(s, {**models, **merged.cameras}, rig, list(merged.meta["band_names"]), sun_method,
+                      _stage(progress, "sun"))
+    store = PanoramaStore.open(paths["panorama"])
+    if sun.get("recovered"):
+        sun["pixels"] = paint_sun(store, sun)
+    store.update_attrs({"omnispectral": {**store.attrs()["omnispectral"], "sun": sun}})
+    atomic_write_json(paths["root"] / SUN_FILE, sun)
+    timings["sun"] = time.perf_counter() - t_sun
     t2 = time.perf_counter()
     est, est_info = rig_estimator(rig)
     estimator = {"params": est_info["params"], "sigma2": est_info["sigma2"], "prior": est_info["prior"],
                  "linear_maps": est.to_dict()}
-    store = PanoramaStore.open(paths["panorama"])
     store.update_attrs({"omnispectral": {**store.attrs()["omnispectral"], "estimator": estimator}})
     timings["estimator"] = time.perf_counter() - t2
     timings["total"] = time.perf_counter() - t0
@@ -293,7 +307,7 @@ def _process_locked(session_path: Path, paths: dict, calibration, *, width, tile
              "skipped_directions": [{"direction": d, "problems": p} for d, p in sorted(bad.items())],
              "session_check": {k: check[k] for k in ("n_planned", "n_ok", "n_missing", "n_damaged")},
              "mosaic": {k: v for k, v in summary.items() if k not in ("output",)},
-             "timings_s": timings, "fingerprint": fingerprint}
+             "sun": sun_summary(sun), "timings_s": timings, "fingerprint": fingerprint}
     atomic_write_json(paths["index"], index)
     if report:
         t3 = time.perf_counter()

@@ -18,6 +18,13 @@ PNG plots.  Accuracy against the simulator's ground truth (``SESSION/ground_trut
   :data:`MAX_PATCH_RADIANCE_SPREAD`) is not one colour: its centre's spectrum is no reference for what
   the panorama integrates there.  It is listed under ``not_uniformly_lit`` with its ΔE*ab and left
   out of the mean, max and NRMSE (``n_patches_scored``).
+
+``irradiance`` (every product; :func:`irradiance_report`): the horizontal irradiance per band (DN/s·sr,
+:func:`omnispectral.product.irradiance.irradiance` of level 0), its split into the recovered sun and the sky
+with their correlated colour temperatures (:func:`~omnispectral.product.irradiance.sun_sky_irradiance`), the
+sun's method or the lower-bound note; for simulations also the truth's horizontal irradiance (the same
+integral of ``ground_truth/bands.npy``), ``ratio_to_truth`` = panorama / truth per band and the worst band
+(largest ``|ratio − 1|``).
 """
 
 from __future__ import annotations
@@ -34,6 +41,7 @@ from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.geometry import equirect_pixel_to_lonlat, lonlat_to_equirect_pixel, lonlat_to_ray
 from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text
 from omnispectral.product.exports import write_preview
+from omnispectral.product.irradiance import HORIZONTAL_NORMAL, IRRADIANCE_UNITS, irradiance, sun_sky_irradiance
 from omnispectral.product.layout import open_product, product_paths
 from omnispectral.product.rigcal import DIRECTION_WARNING_PX
 from omnispectral.product.spectra import bands_to_linear_srgb
@@ -147,6 +155,53 @@ def accuracy(bands: np.ndarray, estimator, gt_dir: Path, shortest_s: float, max_
     return out
 
 
+def irradiance_report(store, estimator, band_names: list[str], bands: np.ndarray | None = None,
+                      gt_dir: Path | None = None) -> dict:
+    """The report's ``irradiance`` section (module docstring): horizontal irradiance, sun/sky split, truth.
+
+    Parameters
+    ----------
+    store : PanoramaStore
+        The product's panorama (its ``omnispectral.sun`` record says how the sun was recovered).
+    estimator : WienerEstimator
+        The product's estimator (the sky's spectrum).
+    band_names : list of str
+        The panorama's bands (a one-camera product compared with a two-camera truth takes these of its bands).
+    bands : ndarray (H, W, m), optional
+        Level 0 already in memory; else the store is streamed.
+    gt_dir : Path, optional
+        ``SESSION/ground_truth`` of a simulation.
+    """
+    split = sun_sky_irradiance(store, HORIZONTAL_NORMAL, estimator=estimator, bands=bands)
+    horizontal = np.asarray(split["panorama"]["band_irradiance"])
+    out = {"normal": list(HORIZONTAL_NORMAL), "band_names": list(band_names), "units": IRRADIANCE_UNITS,
+           "horizontal": horizontal.tolist(), "covered_fraction": split["panorama"]["covered_fraction"],
+           "sun_method": split["sun_method"], "sun_recovered": split["sun_recovered"],
+           "sun": split["sun"]["band_irradiance"], "sky": split["sky"]["band_irradiance"],
+           "total": split["total"]["band_irradiance"], "sun_fraction": split["sun_fraction"],
+           "sun_cct_K": split["sun"]["cct_K"], "sky_cct_K": split["sky"]["cct_K"],
+           "total_cct_K": split["total"]["cct_K"]}
+    if "note" in split:
+        out["note"] = split["note"]
+    if gt_dir is not None and (gt_dir / "bands.npy").is_file():
+        truth = _truth_irradiance(gt_dir, band_names)
+        ratio = horizontal / truth
+        worst = int(np.argmax(np.abs(ratio - 1.0)))
+        out.update({"truth": truth.tolist(), "ratio_to_truth": ratio.tolist(),
+                    "worst_band": {"name": band_names[worst], "ratio_to_truth": float(ratio[worst])}})
+    return out
+
+
+def _truth_irradiance(gt_dir: Path, band_names: list[str]) -> np.ndarray:
+    """Horizontal irradiance of the ground truth's bands (memory-mapped, streamed), those named ``band_names``."""
+    gt = np.load(gt_dir / "bands.npy", mmap_mode="r")
+    truth = irradiance(gt, HORIZONTAL_NORMAL).band_irradiance_dn_s_sr
+    if gt.shape[2] == len(band_names):
+        return truth
+    names = list(json.loads((gt_dir / "ground_truth.json").read_text())["bands"]["names"])
+    return truth[[names.index(n) for n in band_names]]
+
+
 def chart_scores(patches: list[dict], nrmse_per_patch: np.ndarray, delta_e_ab: np.ndarray, seen: np.ndarray) -> dict:
     """Mean and max ΔE*ab and mean NRMSE over the chart's seen, uniformly lit patches (module docstring);
     patches crossed by a shadow edge are listed under ``not_uniformly_lit`` with their ΔE*ab."""
@@ -256,7 +311,9 @@ def write_report(product: str | Path, preview_width: int = 2048) -> dict:
               "rig_calibration": reg.get("rig_calibration"), "registration_warnings": reg.get("warnings", []),
               "skipped_directions": index["skipped_directions"], "accuracy": None}
     gt_dir = Path(index["session"]) / "ground_truth"
-    if (gt_dir / "ground_truth.json").exists():
+    bands = None
+    simulated = (gt_dir / "ground_truth.json").exists()
+    if simulated:
         s = Session.open(index["session"])
         rig = s.rig()
         bands = store.read(0)
@@ -265,6 +322,7 @@ def write_report(product: str | Path, preview_width: int = 2048) -> dict:
         if report["accuracy"].get("colorchecker"):
             _plot_chart(report["accuracy"]["colorchecker"], out_dir / "colorchecker.png")
             files["colorchecker_plot"] = str(out_dir / "colorchecker.png")
+    report["irradiance"] = irradiance_report(store, estimator, index["bands"], bands, gt_dir if simulated else None)
     report["files"] = files
     atomic_write_json(out_dir / "report.json", report)
     atomic_write_text(out_dir / "report.html", _html(report))
@@ -312,7 +370,40 @@ def _html(report: dict) -> str:
 <h2>Preview</h2><img src="preview.png" width="960">
 <p>sRGB rendering of the Wiener estimate, global Reinhard tone map.</p>
 <h2>Accuracy against ground truth</h2>{acc_html}
+<h2>Horizontal irradiance</h2>{_irradiance_html(report.get("irradiance"))}
 <h2>Registration of camera B to A</h2>{reg_html}
 <h2>Timings</h2><table>{rows}</table>
 <p>Skipped directions: {len(report['skipped_directions'])}.</p></body></html>
 """
+
+
+def _irradiance_html(irr: dict | None) -> str:
+    """The ``irradiance`` section as a small table (one row per band) and a line on the sun and the CCTs."""
+    if not irr:
+        return "<p>Not computed.</p>"
+
+    def num(v) -> str:
+        return "–" if v is None else f"{v:.4g}"
+
+    def kelvin(v) -> str:
+        return "–" if v is None else f"{v:.0f} K"
+
+    truth = irr.get("truth")
+    head = ("<tr><th>band</th><th>panorama</th><th>sun</th><th>sky</th>"
+            + ("<th>truth</th><th>panorama / truth</th>" if truth else "") + "</tr>")
+    rows = "".join(
+        f"<tr><td>{html.escape(name)}</td><td>{num(irr['horizontal'][i])}</td><td>{num(irr['sun'][i])}</td>"
+        f"<td>{num(irr['sky'][i])}</td>"
+        + (f"<td>{num(truth[i])}</td><td>{irr['ratio_to_truth'][i]:.4f}</td>" if truth else "") + "</tr>"
+        for i, name in enumerate(irr["band_names"]))
+    if irr["sun_recovered"]:
+        sun = f"Sun recovered ({html.escape(irr['sun_method'])}), painted into the panorama."
+    else:
+        sun = f"Sun not recovered ({html.escape(irr['sun_method'])}): {html.escape(irr.get('note', ''))}."
+    worst = irr.get("worst_band")
+    worst_text = (f" Worst band against the truth: {html.escape(worst['name'])} "
+                  f"({worst['ratio_to_truth']:.4f})." if worst else "")
+    return (f"<p>On a horizontal plane facing up, {html.escape(irr['units'])}; "
+            f"{irr['covered_fraction']:.1%} of the upper hemisphere (cosine-weighted) covered. {sun} "
+            f"CCT: sun {kelvin(irr['sun_cct_K'])}, sky {kelvin(irr['sky_cct_K'])}, "
+            f"total {kelvin(irr['total_cct_K'])}.{worst_text}</p><table>{head}{rows}</table>")

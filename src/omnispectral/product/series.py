@@ -5,7 +5,11 @@
 stacks one pyramid level of every panorama into ``OUT/timestack.zarr`` (array ``(t, y, x, band)``,
 float32 DN/s, attribute ``times``), and for each region (a longitude/latitude box) estimates the
 spectral power distribution of the region's median band values at every time: ``OUT/region_spectra.json``
-and ``OUT/region_spectra.png`` (one panel per region, one curve per time — the paper's Fig. 13).
+and ``OUT/region_spectra.png`` (one panel per region, one curve per time — the paper's Fig. 13).  Beside
+them, per slot, the horizontal irradiance split into the recovered sun and the sky with their correlated
+colour temperatures (:func:`omnispectral.product.irradiance.sun_sky_irradiance`): ``irradiance`` in
+``region_spectra.json`` and ``OUT/irradiance.png`` (irradiance of sun, sky and total on a log scale, and
+the CCTs of sun and sky, over the day).
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ import numpy as np
 
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.io import atomic_path, atomic_write_json
+from omnispectral.product.irradiance import HORIZONTAL_NORMAL, IRRADIANCE_UNITS, sun_sky_irradiance
 from omnispectral.product.layout import open_product, product_paths
 from omnispectral.product.process import process
 
@@ -92,6 +97,7 @@ def process_series(series: str | Path, output: str | Path, regions: dict | None 
     analysis: dict = {"times": times, "regions": {}, "wavelength_nm": list(map(float, estimator.wavelength_nm))}
     for name in regions:
         analysis["regions"][name] = {"box_deg": list(regions[name]), "spd": [], "median_bands": []}
+    analysis["irradiance"] = _new_irradiance_series(first_index["bands"])
     for t, prod in enumerate(products):
         _, st, est = open_product(prod)
         if st.shapes[level] != (h, w):
@@ -106,15 +112,37 @@ def process_series(series: str | Path, output: str | Path, regions: dict | None 
             spd = est.estimate(med[None])[0] if px.size else np.full(len(est.wavelength_nm), np.nan)
             analysis["regions"][name]["median_bands"].append(med.tolist())
             analysis["regions"][name]["spd"].append(spd.tolist())
+        _append_irradiance(analysis["irradiance"], sun_sky_irradiance(prod, HORIZONTAL_NORMAL, estimator=est))
     group.attrs.update({"times": times, "level": level, "units": first_index["units"],
                         "bands": first_index["bands"], "products": [str(p) for p in products]})
     atomic_write_json(out / "region_spectra.json", analysis)
     _plot_region_spectra(analysis, out / "region_spectra.png")
+    _plot_irradiance(analysis, out / "irradiance.png")
     summary = {"output": str(out), "n_slots": len(products), "timestack": str(stack_path),
                "stack_shape": [len(products), h, w, 6], "region_spectra": str(out / "region_spectra.json"),
-               "plot": str(out / "region_spectra.png"), "regions": list(regions)}
+               "plot": str(out / "region_spectra.png"), "irradiance_plot": str(out / "irradiance.png"),
+               "regions": list(regions)}
     atomic_write_json(out / "series_product.json", summary)
     return summary
+
+
+def _new_irradiance_series(band_names: list[str]) -> dict:
+    """The empty ``irradiance`` entry of the analysis: one list element per slot is appended."""
+    keys = ("sun_method", "sun_recovered", "panorama", "covered_fraction", "sun", "sky", "total",
+            "sun_cct_K", "sky_cct_K", "total_cct_K")
+    return {"normal": list(HORIZONTAL_NORMAL), "units": IRRADIANCE_UNITS, "band_names": list(band_names),
+            **{k: [] for k in keys}}
+
+
+def _append_irradiance(series: dict, split: dict) -> None:
+    """Append one slot's :func:`~omnispectral.product.irradiance.sun_sky_irradiance` (horizontal) to ``series``."""
+    series["sun_method"].append(split["sun_method"])
+    series["sun_recovered"].append(split["sun_recovered"])
+    series["panorama"].append(split["panorama"]["band_irradiance"])
+    series["covered_fraction"].append(split["panorama"]["covered_fraction"])
+    for part in ("sun", "sky", "total"):
+        series[part].append(split[part]["band_irradiance"])
+        series[f"{part}_cct_K"].append(split[part]["cct_K"])
 
 
 def series_products(output: str | Path) -> list[tuple[str, Path]]:
@@ -156,6 +184,48 @@ def _plot_region_spectra(analysis: dict, path: Path) -> None:
         ax.set_ylabel("spectral radiance (DN/s per unit of R)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+
+
+def _hours(times: list[str]) -> np.ndarray:
+    """Hours of the day of ISO 8601 times (``YYYY-MM-DDTHH:MM…``, the slots' local time)."""
+    return np.array([int(t[11:13]) + int(t[14:16]) / 60.0 for t in times])
+
+
+def _plot_irradiance(analysis: dict, path: Path) -> None:
+    """Horizontal irradiance (mean over the bands) of sun, sky and total on a log scale, and the CCTs of sun and sky,
+    over the day."""
+    import matplotlib  # lazy: matplotlib (pyplot) is needed for this plot only, and the backend must be set first
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    irr = analysis["irradiance"]
+    hours = _hours(analysis["times"])
+    fig, (ax_e, ax_t) = plt.subplots(1, 2, figsize=(11, 4), dpi=110)
+    for part, style in (("total", "k-o"), ("sun", "-o"), ("sky", "-s")):
+        mean = np.array([np.mean(v) for v in irr[part]], float)
+        ok = mean > 0  # log scale: an unrecovered sun (0) is left out
+        ax_e.plot(hours[ok], mean[ok], style, label=part, markersize=4)
+    ax_e.set_yscale("log")
+    ax_e.set_title("horizontal irradiance over the day")
+    ax_e.set_ylabel("mean band irradiance (DN/s·sr)")
+    for part, style in (("sun", "-o"), ("sky", "-s")):
+        cct = np.array([np.nan if v is None else v for v in irr[f"{part}_cct_K"]], float)
+        ok = np.isfinite(cct)
+        ax_t.plot(hours[ok], cct[ok], style, label=part, markersize=4)
+    ax_t.set_title("correlated colour temperature (CIE 015:2018)")
+    ax_t.set_ylabel("CCT (K)")
+    if not all(irr["sun_recovered"]):
+        ax_e.text(0.02, 0.02, "sun not recovered in some slots: the sky holds its lower bound",
+                  transform=ax_e.transAxes, fontsize=7)
+    for ax in (ax_e, ax_t):
+        ax.set_xlabel("time of day (h)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")

@@ -5,10 +5,16 @@ Wiener estimate of the six bands there (mixture prior: per-pixel posterior weigh
 posterior standard deviation.  Whole images use the mixture per pixel (exports) or, for colour
 previews, the single linear map the mixture becomes for the region's mean component weights
 (``WienerEstimator.linear_map``), folded with the CIE 1931 observer into one 3 × 6 matrix.
+
+Pixels holding the recovered sun (:mod:`omnispectral.product.sun`) are not left to the Wiener prior, whose
+colour signals are reflectances under light sources, not the sun itself: their bands are split into the sun's
+share ``c L_sun`` (``c`` the least-squares coverage of the pixel by the disk) and the sky's rest, and the
+spectrum is the rest's estimate plus ``c`` times the sun's measured spectral radiance (:func:`SunOverlay`).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +22,7 @@ import numpy as np
 from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.geometry import lonlat_to_equirect_pixel
 from omnispectral.product.layout import open_product
+from omnispectral.product.saturation import recovered_sun_mask
 from omnispectral.spectral.colour import spectra_to_linear_srgb, spectra_to_xyz, xyz_to_linear_srgb
 
 
@@ -31,10 +38,21 @@ def region_weights(bands: np.ndarray, estimator, n_sample: int = 20000, seed: in
     return np.asarray(estimator.component_posterior(flat[pick]), float).mean(axis=0)
 
 
-def bands_to_linear_srgb(bands: np.ndarray, estimator) -> np.ndarray:
-    """Linear sRGB-primaries RGB of a six-band image through the region's linear spectral map (NaN kept)."""
+def bands_to_linear_srgb(bands: np.ndarray, estimator, sun: SunOverlay | None = None) -> np.ndarray:
+    """Linear sRGB-primaries RGB of a six-band image through the region's linear spectral map (NaN kept);
+    at the recovered sun's pixels (``sun``) the disk's share takes the colour of its measured spectrum."""
     mat, offset = linear_srgb_map(bands, estimator)
-    return np.asarray(bands, np.float32) @ mat + offset
+    if sun is None:
+        return np.asarray(bands, np.float32) @ mat + offset
+    h, w, m = bands.shape
+    flat = np.asarray(bands, np.float64).reshape(-1, m)
+    cov = np.zeros(flat.shape[0])
+    at = sun.mask.reshape(-1) & np.isfinite(flat).all(axis=1)
+    cov[at] = sun.coverage(flat[at])
+    wl = np.asarray(estimator.wavelength_nm)
+    sun_rgb = spectra_to_linear_srgb(sun.spectral_radiance[None], wl)[0]
+    rgb = (flat - cov[:, None] * sun.band_radiance[None]) @ mat + offset + cov[:, None] * sun_rgb[None]
+    return rgb.reshape(h, w, 3).astype(np.float32)
 
 
 def linear_srgb_map(bands: np.ndarray, estimator) -> tuple[np.ndarray, np.ndarray]:
@@ -48,17 +66,57 @@ def linear_srgb_map(bands: np.ndarray, estimator) -> tuple[np.ndarray, np.ndarra
     return mat, (np.asarray(b, np.float32) @ to_rgb).astype(np.float32)
 
 
-def estimate_image(bands: np.ndarray, estimator, with_std: bool = False):
-    """Per-pixel mixture estimate of an image ``(H, W, 6)`` → ``(H, W, n)`` (NaN where bands are not finite)."""
+@dataclass(frozen=True)
+class SunOverlay:
+    """The recovered sun in a window of a pyramid level: which pixels hold it and its measured radiance."""
+
+    mask: np.ndarray  # (H, W) bool
+    background: np.ndarray  # (m,) sky bands around the disk
+    band_radiance: np.ndarray  # (m,)
+    spectral_radiance: np.ndarray  # (n,)
+    spectral_radiance_std: np.ndarray  # (n,)
+
+    @classmethod
+    def of(cls, store, level: int, shape: tuple[int, int], origin: tuple[int, int] = (0, 0)) -> SunOverlay | None:
+        """The overlay of a ``shape`` window at ``origin`` of ``level``, or ``None`` (no recovered sun there)."""
+        sun = (store.attrs().get("omnispectral") or {}).get("sun") or {}
+        if not sun.get("recovered"):
+            return None
+        mask = recovered_sun_mask(store.attrs(), level, shape, origin, tuple(store.shapes[0]))
+        if not mask.any():
+            return None
+        return cls(mask, np.asarray(sun["pixels"]["background"], np.float64),
+                   np.asarray(sun["band_radiance"], np.float64), np.asarray(sun["spectral_radiance"], np.float64),
+                   np.asarray(sun["spectral_radiance_std"], np.float64))
+
+    def coverage(self, bands: np.ndarray) -> np.ndarray:
+        """Least-squares share of the disk in each pixel ``(k,)`` of bands ``(k, m)``:
+        ``c = Σ (b − b_sky) L / Σ L²``, at least 0."""
+        lr = self.band_radiance
+        return np.clip((bands - self.background) @ lr / float(lr @ lr), 0.0, None)
+
+
+def estimate_image(bands: np.ndarray, estimator, with_std: bool = False, sun: SunOverlay | None = None):
+    """Per-pixel mixture estimate of an image ``(H, W, 6)`` → ``(H, W, n)`` (NaN where bands are not finite);
+    ``sun`` replaces the prior's guess at the recovered sun's pixels (module docstring)."""
     h, w, c = bands.shape
     flat = bands.reshape(-1, c)
     ok = np.isfinite(flat).all(axis=1)
+    cov = np.zeros(flat.shape[0])
+    if sun is not None:
+        at = sun.mask.reshape(-1) & ok
+        cov[at] = sun.coverage(flat[at].astype(np.float64))
+        flat = flat - (cov[:, None] * sun.band_radiance[None, :]).astype(flat.dtype)
     spectra = np.full((flat.shape[0], len(estimator.wavelength_nm)), np.nan, np.float32)
     spectra[ok] = estimator.estimate(flat[ok])
+    if sun is not None:
+        spectra += (cov[:, None] * sun.spectral_radiance[None, :]).astype(np.float32)
     if not with_std:
         return spectra.reshape(h, w, -1)
     std = np.full_like(spectra, np.nan)
     std[ok] = estimator.posterior_std(flat[ok])
+    if sun is not None:
+        std = np.hypot(std, (cov[:, None] * sun.spectral_radiance_std[None, :]).astype(np.float32))
     return spectra.reshape(h, w, -1), std.reshape(h, w, -1)
 
 
@@ -85,8 +143,14 @@ def spectrum_in_store(index: dict, store, estimator, lon_deg: float, lat_deg: fl
     if not np.isfinite(patch).all():
         raise ConfigurationError(f"lon {lon_deg}, lat {lat_deg} is not covered by the panorama (no direction saw it)")
     bands = np.tensordot(wts, patch, axes=([0, 1], [0, 1]))
-    spectrum = estimator.estimate(bands[None])[0]
-    std = estimator.posterior_std(bands[None])[0]
+    sun = SunOverlay.of(store, level, (2, 2), (r0, c0 % w))
+    if sun is not None:  # bilinear weights over the four pixels: the sun's share follows the same weights
+        sun = SunOverlay(np.ones((1, 1), bool), sun.background, sun.band_radiance, sun.spectral_radiance,
+                         sun.spectral_radiance_std)
+        spectrum, std = (x[0, 0] for x in estimate_image(bands[None, None], estimator, True, sun))
+    else:
+        spectrum = estimator.estimate(bands[None])[0]
+        std = estimator.posterior_std(bands[None])[0]
     wl = np.asarray(estimator.wavelength_nm)
     return {"lon_deg": lon, "lat_deg": float(lat_deg), "level": level, "pixel": [float(col), float(row)],
             "units": index["units"] + " per unit of the system matrix (spectral radiance, relative)",

@@ -2,7 +2,7 @@
 
 Everything here is either shipped by colour-science (camera sensitivities measured by NPL,
 ColorChecker spectra, CIE illuminants and light sources, the RAW to ACES training set, CIE and
-NIST colour samples) or shipped in this package under a permissive licence (Kodak Wratten 34A,
+NIST colour samples) or shipped in this package under a permissive licence (Kodak Wratten 34A and 96,
 Vrhel et al. 1994 reflectances via ISETCam, MIT).  See ``omnispectral/data/README.md``.
 
 Every ``load_*`` function also accepts the path of a CSV file in the format of
@@ -37,6 +37,11 @@ CALIBRATION_ILLUMINANTS = ("A", "D50", "D65", "FL11", "LED-B3")
 
 _PACKAGE_FILTERS = {
     "wratten-34a": "wratten_34a.csv",
+    "wratten-96": "wratten_96.csv",
+}
+#: Stacked (or denser) versions of a shipped neutral-density filter: name -> (base filter, power of its transmittance).
+_DENSER_FILTERS = {
+    "wratten-96-nd3": ("wratten-96", 3),
 }
 _PACKAGE_REFLECTANCES = {
     "vrhel-objects": "vrhel_objects.csv",
@@ -102,12 +107,34 @@ def sp18_standin_transmittance(wavelength_nm: np.ndarray, centre_nm: float = 545
 
 def filter_names() -> list[str]:
     """Names of the built-in filters."""
-    return [*_PACKAGE_FILTERS, "sp18-standin", "none"]
+    return [*_PACKAGE_FILTERS, *_DENSER_FILTERS, "sp18-standin", "none"]
+
+
+def denser_filter(base: SpectralSet, power: int, label: str) -> SpectralSet:
+    """A neutral-density filter ``power`` times as dense as ``base``: ``T_k(λ) = T_1(λ)^k``.
+
+    Optical (transmission) density is ``D(λ) = -log10 T(λ)`` (ISO 5-1 notation).  By the Beer-Lambert
+    law the absorbance of one dye is proportional to the amount of dye in the light path, so a layer
+    ``k`` times as dense, or ``k`` stacked layers (inter-reflections neglected), has density ``k D(λ)``
+    and transmittance ``T(λ)^k``.  Kodak makes its Wratten No. 96 gelatin neutral-density filters in
+    densities 0.1-4.0 from the same dye (Kodak, *Kodak Wratten Filters for Scientific and Technical
+    Use*, A. C. Peed Jr.), so ``wratten-96-nd3`` (ND 3.0) is the tabulated ND 1.0 curve cubed
+    (0.008-0.09 % on 400-700 nm).  The cube is our derivation, not a tabulated curve.
+    """
+    if int(power) != power or power < 1:
+        raise ConfigurationError(f"a denser filter needs a positive integer power, got {power!r}")
+    return SpectralSet(base.wavelength_nm, base.values ** int(power), [label], base.kind,
+                       f"{base.source} ^ {int(power)}", base.notes)
 
 
 def load_filter(name: str) -> SpectralSet:
-    """Transmittance of a filter: ``wratten-34a``, ``sp18-standin``, ``none`` or a CSV file (one curve)."""
+    """Transmittance of a filter: ``wratten-34a``, ``wratten-96`` (Kodak neutral density 1.0, as tabulated),
+    ``wratten-96-nd3`` (neutral density 3.0, the ND 1.0 curve cubed: :func:`denser_filter`),
+    ``sp18-standin``, ``none`` or a CSV file (one curve)."""
     key = name.lower()
+    if key in _DENSER_FILTERS:
+        base, power = _DENSER_FILTERS[key]
+        return denser_filter(load_filter(base), power, f"{name} ({base} ^ {power})")
     if _looks_like_path(name):
         f = read_spectral_csv(name, "transmittance")
         if len(f) != 1:

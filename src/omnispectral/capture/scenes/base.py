@@ -24,6 +24,7 @@ import hashlib
 from abc import ABC, abstractmethod
 from collections import OrderedDict
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -170,6 +171,46 @@ def check_wavelengths(wavelength_nm) -> np.ndarray:
     return wl
 
 
+# ------------------------------------------------------------------------------------- sun disk
+@dataclass(frozen=True)
+class SunDisk:
+    """A scene's analytic sun: a uniform disk the renderers add exactly instead of ray-sampling it.
+
+    A scene that has one renders it in :meth:`Scene.spectral_radiance` / :meth:`Scene.band_radiance`
+    by default (a ray inside the disk gets its radiance) and leaves it out with ``sun_disk=False``;
+    the simulator then adds it with :mod:`omnispectral.imaging.sundisk` (stratified disk samples,
+    each tested with :attr:`visible`, splatted into the pixels they fall in), so that a truth or a
+    camera frame holds the disk's energy whatever its pixel size.
+
+    Attributes
+    ----------
+    direction : ndarray (3,)
+        Unit world direction of the disk's centre.
+    radius_rad : float
+        Angular radius.
+    spectral_radiance : ndarray (n,)
+        The disk's (uniform) spectral radiance, W·sr⁻¹·m⁻²·nm⁻¹ on the scene's ``wavelength_nm``.
+    visible : callable
+        ``visible(directions (N, 3), origin_m) -> bool (N,)``: whether a ray from ``origin_m`` reaches the
+        sky (no ground, building, chart or hill in the way).
+    """
+
+    direction: np.ndarray
+    radius_rad: float
+    spectral_radiance: np.ndarray
+    visible: Callable[[np.ndarray, Any], np.ndarray]
+
+    def band_radiance(self, sensitivity) -> np.ndarray:
+        """``(m,)`` float64: the disk's radiance integrated against ``sensitivity (m, n)`` (× Δλ)."""
+        return np.atleast_2d(np.asarray(sensitivity, np.float64)) @ self.spectral_radiance
+
+
+def scene_sun_disk(scene) -> SunDisk | None:
+    """``scene.sun_disk()`` for scenes that have the method (any object can be rendered), else None."""
+    method = getattr(scene, "sun_disk", None)
+    return method() if callable(method) else None
+
+
 # ---------------------------------------------------------------------------------------- scene
 class Scene(ABC):
     """A scene of the simulated rig: spectral radiance arriving at a point from unit directions.
@@ -202,6 +243,14 @@ class Scene(ABC):
     def colorchecker_patches(self, origin_m=(0.0, 0.0, 0.0)) -> list[dict]:
         """ColorChecker patches visible in the scene (none unless the scene has a chart)."""
         return []
+
+    def sun_disk(self) -> SunDisk | None:
+        """The scene's analytic sun (:class:`SunDisk`), or None (a panorama's sun is pixels, not a disk).
+
+        Scenes that return one accept ``sun_disk=False`` in :meth:`spectral_radiance` and
+        :meth:`band_radiance` to leave the disk out of ray-traced radiance.
+        """
+        return None
 
     # -- helpers for subclasses -----------------------------------------------------------------
     def check_sensitivity(self, sensitivity) -> np.ndarray:

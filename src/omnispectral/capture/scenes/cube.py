@@ -220,8 +220,9 @@ class CubeOnWallScene(Scene):
         return self._resample @ self._texels[row * w + col].astype(np.float64)
 
     # -- rendering --------------------------------------------------------------------------------
-    def spectral_radiance(self, directions, origin_m=(0.0, 0.0, 0.0)) -> np.ndarray:
-        """Spectral radiance (W·sr⁻¹·m⁻²·nm⁻¹) ``(N, n)`` float32: the base scene with the cube on its wall."""
+    def spectral_radiance(self, directions, origin_m=(0.0, 0.0, 0.0), sun_disk: bool = True) -> np.ndarray:
+        """Spectral radiance (W·sr⁻¹·m⁻²·nm⁻¹) ``(N, n)`` float32: the base scene with the cube on its wall
+        (``sun_disk=False``: without the sun's disk, see :meth:`sun_disk`)."""
         dl = self.base.daylight
         light = np.stack([dl.sun_spectrum, dl.sky_spectrum]) / math.pi  # (2, n)
 
@@ -229,9 +230,9 @@ class CubeOnWallScene(Scene):
             refl = np.einsum("pk,pkb->pb", w, self._texels[idx]) @ self._resample.T.astype(np.float32)
             return refl * (sun[:, None] * light[0].astype(np.float32) + sky[:, None] * light[1].astype(np.float32))
 
-        return self._render(directions, origin_m, self.base.material_table, panel)
+        return self._render(directions, origin_m, self.base.material_table, panel, sun_disk)
 
-    def band_radiance(self, directions, sensitivity, origin_m=(0.0, 0.0, 0.0)) -> np.ndarray:
+    def band_radiance(self, directions, sensitivity, origin_m=(0.0, 0.0, 0.0), sun_disk: bool = True) -> np.ndarray:
         """``spectral_radiance @ sensitivity.T`` via band projections of the materials and of every texel."""
         s = self.check_sensitivity(sensitivity)
         base_table = self.base.band_table(s)
@@ -242,7 +243,11 @@ class CubeOnWallScene(Scene):
             b = np.einsum("pk,pkm->pm", w, tex_sky[idx])
             return a * sun[:, None] + b * sky[:, None]
 
-        return self._render(directions, origin_m, base_table, panel)
+        return self._render(directions, origin_m, base_table, panel, sun_disk)
+
+    def sun_disk(self):
+        """The base scene's sun (the panel hangs on a wall and hides none of the sky)."""
+        return self.base.sun_disk()
 
     def _project_texels(self, sensitivity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         dl = self.base.daylight
@@ -252,13 +257,13 @@ class CubeOnWallScene(Scene):
         t = self._texels.astype(np.float64)
         return (t @ sun).astype(np.float32), (t @ sky).astype(np.float32)
 
-    def _render(self, directions, origin_m, table, panel) -> np.ndarray:
+    def _render(self, directions, origin_m, table, panel, sun_disk: bool = True) -> np.ndarray:
         d, lead = as_directions(directions)
         o = as_origin(origin_m)
         out = np.empty((d.shape[0], table.shape[1] // 2), dtype=np.float32)
         for b0 in range(0, d.shape[0], RAY_BLOCK):
             b1 = min(d.shape[0], b0 + RAY_BLOCK)
-            rec = self.base.shade(d[b0:b1], o)
+            rec = self.base.shade(d[b0:b1], o, sun_disk)
             block = combine(rec, table)
             sel, w, idx = self._panel_hits(rec, d[b0:b1], o)
             if sel.size:

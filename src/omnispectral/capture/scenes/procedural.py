@@ -10,6 +10,9 @@ longitude 30°, latitude -15°, its 50 mm patches ≈1.1° wide (≈23 px in a 7
 
 Light (see :mod:`omnispectral.capture.scenes.sky`): a sun disk of 0.533° with the IES clear-sky
 direct illuminance and a CIE type-12 clear sky, with D-series spectra whose CCT follows the sun.
+Rays that fall in the disk see its luminance; renderers that must hold the sun's energy exactly
+(the simulator's ground truth and camera frames) render with ``sun_disk=False`` and add the disk
+from :meth:`ProceduralOutdoorScene.sun_disk` (:mod:`omnispectral.imaging.sundisk`).
 Surfaces are Lambertian: ``L(λ) = ρ(λ)/π · (E_sun cos θ · V + E_sky(n)) `` with ``V`` the sun's
 visibility from the point (a shadow ray against every box and the chart board) and ``E_sky(n)``
 the illuminance of the unoccluded sky dome on a surface of normal ``n`` (no ambient occlusion, no
@@ -34,6 +37,7 @@ from omnispectral.capture.scenes.base import (
     RAY_BLOCK,
     BandProjectionCache,
     Scene,
+    SunDisk,
     as_directions,
     as_origin,
     direction_to_lonlat,
@@ -235,6 +239,10 @@ class ProceduralOutdoorScene(Scene):
         Height of the ground (m, negative: below the head).
     chart_lon_deg, chart_lat_deg, chart_distance_m, chart_patch_m
         Where the ColorChecker is and how big its patches are.
+    buildings
+        The buildings, the near wall and the hedge; without them (and without ``skyline`` and
+        ``near_object``) nothing stands above the horizon, so the whole sky and sun reach the head
+        (tests of the daylight model's irradiances).
     skyline
         Wooded hills on the horizon, ``SKYLINE_DISTANCE_M`` away, whose silhouette (0.3-3.5° high,
         drawn with the seed) is the scene's texture at infinity, as distant terrain or buildings
@@ -248,7 +256,7 @@ class ProceduralOutdoorScene(Scene):
                  day_of_year: int = DEFAULT_DAY_OF_YEAR, north_lon_deg: float = 0.0, near_object: bool = True,
                  seed: int = 0, wavelength_nm=None, ground_y_m: float = -1.5, chart_lon_deg: float = 30.0,
                  chart_lat_deg: float = -15.0, chart_distance_m: float = 2.5, chart_patch_m: float = 0.05,
-                 skyline: bool = True):
+                 skyline: bool = True, buildings: bool = True):
         super().__init__(DEFAULT_WAVELENGTH_NM if wavelength_nm is None else wavelength_nm)
         if ground_y_m >= 0:
             raise ConfigurationError(f"ground_y_m must be below the head (negative), got {ground_y_m}")
@@ -258,7 +266,7 @@ class ProceduralOutdoorScene(Scene):
                        "near_object": bool(near_object), "seed": int(seed), "ground_y_m": float(ground_y_m),
                        "chart_lon_deg": float(chart_lon_deg), "chart_lat_deg": float(chart_lat_deg),
                        "chart_distance_m": float(chart_distance_m), "chart_patch_m": float(chart_patch_m),
-                       "skyline": bool(skyline)}
+                       "skyline": bool(skyline), "buildings": bool(buildings)}
         self.ground_y_m = float(ground_y_m)
         self.daylight = ClearSkyDaylight(day_of_year, time_hhmm, latitude_deg, longitude_deg, utc_offset_h,
                                          north_lon_deg, self.wavelength_nm)
@@ -268,20 +276,21 @@ class ProceduralOutdoorScene(Scene):
         self.chart = facing_board(chart_lon_deg, chart_lat_deg, chart_distance_m, chart_patch_m, 0.2 * chart_patch_m)
         if chart_distance_m * math.sin(math.radians(-chart_lat_deg)) + self.chart.half_height_m >= -self.ground_y_m:
             raise ConfigurationError("the chart would reach below the ground; raise chart_lat_deg or move it closer")
-        self.boxes = self._layout(rng, bool(near_object))
+        self.boxes = self._layout(rng, bool(near_object), bool(buildings))
         self.skyline = skyline_profile(np.random.default_rng([seed, 7])) if skyline else None
         self._build_tables()
         self._bands = BandProjectionCache()
 
     # -- construction -----------------------------------------------------------------------------
-    def _layout(self, rng: np.random.Generator, near_object: bool) -> list[Box]:
-        """Buildings, the near wall, a hedge, the chart's stand and optionally the post (world metres)."""
+    def _layout(self, rng: np.random.Generator, near_object: bool, buildings: bool = True) -> list[Box]:
+        """Buildings, the near wall, a hedge (unless ``buildings`` is false), the chart's stand and optionally the
+        post (world metres)."""
         g = self.ground_y_m
 
         def jitter(h: float) -> float:
             return float(h * rng.uniform(0.9, 1.1))
 
-        boxes = [
+        boxes = [] if not buildings else [
             Box("brick building", (-14.0, g, 22.0), (10.0, g + jitter(12.0), 34.0), "brick"),
             Box("white building", (-34.0, g, 14.0), (-16.0, g + jitter(18.0), 30.0), "white wall"),
             Box("dark building", (15.0, g, -34.0), (36.0, g + jitter(8.0), -14.0), "dark facade"),
@@ -329,13 +338,37 @@ class ProceduralOutdoorScene(Scene):
         self._box_radius = np.array([b.radius_m() for b in self.boxes])
 
     # -- the interface ----------------------------------------------------------------------------
-    def spectral_radiance(self, directions, origin_m=(0.0, 0.0, 0.0)) -> np.ndarray:
-        """Spectral radiance (W·sr⁻¹·m⁻²·nm⁻¹) ``(N, n)`` float32 arriving at ``origin_m`` from ``directions``."""
-        return self._render(directions, origin_m, self._table32)
+    def spectral_radiance(self, directions, origin_m=(0.0, 0.0, 0.0), sun_disk: bool = True) -> np.ndarray:
+        """Spectral radiance (W·sr⁻¹·m⁻²·nm⁻¹) ``(N, n)`` float32 arriving at ``origin_m`` from ``directions``.
 
-    def band_radiance(self, directions, sensitivity, origin_m=(0.0, 0.0, 0.0)) -> np.ndarray:
+        ``sun_disk=False`` leaves the sun's disk out (the sky behind it is kept): the caller adds it
+        exactly from :meth:`sun_disk`.
+        """
+        return self._render(directions, origin_m, self._table32, sun_disk)
+
+    def band_radiance(self, directions, sensitivity, origin_m=(0.0, 0.0, 0.0), sun_disk: bool = True) -> np.ndarray:
         """``spectral_radiance @ sensitivity.T`` ``(N, m)`` float32 via per-material band projections."""
-        return self._render(directions, origin_m, self.band_table(sensitivity))
+        return self._render(directions, origin_m, self.band_table(sensitivity), sun_disk)
+
+    def sun_disk(self) -> SunDisk | None:
+        """The sun as a uniform disk (:class:`~omnispectral.capture.scenes.base.SunDisk`): direction, radius
+        ``SUN_DIAMETER_DEG / 2``, spectral radiance ``L_sun · S_sun(λ)`` (disk luminance × unit-luminance
+        spectrum) and the visibility of the sky; None once the sun has set (no direct light)."""
+        dl = self.daylight
+        if not dl.direct_normal_lx > 0:
+            return None
+        return SunDisk(np.asarray(dl.sun_direction, np.float64).copy(), float(dl.sun_radius_rad),
+                       dl.sun_luminance_cd_m2 * self._table64[0, :self.wavelength_nm.size], self.sky_visible)
+
+    def sky_visible(self, directions, origin_m=(0.0, 0.0, 0.0)) -> np.ndarray:
+        """Whether rays from ``origin_m`` along ``directions (N, 3)`` reach the sky (hit no surface), ``(N,)`` bool."""
+        d, lead = as_directions(directions)
+        o = as_origin(origin_m)
+        out = np.empty(d.shape[0], dtype=bool)
+        for b0 in range(0, d.shape[0], RAY_BLOCK):
+            b1 = min(d.shape[0], b0 + RAY_BLOCK)
+            out[b0:b1] = self.trace(d[b0:b1], o)[1] == SKY_ID
+        return out.reshape(lead)
 
     @property
     def material_table(self) -> np.ndarray:
@@ -352,18 +385,25 @@ class ProceduralOutdoorScene(Scene):
         return np.hstack([self._table64[:, :n] @ sensitivity.T, self._table64[:, n:] @ sensitivity.T]).astype(
             np.float32)
 
-    def _render(self, directions, origin_m, table: np.ndarray) -> np.ndarray:
+    def _render(self, directions, origin_m, table: np.ndarray, sun_disk: bool = True) -> np.ndarray:
         d, lead = as_directions(directions)
         o = as_origin(origin_m)
         out = np.empty((d.shape[0], table.shape[1] // 2), dtype=np.float32)
         for b0 in range(0, d.shape[0], RAY_BLOCK):
             b1 = min(d.shape[0], b0 + RAY_BLOCK)
-            out[b0:b1] = combine(self.shade(d[b0:b1], o), table)
+            out[b0:b1] = combine(self.shade(d[b0:b1], o, sun_disk), table)
         return out.reshape(*lead, out.shape[1])
 
     # -- tracing ----------------------------------------------------------------------------------
-    def shade(self, d: np.ndarray, o: np.ndarray) -> Shading:
-        """Trace unit rays ``d (N, 3)`` float32 from ``o`` (m) and shade them (see the module docstring)."""
+    def shade(self, d: np.ndarray, o: np.ndarray, sun_disk: bool = True) -> Shading:
+        """Trace unit rays ``d (N, 3)`` float32 from ``o`` (m) and shade them (see the module docstring);
+        ``sun_disk=False``: rays into the sun's disk see only the sky behind it."""
+        t, obj, nid, patch = self.trace(d, o)
+        return self._light(d, o, t, obj, nid, patch, sun_disk)
+
+    def trace(self, d: np.ndarray, o: np.ndarray):
+        """Nearest hit of unit rays ``d (N, 3)`` float32 from ``o``: distance, object id (``SKY_ID``: none),
+        face normal id and the chart patch record."""
         n = d.shape[0]
         dx, dy, dz = (np.ascontiguousarray(d[:, i]) for i in range(3))
         t = np.full(n, np.inf, dtype=np.float32)
@@ -374,7 +414,7 @@ class ProceduralOutdoorScene(Scene):
                         nid)
         patch = intersect_board(d, o, self.chart, self._chart_id, t, obj, nid)
         self._hit_skyline(d, t, obj, nid)
-        return self._light(d, o, t, obj, nid, patch)
+        return t, obj, nid, patch
 
     def _hit_skyline(self, d, t, obj, nid) -> None:
         """Rays that reach the sky below the hills' silhouette end on the hills (lit like level ground)."""
@@ -390,7 +430,7 @@ class ProceduralOutdoorScene(Scene):
         obj[sel] = self._skyline_id
         nid[sel] = N_PY
 
-    def _light(self, d, o, t, obj, nid, patch) -> Shading:
+    def _light(self, d, o, t, obj, nid, patch, sun_disk: bool = True) -> Shading:
         """Material rows and the sun/sky weights of every ray."""
         dl = self.daylight
         n = d.shape[0]
@@ -403,7 +443,7 @@ class ProceduralOutdoorScene(Scene):
         if up.size:
             ds = d[up]
             sky[up] = dl.sky_luminance_cd_m2(ds)
-            if dl.direct_normal_lx > 0:
+            if sun_disk and dl.direct_normal_lx > 0:
                 on_disk = (ds @ s) >= np.float32(math.cos(dl.sun_radius_rad))
                 sun[up[on_disk]] = np.float32(dl.sun_luminance_cd_m2)
         # surfaces

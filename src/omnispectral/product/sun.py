@@ -38,7 +38,7 @@ import numpy as np
 from scipy import ndimage
 
 from omnispectral.errors import ConfigurationError
-
+from omnispectral.imaging.bayer import correct_raw, demosaic
 from omnispectral.imaging.geometry import (
     CameraModel,
     equirect_pixel_to_lonlat,
@@ -46,7 +46,6 @@ from omnispectral.imaging.geometry import (
     lonlat_to_ray,
     ray_to_lonlat,
 )
-from omnispectral.imaging.bayer import correct_raw, demosaic
 from omnispectral.imaging.hdr import merge_exposures
 from omnispectral.imaging.sundisk import cap_solid_angle_sr, equirect_disk_coverage, pixel_solid_angles_sr
 from omnispectral.rig import SUN_EXPOSURE_BASE

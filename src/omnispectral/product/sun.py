@@ -48,6 +48,7 @@ from omnispectral.imaging.geometry import (
 )
 from omnispectral.imaging.hdr import merge_exposures
 from omnispectral.imaging.sundisk import cap_solid_angle_sr, equirect_disk_coverage, pixel_solid_angles_sr
+from omnispectral.product.saturation import clipped_mask, saturation_level_dn_s
 from omnispectral.rig import SUN_EXPOSURE_BASE
 from omnispectral.spectral.library import daylight_spd, load_filter
 
@@ -280,6 +281,41 @@ def recover_sun_nd(session, models: dict[str, CameraModel], system, band_names: 
         return {"method": "nd-bracket", "recovered": False, "images": [im.to_dict() for im in images],
                 "note": "the attenuated bracket shows no complete image of the sun in camera A"}
     return {"method": "nd-bracket", "recovered": True, **record}
+
+
+# ------------------------------------------------------------------------- without a sun bracket
+def clipped_sun_direction(store) -> dict | None:
+    """Where the panorama's clipped sun is: the centroid of the largest group of level-0 pixels at the
+    shortest exposure's clipping level (:mod:`omnispectral.product.saturation`), as ``lon_deg``, ``lat_deg``,
+    the group's pixels and its window; ``None`` when nothing clipped.  For the methods without an attenuated
+    image; its accuracy is a fraction of a pixel of the panorama (the clipped group is the disk blurred by
+    the mosaic's resampling)."""
+    level = saturation_level_dn_s(store.attrs())
+    if level is None:
+        return None
+    h, w = store.shapes[0]
+    found = []
+    step = max(store.tile, 256)
+    for r0 in range(0, h, step):  # streamed: a full-scale panorama is not read whole
+        block = store.read(0, slice(r0, min(h, r0 + step)))
+        mask = clipped_mask(store, 0, block, level, (r0, 0))
+        rows, cols = np.nonzero(mask)
+        found.extend(zip((rows + r0).tolist(), cols.tolist(), strict=True))
+    if not found:
+        return None
+    grid = np.zeros((h, w), bool)
+    rr, cc = np.array(found).T
+    grid[rr, cc] = True
+    labels, n = ndimage.label(grid, structure=np.ones((3, 3)))
+    sizes = ndimage.sum(grid, labels, range(1, n + 1))
+    pick = labels == (int(np.argmax(sizes)) + 1)
+    rows, cols = np.nonzero(pick)
+    lon, lat = equirect_pixel_to_lonlat(cols, rows, w, h)
+    rays = lonlat_to_ray(lon, lat)
+    centre = rays.mean(axis=0)
+    lon0, lat0 = ray_to_lonlat(centre / np.linalg.norm(centre))
+    return {"lon_deg": float(lon0), "lat_deg": float(lat0), "n_clipped_px": int(pick.sum()),
+            "rows": [int(rows.min()), int(rows.max()) + 1], "cols": [int(cols.min()), int(cols.max()) + 1]}
 
 
 # ----------------------------------------------------------------------------------- painting

@@ -14,10 +14,9 @@ Timing model, per direction: head move ``max(|d pan| / pan speed, |d tilt| / til
 then the bracket on both cameras at once (sum of the exposure times plus one read-out per frame).
 The presets' head speed and settle time reproduce Table 2 (36 directions ~180 s; 1260 ~2 h 17 min).
 
-Sun bracket (beyond the paper).  A rig with a ``[sun]`` table shoots a second, attenuated bracket through
-a neutral-density filter in the directions whose shortest exposure clips, until one holds the sun whole;
-the plan adds its expected cost (:func:`expected_sun_directions` times the filter change there and back
-plus the attenuated exposures and read-outs, :func:`sun_bracket_time_s`).
+Sun bracket (beyond the paper).  A rig with a ``[sun]`` table shoots one attenuated bracket through a
+neutral-density filter, aimed at the sun once a direction's shortest exposure clips
+(``omnispectral.capture.run``); the plan adds its cost (:func:`sun_bracket_time_s`).
 """
 
 from __future__ import annotations
@@ -151,46 +150,24 @@ def estimate_time(rig: Rig, directions: tuple[Direction, ...], exposures_s: tupl
             "readout": n * len(exposures_s) * readout, "per_direction": total / n if n else 0.0}
 
 
-def frame_solid_angle_sr(pan_fov_deg: float, tilt_fov_deg: float) -> float:
-    """Solid angle of a rectilinear frame of the given fields of view: ``4 asin(sin(a/2) sin(b/2))``."""
-    return 4.0 * math.asin(math.sin(math.radians(pan_fov_deg) / 2.0) * math.sin(math.radians(tilt_fov_deg) / 2.0))
-
-
-#: Fraction of a frame's side, at each edge, where the capture does not count the sun as seen whole
-#: (``omnispectral.capture.run.SUN_EDGE_MARGIN``).
-SUN_EDGE_MARGIN = 0.1
-
-
-def expected_sun_directions(rig: Rig, n_directions: int) -> float:
-    """Expected number of sun brackets per capture.
-
-    The capture shoots one in each direction that holds the sun until one holds it whole, away from the
-    frame's edges (``omnispectral.capture.run``): with the frame's central ``(1 - 2 m)²`` as the chance
-    of the first hit being whole, that is ``min(k, 1 / (1 - 2 m)²)`` with ``k = n Ω_frame / 4π`` the
-    number of directions that see a given point of the sphere on average.
-    """
-    cam = rig.camera_a
-    k = max(1.0, n_directions * frame_solid_angle_sr(cam.pan_fov_deg, cam.tilt_fov_deg) / (4.0 * math.pi))
-    return min(k, 1.0 / (1.0 - 2.0 * SUN_EDGE_MARGIN) ** 2)
-
-
 def sun_bracket_time_s(rig: Rig) -> float:
-    """One sun bracket: insert the filter, the attenuated exposures with their read-outs, remove the filter."""
+    """The sun bracket: the head turns to the sun and back (a mean move of 90° in pan and 45° in tilt each
+    way) and settles, the filter goes in, the attenuated exposures with their read-outs, the filter comes out."""
     if rig.sun is None:
         return 0.0
     readout = max(c.readout_s for c in rig.cameras.values())
-    return 2.0 * rig.sun.change_s + rig.sun.total_s + len(rig.sun.exposures_s) * readout
+    moves = 2.0 * move_time_s(rig, (0.0, 0.0), (90.0, 45.0)) + rig.head.settle_s
+    return moves + 2.0 * rig.sun.change_s + rig.sun.total_s + len(rig.sun.exposures_s) * readout
 
 
-def sun_bracket_plan(rig: Rig, n_directions: int) -> dict | None:
+def sun_bracket_plan(rig: Rig) -> dict | None:
     """What the plan records of the rig's sun bracket (its filter, exposures and expected cost)."""
     if rig.sun is None:
         return None
     return {"filter": rig.sun.filter, "exposures_s": list(rig.sun.exposures_s), "changer": rig.sun.changer,
             "change_s": rig.sun.change_s, "clip_fraction": rig.sun.clip_fraction,
             "min_clipped_px": rig.sun.min_clipped_px,
-            "expected_directions": expected_sun_directions(rig, n_directions),
-            "per_direction_s": sun_bracket_time_s(rig)}
+            "expected_s": sun_bracket_time_s(rig)}
 
 
 def make_plan(rig: Rig, overlap: float | None = None, exposures_s: tuple[float, ...] | None = None) -> Plan:
@@ -209,10 +186,10 @@ def make_plan(rig: Rig, overlap: float | None = None, exposures_s: tuple[float, 
                                  f"{cam.tilt_fov_deg} deg field of view (overlap {o_pan:.3f} / {o_tilt:.3f} < 0)")
     exposures = tuple(exposures_s) if exposures_s is not None else rig.bracket.exposures_s
     dirs = direction_grid(n_pan, n_tilt)
-    sun = sun_bracket_plan(rig, len(dirs))
+    sun = sun_bracket_plan(rig)
     timing = estimate_time(rig, dirs, exposures)
     if sun is not None:  # the sun bracket's expected cost (Table 2's time plus the attenuated bracket)
-        timing["sun_bracket"] = sun["expected_directions"] * sun["per_direction_s"]
+        timing["sun_bracket"] = sun["expected_s"]
         timing["total"] += timing["sun_bracket"]
         timing["per_direction"] = timing["total"] / len(dirs)
     return Plan(rig.name, n_pan, n_tilt, min(o_pan, o_tilt) if overlap is None else float(overlap),

@@ -5,12 +5,13 @@ retries a device that does not answer or reports a position off target a bounded
 and otherwise stops cleanly (an event with the reason is logged; the session stays valid and can be
 resumed).  Progress is reported per frame to a callback ``progress("capture", done, total)``.
 
-Sun bracket (a rig with a ``[sun]`` table): after a direction's regular bracket, when camera A's shortest
-exposure clips (:func:`clips`), the filter changer puts the plan's neutral-density filter in front of both
-lenses and the loop shoots the attenuated bracket, exposure indices from ``SUN_EXPOSURE_BASE`` with
-``"filter"`` in their journal records; an event ``sun`` names the direction.  Once a sun bracket holds the
-sun whole (:func:`sun_image_complete`: unclipped, away from the frame's edges) later directions need none.
-A resumed run finishes a started sun bracket and decides again, from the stored frames, for the rest.
+Sun bracket (a rig with a ``[sun]`` table): after the first direction whose shortest exposure clips in
+camera A (:func:`clips`), the head turns to centre the clipped spot (the sun) in camera A's frame
+(:func:`aim_at_clipped_spot`: its centroid through the rig's camera model), the filter changer puts the plan's
+neutral-density filter in front of both lenses and the loop shoots the attenuated bracket there: direction
+index ``plan.n_directions`` (after the grid), exposure indices from ``SUN_EXPOSURE_BASE``, ``"filter"`` in
+the journal records and an event ``sun`` with the pose.  Centred, the sun lies whole in both cameras'
+frames.  A resumed run finishes a started sun bracket at its recorded pose.
 """
 
 from __future__ import annotations
@@ -22,9 +23,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from omnispectral.capture.devices import Camera, Clock, DeviceError, DeviceTimeout, FilterChanger, PanTiltHead
-from omnispectral.capture.plan import SUN_EDGE_MARGIN, Direction, Plan
+from omnispectral.capture.plan import Direction, Plan
 from omnispectral.capture.session import Session
 from omnispectral.errors import OmnispectralError
+from omnispectral.imaging.geometry import ray_to_lonlat
 from omnispectral.io import clean_temp_files
 from omnispectral.locking import directory_lock
 from omnispectral.rig import SUN_EXPOSURE_BASE
@@ -104,48 +106,51 @@ def clips(frame: np.ndarray, bit_depth: int, clip_fraction: float, min_pixels: i
     return int(np.count_nonzero(peak >= level)) >= int(min_pixels)
 
 
-def sun_image_complete(frame: np.ndarray, bit_depth: int, clip_fraction: float) -> bool:
-    """Whether an attenuated frame holds the sun whole: its brightest pixel is not clipped and lies at least
-    ``SUN_EDGE_MARGIN`` of the frame (and 8 px) inside every edge."""
+def clipped_centroid_px(frame: np.ndarray, bit_depth: int, clip_fraction: float) -> tuple[float, float] | None:
+    """``(x, y)`` centroid of a raw frame's pixels at ``clip_fraction`` of the maximum code, or ``None``."""
     peak = frame if frame.ndim == 2 else frame.max(axis=2)
-    r, c = np.unravel_index(int(np.argmax(peak)), peak.shape)
-    h, w = peak.shape
-    margin_r, margin_c = max(8, SUN_EDGE_MARGIN * h), max(8, SUN_EDGE_MARGIN * w)
-    inside = margin_r <= r < h - margin_r and margin_c <= c < w - margin_c
-    return bool(inside and peak[r, c] < clip_fraction * ((1 << int(bit_depth)) - 1))
+    rows, cols = np.nonzero(peak >= clip_fraction * ((1 << int(bit_depth)) - 1))
+    return (float(cols.mean()), float(rows.mean())) if rows.size else None
 
 
-def sun_already_whole(session: Session, plan: Plan, done: set) -> bool:
-    """Whether an earlier sun bracket of this capture (read back from its frames) holds the sun whole: later
-    directions then need none."""
-    sun = plan.sun_bracket
-    k = SUN_EXPOSURE_BASE + int(np.argmin(sun["exposures_s"]))
-    for d in sorted({key[0] for key in done if key[1] == "A" and key[2] == k}):
-        try:
-            frame, meta = session.read_frame(d, "A", k)
-        except OmnispectralError:
-            continue
-        if sun_image_complete(np.asarray(frame), int(meta.get("bit_depth", 12)), float(sun["clip_fraction"])):
-            return True
-    return False
+def aim_at_clipped_spot(model, frame: np.ndarray, bit_depth: int, clip_fraction: float, pan_deg: float,
+                        tilt_deg: float, index: int) -> Direction | None:
+    """The head pose that centres a frame's clipped spot in the camera: camera A's optical axis at pose
+    ``(pan, tilt)`` points at longitude ``pan``, latitude ``tilt`` (``omnispectral.imaging.geometry``), so
+    the pose is the spot's world direction."""
+    spot = clipped_centroid_px(frame, bit_depth, clip_fraction)
+    if spot is None:
+        return None
+    ray, valid = model.pixel_to_world(np.array(spot), pan_deg, tilt_deg)
+    if not bool(valid):
+        return None
+    lon, lat = ray_to_lonlat(ray)
+    return Direction(index, -1, -1, round(float(lon), 6), round(float(np.clip(lat, -90.0, 90.0)), 6))
 
 
-def direction_holds_sun(session: Session, plan: Plan, direction: int, done: set, fresh: dict | None) -> bool:
-    """Whether ``direction`` needs the sun bracket: one was started, or camera A's shortest exposure clips
-    (``fresh``: the frames just read, by camera, else the stored frame is read back)."""
-    sun = plan.sun_bracket
-    if any((direction, c, SUN_EXPOSURE_BASE + k) in done for c in ("A", "B") for k in range(len(sun["exposures_s"]))):
-        return True
-    k_short = int(np.argmin(plan.exposures_s))
-    if fresh is not None and "A" in fresh:
-        frame, bit_depth = fresh["A"]
-    else:
-        try:
-            frame, meta = session.read_frame(direction, "A", k_short)
-        except OmnispectralError:
-            return False  # a missing or damaged frame: session verify names it
-        bit_depth = int(meta.get("bit_depth", 12)) if isinstance(meta, dict) else 12
-    return clips(np.asarray(frame), bit_depth, float(sun["clip_fraction"]), int(sun["min_clipped_px"]))
+def shortest_frame(session: Session, plan: Plan, direction: int,
+                   fresh: dict) -> tuple[np.ndarray, int, tuple[float, float]] | None:
+    """Camera A's shortest regular exposure of a direction with its bit depth and the head's reported pose:
+    the frame just read, else read back."""
+    if "A" in fresh:
+        return fresh["A"]
+    try:
+        frame, meta = session.read_frame(direction, "A", int(np.argmin(plan.exposures_s)))
+    except OmnispectralError:
+        return None  # a missing or damaged frame: session verify names it
+    pose = (float(meta.get("pan_deg_reported", meta.get("pan_deg_commanded"))),
+            float(meta.get("tilt_deg_reported", meta.get("tilt_deg_commanded"))))
+    return np.asarray(frame), int(meta.get("bit_depth", 12)), pose
+
+
+def recorded_sun_pose(session: Session, plan: Plan, done: set) -> Direction | None:
+    """The pose of a sun bracket this capture started (from its first frame's record), or ``None``."""
+    index = plan.n_directions
+    keys = sorted(k for k in done if k[0] == index and k[2] >= SUN_EXPOSURE_BASE)
+    if not keys:
+        return None
+    rec = session.completed()[keys[0]]
+    return Direction(index, -1, -1, float(rec["pan_deg_commanded"]), float(rec["tilt_deg_commanded"]))
 
 
 def run_capture(session: Session, head: PanTiltHead, cameras: dict[str, Camera], clock: Clock,
@@ -166,15 +171,17 @@ def run_capture(session: Session, head: PanTiltHead, cameras: dict[str, Camera],
 
 def shoot_sun_bracket(session: Session, plan: Plan, d: Direction, cameras: dict[str, Camera], names_all,
                       filters: FilterChanger, policy: RetryPolicy, pose: tuple[float, float], clock: Clock,
-                      done: set, on_frame: Callable[[], None]) -> int:
-    """The attenuated bracket of one direction (module docstring); returns the frames written."""
+                      done: set, on_frame: Callable[[], None], source: int | None = None) -> int:
+    """The attenuated bracket at the head pose ``d`` aimed at the sun (module docstring; ``source``: the
+    direction whose clipped spot it centres); returns the frames written."""
     sun = plan.sun_bracket
     keys = [(c, k) for k in range(len(sun["exposures_s"])) for c in names_all
             if (d.index, c, SUN_EXPOSURE_BASE + k) not in done]
     if not keys:
         return 0
     if len(keys) == len(sun["exposures_s"]) * len(names_all):
-        session.log_event("sun", direction=d.index, filter=sun["filter"])
+        session.log_event("sun", direction=d.index, filter=sun["filter"], pan_deg=d.pan_deg, tilt_deg=d.tilt_deg,
+                          source_direction=source)
     written = 0
     filters.insert(sun["filter"])
     try:
@@ -209,9 +216,10 @@ def _run_capture_locked(session: Session, head: PanTiltHead, cameras: dict[str, 
     cut = session.repair_journal()
     done = set(session.completed())
     names_all = session.cameras()
+    want_sun = plan.sun_bracket is not None and filters is not None
     n_sun = len(plan.sun_bracket["exposures_s"]) * len(names_all) if plan.sun_bracket else 0
-    sun_dirs = {k[0] for k in done if k[2] >= SUN_EXPOSURE_BASE}
-    n_planned = Session.n_planned(plan, names_all) + n_sun * len(sun_dirs)
+    sun_pose = recorded_sun_pose(session, plan, done) if want_sun else None
+    n_planned = Session.n_planned(plan, names_all) + (n_sun if sun_pose is not None else 0)
     n_before = len(done)
     session.log_event("resume" if n_before or cut else "start", frames_done=n_before, journal_cut=cut)
     t_wall, t_sim = time.perf_counter(), clock.monotonic()
@@ -220,56 +228,54 @@ def _run_capture_locked(session: Session, head: PanTiltHead, cameras: dict[str, 
     progress = progress or None  # False (no progress) is accepted too
     if progress is not None:
         progress("capture", n_before, n_planned)
+
+    def on_frame():
+        if progress is not None:
+            progress("capture", len(done), n_planned)
+
+    def sun_bracket(pose: Direction, source: int | None) -> int:
+        pan_s, tilt_s = goto_direction(head, pose, policy)
+        return shoot_sun_bracket(session, plan, pose, cameras, names_all, filters, policy, (pan_s, tilt_s), clock,
+                                 done, on_frame, source)
+
     try:
         k_short = int(np.argmin(plan.exposures_s))
-        sun_whole = plan.sun_bracket is not None and filters is not None and sun_already_whole(session, plan, done)
+        if sun_pose is not None:  # a sun bracket a killed run started: finish it at its pose
+            written += sun_bracket(sun_pose, None)
+        model_a = session.rig().camera_model("A") if want_sun else None
         for d in plan.directions:
             todo = [(c, k) for k in range(len(plan.exposures_s)) for c in names_all if (d.index, c, k) not in done]
-            sun_here = None
-            if plan.sun_bracket is not None and filters is not None and not todo and not sun_whole:
-                sun_here = direction_holds_sun(session, plan, d.index, done, None)
-                sun_todo = sun_here and any((d.index, c, SUN_EXPOSURE_BASE + k) not in done for c in names_all
-                                            for k in range(len(plan.sun_bracket["exposures_s"])))
-                if not sun_todo:
-                    continue
-            elif not todo:
-                continue
-            pan_r, tilt_r = goto_direction(head, d, policy)
             fresh: dict = {}
-            for k, exposure in enumerate(plan.exposures_s):
-                names = [c for c in names_all if (d.index, c, k) not in done]
-                if not names:
-                    continue
-                frames = expose_all(cameras, names, exposure, policy)
-                for c in names:
-                    data, meta = frames[c]
-                    session.write_frame(data, direction=d.index, camera=c, exposure_index=k, exposure_s=exposure,
-                                        pan_deg_commanded=d.pan_deg, tilt_deg_commanded=d.tilt_deg,
-                                        pan_deg_reported=pan_r, tilt_deg_reported=tilt_r,
-                                        timestamp=clock.now().isoformat(timespec="milliseconds"),
-                                        bit_depth=cameras[c].bit_depth, extra={"camera_metadata": meta})
-                    done.add((d.index, c, k))
-                    written += 1
-                    if k == k_short:
-                        fresh[c] = (data, cameras[c].bit_depth)
-                    if progress is not None:
-                        progress("capture", len(done), n_planned)
-            if plan.sun_bracket is None or filters is None or sun_whole:
+            if todo:
+                pan_r, tilt_r = goto_direction(head, d, policy)
+                for k, exposure in enumerate(plan.exposures_s):
+                    names = [c for c in names_all if (d.index, c, k) not in done]
+                    if not names:
+                        continue
+                    frames = expose_all(cameras, names, exposure, policy)
+                    for c in names:
+                        data, meta = frames[c]
+                        session.write_frame(data, direction=d.index, camera=c, exposure_index=k, exposure_s=exposure,
+                                            pan_deg_commanded=d.pan_deg, tilt_deg_commanded=d.tilt_deg,
+                                            pan_deg_reported=pan_r, tilt_deg_reported=tilt_r,
+                                            timestamp=clock.now().isoformat(timespec="milliseconds"),
+                                            bit_depth=cameras[c].bit_depth, extra={"camera_metadata": meta})
+                        done.add((d.index, c, k))
+                        written += 1
+                        if k == k_short:
+                            fresh[c] = (data, cameras[c].bit_depth, (pan_r, tilt_r))
+                        on_frame()
+            if not want_sun or sun_pose is not None:
                 continue
-            if sun_here is None:
-                sun_here = direction_holds_sun(session, plan, d.index, done, fresh or None)
-            if sun_here:
-                if d.index not in sun_dirs:
-                    sun_dirs.add(d.index)
-                    n_planned += n_sun
-
-                def on_frame(total=n_planned):
-                    if progress is not None:
-                        progress("capture", len(done), total)
-
-                written += shoot_sun_bracket(session, plan, d, cameras, names_all, filters, policy, (pan_r, tilt_r),
-                                             clock, done, on_frame)
-                sun_whole = sun_already_whole(session, plan, {k for k in done if k[0] == d.index})
+            shot = shortest_frame(session, plan, d.index, fresh)
+            sun = plan.sun_bracket
+            if shot is None or not clips(shot[0], shot[1], float(sun["clip_fraction"]), int(sun["min_clipped_px"])):
+                continue
+            sun_pose = aim_at_clipped_spot(model_a, shot[0], shot[1], float(sun["clip_fraction"]), *shot[2],
+                                           index=plan.n_directions)
+            if sun_pose is not None:
+                n_planned += n_sun
+                written += sun_bracket(sun_pose, d.index)
     except DeviceError as exc:
         stopped = str(exc)
         session.log_event("stop", reason=stopped, frames_done=len(done))

@@ -235,7 +235,9 @@ def sun_from_images(images: list[SunImage], system, filter_name: str, band_names
     bands, var = np.concatenate(bands), np.concatenate(var)
     wl = np.asarray(system.wavelength_nm, np.float64)
     m_nd = filter_matrix(np.asarray(system.matrix, np.float64), wl, filter_name)[rows]
-    spectrum_irr, std_irr = fit_spectrum(bands, var, m_nd, daylight_basis(wl))
+    # four daylight components from six bands; from one camera's three, two (one degree of freedom spare)
+    n_components = 4 if len(rows) >= 6 else max(1, len(rows) - 1)
+    spectrum_irr, std_irr = fit_spectrum(bands, var, m_nd, daylight_basis(wl, n_components))
     omega = cap_solid_angle_sr(sun_radius_rad)
     band_irr = np.asarray(system.matrix, np.float64) @ spectrum_irr
     # every image of camera A (the reference geometry) votes for the direction; B's agree at infinity
@@ -253,6 +255,10 @@ def sun_from_images(images: list[SunImage], system, filter_name: str, band_names
             "wavelength_nm": wl.tolist(), "spectral_radiance": (spectrum_irr / omega).tolist(),
             "spectral_radiance_std": (std_irr / omega).tolist(), "filter": filter_name,
             "measured_bands": [band_names[r] for r in rows], "fit_relative_residual": fit_residual,
+            "daylight_components": n_components,
+            **({"note": f"only camera {cams[0]} saw the sun whole in the attenuated bracket: the other camera's "
+                        f"bands of the sun are predicted through the daylight basis"} if len(cams) < 2
+               and len(band_names) > 3 else {}),
             "images": [im.to_dict() for im in images]}
 
 

@@ -7,6 +7,16 @@ wall 4 m away (where :class:`~omnispectral.capture.scenes.cube.CubeOnWallScene` 
 hedge, and optionally a painted post 1.5 m from the rig so that the two cameras, 60 mm apart, see
 parallax.  A 24-patch ColorChecker (N. Ohta's reflectances) on a board faces the rig 2.5 m away at
 longitude 30°, latitude -15°, its 50 mm patches ≈1.1° wide (≈23 px in a 7260 × 3630 panorama).
+A horizontal diffuse white reference plate (0.3 × 0.3 m, flat reflectance 0.95: a stand-in for a
+Spectralon-like target, which is ≈0.95-0.99 and close to flat over 400-700 nm) lies on a small stand
+0.1 m above the ground, 1.2 m from the rig at longitude 160° (south-south-east of the head with the
+default ``north_lon_deg``: no object shadows it at 08:00-17:00 on the default day nor at noon on the
+solstice); ``describe()["reference"]`` gives its centre direction from the head's centre, normal and
+reflectance, as a user would write them down (:mod:`omnispectral.product.sun_reference` measures the sun
+from it).  Unlike the other surfaces (below), the plate is lit by what it actually sees: the sun (with
+the shadow test) plus the scene's own radiance gathered over its upper hemisphere (sky without the disk,
+buildings where they hide the sky, other surfaces as rendered: one bounce), so that its radiance is that
+of a real reference under the scene's light field, not of one under an unobstructed sky dome.
 
 Light (see :mod:`omnispectral.capture.scenes.sky`): a sun disk of 0.533° with the IES clear-sky
 direct illuminance and a CIE type-12 clear sky, with D-series spectra whose CCT follows the sun.
@@ -189,6 +199,60 @@ def facing_board(lon_deg: float, lat_deg: float, distance_m: float, patch_m: flo
     return ChartBoard(distance_m * d, normal, right, up / np.linalg.norm(up), patch_m, gap_m)
 
 
+#: The white reference plate (module docstring): where it is, its size, height of its top above the ground,
+#: its flat reflectance and its material's name.
+REFERENCE_LON_DEG = 160.0
+REFERENCE_DISTANCE_M = 1.2
+REFERENCE_SIZE_M = 0.3
+REFERENCE_HEIGHT_M = 0.1
+REFERENCE_THICKNESS_M = 0.01
+REFERENCE_REFLECTANCE = 0.95
+REFERENCE_MATERIAL = "white reference"
+
+
+@dataclass(frozen=True)
+class ReferencePlate:
+    """A horizontal square diffuse white plate (top face at ``centre_m``, normal +Y) on a thin stand."""
+
+    centre_m: np.ndarray
+    size_m: float
+    thickness_m: float
+    ground_y_m: float
+    reflectance: float
+
+    def boxes(self) -> list[Box]:
+        c, h = self.centre_m, 0.5 * self.size_m
+        top, bottom = float(c[1]), float(c[1]) - self.thickness_m
+        return [Box("white reference", (c[0] - h, bottom, c[2] - h), (c[0] + h, top, c[2] + h), REFERENCE_MATERIAL),
+                Box("white reference stand", (c[0] - 0.02, self.ground_y_m, c[2] - 0.02),
+                    (c[0] + 0.02, bottom, c[2] + 0.02), "dark facade")]
+
+    def describe(self, origin_m=(0.0, 0.0, 0.0)) -> dict:
+        """Centre direction (from ``origin_m``, the head's centre by default), distance, normal, size and
+        reflectance: what a user measures and writes down about their target."""
+        rel = self.centre_m - as_origin(origin_m)
+        lon, lat = direction_to_lonlat(rel)
+        dist = float(np.linalg.norm(rel))
+        # the plate's smallest angular half-extent seen from the origin (foreshortened along the line of sight)
+        sin_el = abs(float(rel[1])) / dist
+        half_deg = math.degrees(math.atan(0.5 * self.size_m * sin_el / dist))
+        return {"name": "white reference", "kind": "horizontal diffuse plate, Spectralon-like stand-in",
+                "lon_deg": float(lon), "lat_deg": float(lat), "distance_m": dist,
+                "centre_m": [float(x) for x in self.centre_m], "normal": [0.0, 1.0, 0.0],
+                "size_m": self.size_m, "height_above_ground_m": float(self.centre_m[1] - self.ground_y_m),
+                "reflectance": self.reflectance, "half_size_deg": half_deg}
+
+
+def reference_plate_at(lon_deg: float, distance_m: float, ground_y_m: float) -> ReferencePlate:
+    """The white plate centred ``distance_m`` (horizontally) from the head's axis at longitude ``lon_deg``."""
+    if not distance_m > REFERENCE_SIZE_M:
+        raise ConfigurationError(f"reference_distance_m must exceed the plate's size ({REFERENCE_SIZE_M} m), "
+                                 f"got {distance_m}")
+    d = lonlat_to_direction(lon_deg, 0.0) * distance_m
+    centre = np.array([d[0], ground_y_m + REFERENCE_HEIGHT_M, d[2]], np.float64)
+    return ReferencePlate(centre, REFERENCE_SIZE_M, REFERENCE_THICKNESS_M, ground_y_m, REFERENCE_REFLECTANCE)
+
+
 @dataclass
 class Shading:
     """Per-ray record: material row, sun and sky weights, object hit, its face normal id and distance (m).
@@ -247,6 +311,10 @@ class ProceduralOutdoorScene(Scene):
         Wooded hills on the horizon, ``SKYLINE_DISTANCE_M`` away, whose silhouette (0.3-3.5° high,
         drawn with the seed) is the scene's texture at infinity, as distant terrain or buildings
         are in most real outdoor captures.
+    reference_plate
+        The horizontal white reference plate (module docstring; :class:`ReferencePlate`), on by default.
+    reference_lon_deg, reference_distance_m
+        Where the plate's centre is: its longitude and horizontal distance (m) from the head's axis.
     """
 
     kind = "procedural"
@@ -256,7 +324,8 @@ class ProceduralOutdoorScene(Scene):
                  day_of_year: int = DEFAULT_DAY_OF_YEAR, north_lon_deg: float = 0.0, near_object: bool = True,
                  seed: int = 0, wavelength_nm=None, ground_y_m: float = -1.5, chart_lon_deg: float = 30.0,
                  chart_lat_deg: float = -15.0, chart_distance_m: float = 2.5, chart_patch_m: float = 0.05,
-                 skyline: bool = True, buildings: bool = True):
+                 skyline: bool = True, buildings: bool = True, reference_plate: bool = True,
+                 reference_lon_deg: float = REFERENCE_LON_DEG, reference_distance_m: float = REFERENCE_DISTANCE_M):
         super().__init__(DEFAULT_WAVELENGTH_NM if wavelength_nm is None else wavelength_nm)
         if ground_y_m >= 0:
             raise ConfigurationError(f"ground_y_m must be below the head (negative), got {ground_y_m}")
@@ -266,7 +335,9 @@ class ProceduralOutdoorScene(Scene):
                        "near_object": bool(near_object), "seed": int(seed), "ground_y_m": float(ground_y_m),
                        "chart_lon_deg": float(chart_lon_deg), "chart_lat_deg": float(chart_lat_deg),
                        "chart_distance_m": float(chart_distance_m), "chart_patch_m": float(chart_patch_m),
-                       "skyline": bool(skyline), "buildings": bool(buildings)}
+                       "skyline": bool(skyline), "buildings": bool(buildings),
+                       "reference_plate": bool(reference_plate), "reference_lon_deg": float(reference_lon_deg),
+                       "reference_distance_m": float(reference_distance_m)}
         self.ground_y_m = float(ground_y_m)
         self.daylight = ClearSkyDaylight(day_of_year, time_hhmm, latitude_deg, longitude_deg, utc_offset_h,
                                          north_lon_deg, self.wavelength_nm)
@@ -276,6 +347,8 @@ class ProceduralOutdoorScene(Scene):
         self.chart = facing_board(chart_lon_deg, chart_lat_deg, chart_distance_m, chart_patch_m, 0.2 * chart_patch_m)
         if chart_distance_m * math.sin(math.radians(-chart_lat_deg)) + self.chart.half_height_m >= -self.ground_y_m:
             raise ConfigurationError("the chart would reach below the ground; raise chart_lat_deg or move it closer")
+        self.reference = (reference_plate_at(float(reference_lon_deg), float(reference_distance_m), self.ground_y_m)
+                          if reference_plate else None)
         self.boxes = self._layout(rng, bool(near_object), bool(buildings))
         self.skyline = skyline_profile(np.random.default_rng([seed, 7])) if skyline else None
         self._build_tables()
@@ -303,15 +376,18 @@ class ProceduralOutdoorScene(Scene):
         if near_object:
             d = lonlat_to_direction(100.0, 0.0) * 1.5
             boxes.append(Box("post", (d[0] - 0.06, g, d[2] - 0.06), (d[0] + 0.06, 0.3, d[2] + 0.06), "painted post"))
+        if self.reference is not None:
+            boxes.extend(self.reference.boxes())
         return boxes
 
     def _build_tables(self) -> None:
         """Material rows (sky, surfaces, chart patches), per-object material, per-normal light."""
         names = ["sky", *[m.name for m in self.materials], "chart frame",
-                 *[f"chart:{n}" for n in self.patch_names]]
+                 *[f"chart:{n}" for n in self.patch_names], REFERENCE_MATERIAL]
         frame = self.patch_reflectance[self.patch_names.index("black 2 (1.5 D)")]
+        white = np.full(self.wavelength_nm.size, REFERENCE_REFLECTANCE)
         refl = np.vstack([np.zeros(self.wavelength_nm.size), *[m.reflectance for m in self.materials], frame,
-                          self.patch_reflectance])
+                          self.patch_reflectance, white])
         self.material_names = tuple(names)
         self.material_reflectance = refl
         self._row = {n: i for i, n in enumerate(names)}
@@ -336,6 +412,37 @@ class ProceduralOutdoorScene(Scene):
         self._box_hi = np.array([b.hi_m for b in self.boxes], dtype=np.float64)
         self._box_centre = np.array([b.centre_m() for b in self.boxes])
         self._box_radius = np.array([b.radius_m() for b in self.boxes])
+        if self.reference is not None:
+            self._light_reference()
+
+    def _light_reference(self, n_mu: int = 384, n_phi: int = 768) -> None:
+        """Light the white plate with what its top face sees (module docstring): its sky row becomes
+        ``ρ E_gathered(λ) / (π E_sky,h)`` with ``E_gathered = ∫ L(ω) cos θ dω`` over its upper hemisphere, the
+        scene's own radiance (sky without the sun's disk, and every surface as rendered), evaluated as ``π``
+        times the mean over an ``n_mu × n_phi`` grid uniform in ``cos² θ`` and azimuth (cosine-weighted)."""
+        dl = self.daylight
+        sky_up = float(dl.sky_illuminance_lx(np.array([0.0, 1.0, 0.0])))
+        if not sky_up > 0:
+            return
+        mu = np.sqrt((np.arange(n_mu) + 0.5) / n_mu)
+        phi = (np.arange(n_phi) + 0.5) * (2.0 * math.pi / n_phi)
+        mu, phi = np.meshgrid(mu, phi, indexing="ij")
+        sin_t = np.sqrt(1.0 - mu ** 2)
+        d = np.stack([sin_t * np.cos(phi), mu, sin_t * np.sin(phi)], axis=-1).reshape(-1, 3)
+        origin = self.reference.centre_m + np.array([0.0, 2e-3, 0.0])
+        n = self.wavelength_nm.size
+        k = self._table64.shape[0]
+        sun_w, sky_w = np.zeros(k), np.zeros(k)
+        d32 = d.astype(np.float32)
+        for b0 in range(0, d32.shape[0], RAY_BLOCK):  # per material: Σ sun weights · P[k] + Σ sky weights · Q[k]
+            rec = self.shade(d32[b0:b0 + RAY_BLOCK], origin, sun_disk=False)
+            sun_w += np.bincount(rec.material, rec.sun.astype(np.float64), minlength=k)
+            sky_w += np.bincount(rec.material, rec.sky.astype(np.float64), minlength=k)
+        gathered = (math.pi / d.shape[0]) * (sun_w @ self._table64[:, :n] + sky_w @ self._table64[:, n:])
+        row = self._row[REFERENCE_MATERIAL]
+        self._table64[row, n:] = self.reference.reflectance * gathered / (math.pi * sky_up)
+        self._table32 = self._table64.astype(np.float32)
+        self.reference_gathered_spectrum = gathered
 
     # -- the interface ----------------------------------------------------------------------------
     def spectral_radiance(self, directions, origin_m=(0.0, 0.0, 0.0), sun_disk: bool = True) -> np.ndarray:
@@ -507,4 +614,5 @@ class ProceduralOutdoorScene(Scene):
                       "gap_m": self.chart.gap_m},
             "skyline": None if self.skyline is None else {"distance_m": SKYLINE_DISTANCE_M, "material": "hedge",
                                                           **self.skyline.describe()},
+            "reference": None if self.reference is None else self.reference.describe(),
         }

@@ -158,6 +158,7 @@ def environment_from_product(product: str | Path, level: int | None = None, max_
     env = environment_from_bands(bands, estimator, units, sat,
                                  {"source": str(Path(product).resolve()), "level": level,
                                   "saturation_level_dn_s": clip,
-                                  "sun": {k: sun_record.get(k) for k in ("method", "recovered", "note")}},
+                                  "sun": {k: sun_record.get(k) for k in ("method", "recovered", "model_estimate",
+                                                                         "note")}},
                                  sun=SunOverlay.of(store, level, bands.shape[:2]))
     return env, estimator

@@ -11,7 +11,10 @@ camera A (:func:`clips`), the head turns to centre the clipped spot (the sun) in
 neutral-density filter in front of both lenses and the loop shoots the attenuated bracket there: direction
 index ``plan.n_directions`` (after the grid), exposure indices from ``SUN_EXPOSURE_BASE``, ``"filter"`` in
 the journal records and an event ``sun`` with the pose.  Centred, the sun lies whole in both cameras'
-frames.  A resumed run finishes a started sun bracket at its recorded pose.
+frames, unless a near object hides the sun from camera B's viewpoint only: then the bracket is repeated
+with the sun off-centre in pan (:data:`SUN_RETRY_PAN_FRACTIONS`), which moves B around the pan axis, until
+each camera has seen it whole (:func:`sun_seen_whole`).  A resumed run finishes started sun brackets at
+their recorded poses.
 """
 
 from __future__ import annotations
@@ -143,6 +146,51 @@ def shortest_frame(session: Session, plan: Plan, direction: int,
     return np.asarray(frame), int(meta.get("bit_depth", 12)), pose
 
 
+#: Pan offsets (fractions of camera A's pan field of view) of the retries when camera B does not see the sun
+#: whole from the aimed pose (a near object hiding it from B's viewpoint only): each moves B's centre around
+#: the pan axis while the sun stays in both frames.
+SUN_RETRY_PAN_FRACTIONS = (-0.3, 0.3)
+
+
+def sun_poses(first: Direction, pan_fov_deg: float) -> list[Direction]:
+    """The aimed pose and its retries (:data:`SUN_RETRY_PAN_FRACTIONS`), direction indices in order."""
+    return [first] + [Direction(first.index + 1 + i, -1, -1, round(first.pan_deg - f * pan_fov_deg, 6),
+                                first.tilt_deg) for i, f in enumerate(SUN_RETRY_PAN_FRACTIONS)]
+
+
+def sun_seen_whole(frame: np.ndarray, bit_depth: int, clip_fraction: float, contrast: float = 20.0) -> bool:
+    """Whether an attenuated frame shows the sun whole: its brightest pixel stands ``contrast`` times above
+    the frame's median, is not clipped, and lies at least 8 px inside every edge."""
+    peak = frame.astype(np.float64) if frame.ndim == 2 else frame.astype(np.float64).max(axis=2)
+    r, c = np.unravel_index(int(np.argmax(peak)), peak.shape)
+    h, w = peak.shape
+    top = peak[r, c]
+    return bool(8 <= r < h - 8 and 8 <= c < w - 8 and top < clip_fraction * ((1 << int(bit_depth)) - 1)
+                and top > contrast * max(float(np.median(peak)), 1.0))
+
+
+def every_camera_saw_sun(session: Session, plan: Plan, poses: list[Direction], done: set,
+                         names: tuple[str, ...]) -> bool:
+    """Whether, over the sun brackets shot so far, each camera saw the sun whole in its shortest frame."""
+    k = SUN_EXPOSURE_BASE + int(np.argmin(plan.sun_bracket["exposures_s"]))
+    for c in names:
+        seen = False
+        for pose in poses:
+            if (pose.index, c, k) not in done:
+                continue
+            try:
+                frame, meta = session.read_frame(pose.index, c, k)
+            except OmnispectralError:
+                continue
+            if sun_seen_whole(np.asarray(frame), int(meta.get("bit_depth", 12)),
+                              float(plan.sun_bracket["clip_fraction"])):
+                seen = True
+                break
+        if not seen:
+            return False
+    return True
+
+
 def recorded_sun_pose(session: Session, plan: Plan, done: set) -> Direction | None:
     """The pose of a sun bracket this capture started (from its first frame's record), or ``None``."""
     index = plan.n_directions
@@ -219,7 +267,7 @@ def _run_capture_locked(session: Session, head: PanTiltHead, cameras: dict[str, 
     want_sun = plan.sun_bracket is not None and filters is not None
     n_sun = len(plan.sun_bracket["exposures_s"]) * len(names_all) if plan.sun_bracket else 0
     sun_pose = recorded_sun_pose(session, plan, done) if want_sun else None
-    n_planned = Session.n_planned(plan, names_all) + (n_sun if sun_pose is not None else 0)
+    n_planned = Session.n_planned(plan, names_all) + n_sun * len({k[0] for k in done if k[2] >= SUN_EXPOSURE_BASE})
     n_before = len(done)
     session.log_event("resume" if n_before or cut else "start", frames_done=n_before, journal_cut=cut)
     t_wall, t_sim = time.perf_counter(), clock.monotonic()
@@ -233,15 +281,28 @@ def _run_capture_locked(session: Session, head: PanTiltHead, cameras: dict[str, 
         if progress is not None:
             progress("capture", len(done), n_planned)
 
-    def sun_bracket(pose: Direction, source: int | None) -> int:
-        pan_s, tilt_s = goto_direction(head, pose, policy)
-        return shoot_sun_bracket(session, plan, pose, cameras, names_all, filters, policy, (pan_s, tilt_s), clock,
-                                 done, on_frame, source)
+    def sun_brackets(first: Direction, source: int | None) -> int:
+        """The aimed bracket, then retries while a camera has not seen the sun whole (module docstring)."""
+        nonlocal n_planned
+        n = 0
+        poses = sun_poses(first, session.rig().camera_a.pan_fov_deg)
+        for i, pose in enumerate(poses):
+            if i and every_camera_saw_sun(session, plan, poses[:i], done, tuple(names_all)):
+                break
+            started = sum(k[0] == pose.index for k in done)
+            if started == n_sun:
+                continue
+            if not started:
+                n_planned += n_sun
+            pan_s, tilt_s = goto_direction(head, pose, policy)
+            n += shoot_sun_bracket(session, plan, pose, cameras, names_all, filters, policy, (pan_s, tilt_s),
+                                   clock, done, on_frame, source)
+        return n
 
     try:
         k_short = int(np.argmin(plan.exposures_s))
-        if sun_pose is not None:  # a sun bracket a killed run started: finish it at its pose
-            written += sun_bracket(sun_pose, None)
+        if sun_pose is not None:  # sun brackets a killed run started: finish them at their poses
+            written += sun_brackets(sun_pose, None)
         model_a = session.rig().camera_model("A") if want_sun else None
         for d in plan.directions:
             todo = [(c, k) for k in range(len(plan.exposures_s)) for c in names_all if (d.index, c, k) not in done]
@@ -274,8 +335,7 @@ def _run_capture_locked(session: Session, head: PanTiltHead, cameras: dict[str, 
             sun_pose = aim_at_clipped_spot(model_a, shot[0], shot[1], float(sun["clip_fraction"]), *shot[2],
                                            index=plan.n_directions)
             if sun_pose is not None:
-                n_planned += n_sun
-                written += sun_bracket(sun_pose, d.index)
+                written += sun_brackets(sun_pose, d.index)
     except DeviceError as exc:
         stopped = str(exc)
         session.log_event("stop", reason=stopped, frames_done=len(done))

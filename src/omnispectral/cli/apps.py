@@ -27,6 +27,19 @@ def _render_kwargs(args) -> dict:
     return kw
 
 
+def _print_environment_sun(env: dict) -> None:
+    """What the environment holds of the sun: recovered (how), a model estimate, or a lower bound."""
+    sun = env.get("sun") or {}
+    if sun.get("recovered"):
+        console.print(f"lit by the recovered sun ({sun.get('method')}).")
+        if sun.get("model_estimate"):
+            console.print("[yellow]warning:[/yellow] the sun is a model estimate, not a measurement "
+                          "(product's sun.json)")
+    if env.get("saturated_pixels"):
+        console.print(f"[yellow]warning:[/yellow] {env['saturated_pixels']} saturated environment pixels (the sun) "
+                      f"hold a lower bound only: {100 * env['saturated_energy_fraction']:.1f} % of the map's energy")
+
+
 def cmd_render(args) -> int:
 
     out = render_product(args.product, args.output, progress=_progress(not args.json), **_render_kwargs(args))
@@ -39,9 +52,7 @@ def cmd_render(args) -> int:
                   f"{env['width']}×{env['height']} (level {env.get('level')}).")
     if out.get("note"):
         console.print(f"[yellow]note:[/yellow] {escape(out['note'])}")
-    if env.get("saturated_pixels"):
-        console.print(f"[yellow]warning:[/yellow] {env['saturated_pixels']} saturated environment pixels (the sun) "
-                      f"hold a lower bound only: {100 * env['saturated_energy_fraction']:.1f} % of the map's energy")
+    _print_environment_sun(env)
     for k, v in out["files"].items():
         console.print(f"  {k}: {v}")
     return 0

@@ -23,7 +23,7 @@ from omnispectral.product.rigboard import calibrate_chessboard_folder
 from omnispectral.product.rigcal import calibrate_session
 from omnispectral.product.series import DEFAULT_REGIONS, parse_region, process_series
 from omnispectral.product.spectra import spectrum_at
-from omnispectral.product.sun import SUN_METHODS
+from omnispectral.product.sun_methods import SUN_METHODS
 from omnispectral.rig import PRESETS
 
 
@@ -69,9 +69,12 @@ def _print_summary(index: dict) -> None:
 def _print_sun(sun: dict) -> None:
     """One line on the sun: how it was recovered and where, or that the panorama holds a lower bound."""
     if sun.get("recovered"):
-        console.print(f"sun recovered ({sun['method']}, {sun.get('filter', '')}): lon {sun['lon_deg']:.2f}°, "
-                      f"lat {sun['lat_deg']:.2f}°, {sun.get('n_pixels_painted', 0)} panorama pixels hold it "
-                      f"({sun['file']}).")
+        how = f"{sun['method']}, {sun['filter']}" if sun.get("filter") else sun["method"]
+        console.print(f"sun recovered ({how}): lon {sun['lon_deg']:.2f}°, lat {sun['lat_deg']:.2f}°, "
+                      f"{sun.get('n_pixels_painted', 0)} panorama pixels hold it ({sun['file']}).")
+        if sun.get("model_estimate"):
+            console.print(f"[yellow]warning:[/yellow] the sun is a model estimate, not a measurement: "
+                          f"{escape(sun.get('note', ''))}")
     elif sun.get("method") is not None and sun.get("note"):
         console.print(f"[yellow]sun:[/yellow] {escape(sun['note'])}")
 
@@ -282,7 +285,8 @@ def add_commands(sub) -> None:
                    help="camera B's mounting from 'omnispectral calibrate rig' (default: fitted from this session)")
     p.add_argument("--sun", default="auto", choices=list(SUN_METHODS),
                    help="how the saturated sun is recovered: auto (the attenuated bracket when the session has "
-                        "one), nd-bracket, or none (keep the lower bound)")
+                        "one, else the clear-sky model), nd-bracket, sky-model (a model estimate fitted to the "
+                        "sky), or none (keep the lower bound)")
     p.add_argument("--min-confidence", type=float, default=None, help="with --registration paper: POC confidence "
                                                                       "below which the calibrated offset is used")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="Dask distributed scheduler address")

@@ -54,7 +54,8 @@ from omnispectral.product.layout import MERGED, PANORAMA, PRODUCT_FORMAT, RIG_CA
 from omnispectral.product.merge import merge_session
 from omnispectral.product.report import write_report
 from omnispectral.product.rigcal import RigCalibration, calibrate_from_merged
-from omnispectral.product.sun import SUN_FILE, paint_sun, recover_sun, sun_summary
+from omnispectral.product.sun import SUN_FILE, paint_sun, sun_summary
+from omnispectral.product.sun_methods import recover_sun
 from omnispectral.threads import ordered_thread_map
 
 #: ``progress(stage, done, total)``: how far a named stage of a long run is (the command line draws it).
@@ -276,9 +277,9 @@ def _process_locked(session_path: Path, paths: dict, calibration, *, width, tile
                             overwrite=overwrite or state == "overwritten", **kwargs)
     timings["mosaic"] = time.perf_counter() - t1
     t_sun = time.perf_counter()
-    sun = recover_sun(s, {**models, **merged.cameras}, rig, list(merged.meta["band_names"]), sun_method,
-                      _stage(progress, "sun"))
     store = PanoramaStore.open(paths["panorama"])
+    sun = recover_sun(s, {**models, **merged.cameras}, rig, list(merged.meta["band_names"]), sun_method,
+                      _stage(progress, "sun"), store)
     if sun.get("recovered"):
         sun["pixels"] = paint_sun(store, sun)
     store.update_attrs({"omnispectral": {**store.attrs()["omnispectral"], "sun": sun}})

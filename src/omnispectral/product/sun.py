@@ -37,7 +37,6 @@ import colour
 import numpy as np
 from scipy import ndimage
 
-from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.bayer import correct_raw, demosaic
 from omnispectral.imaging.geometry import (
     CameraModel,
@@ -59,8 +58,6 @@ APERTURE_RADII = 3.0
 APERTURE_MIN_PX = 4.0
 #: The product's file holding the sun's record.
 SUN_FILE = "sun.json"
-#: Methods of :func:`recover_sun` in order of preference.
-SUN_METHODS = ("auto", "nd-bracket", "none")
 
 
 # ------------------------------------------------------------------------------------------ basis
@@ -382,28 +379,9 @@ def _write_level0_window(store, r0: int, cols: np.ndarray, window: np.ndarray) -
             store.write_chunk(level, ty, tx, store.downsample_chunk(level, ty, tx))
 
 
-def recover_sun(session, models: dict[str, CameraModel], rig, band_names: list[str], method: str = "auto",
-                progress=None) -> dict:
-    """The sun by ``method`` (``auto``: the attenuated bracket when the session has one; module docstring).
-
-    Always returns a record: ``recovered`` says whether the panorama can hold the sun, ``method`` how.
-    """
-    if method not in SUN_METHODS:
-        raise ConfigurationError(f"sun method must be one of {', '.join(SUN_METHODS)}, got {method!r}")
-    if method in ("auto", "nd-bracket"):
-        record = recover_sun_nd(session, models, rig.system(), band_names, progress)
-        if record is not None:
-            return record
-        if method == "nd-bracket":
-            return {"method": "nd-bracket", "recovered": False,
-                    "note": "the session has no attenuated sun bracket (a rig without a [sun] table, or the "
-                            "sun never clipped)"}
-    return {"method": "none", "recovered": False, "note": sun_lower_bound_note()}
-
-
 def sun_summary(sun: dict) -> dict:
     """The sun's record without its per-wavelength arrays and pixel mask (for ``product.json``)."""
-    keep = ("method", "recovered", "note", "lon_deg", "lat_deg", "direction_spread_deg", "angular_diameter_deg",
+    keep = ("method", "recovered", "model_estimate", "note", "lon_deg", "lat_deg", "direction_spread_deg", "angular_diameter_deg",
             "band_names", "band_irradiance", "band_radiance", "band_radiance_std", "filter", "fit_relative_residual")
     out = {k: sun[k] for k in keep if k in sun}
     if "pixels" in sun:

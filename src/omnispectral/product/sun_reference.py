@@ -53,9 +53,10 @@ Command-line value (:func:`parse_sun_reference`)::
 ``RADIUS_DEG`` / ``radius=``: the patch averaged (default 1°; keep it inside the target);
 ``normal=AZ/EL``: the direction the target faces as a longitude and elevation in degrees (``0/90``, facing up,
 is the default: a horizontal target), or a world vector ``X/Y/Z`` (+Y up); ``reflectance=``: a number in
-(0, 1] (flat, default 0.95), a reflectance CSV holding one curve (:func:`omnispectral.spectral.curves.read_spectral_csv`;
-the path must not contain a comma), or ``SET:SAMPLE`` of a built-in reflectance set
-(:func:`omnispectral.spectral.library.load_reflectances`, e.g. ``colorchecker:white 9.5 (.05 D)``).
+(0, 1] (flat, default 0.95), a reflectance CSV holding one curve
+(:func:`omnispectral.spectral.curves.read_spectral_csv`; the path must not contain a comma), or
+``SET:SAMPLE`` of a built-in reflectance set (:func:`omnispectral.spectral.library.load_reflectances`,
+e.g. ``colorchecker:white 9.5 (.05 D)``).
 Examples: ``-20,-45`` · ``-20,-45,1.5,reflectance=0.99`` · ``35,-10,normal=215/0,reflectance=grey.csv``.
 (On a command line, a negative longitude needs ``--option=-20,-45``.)
 """

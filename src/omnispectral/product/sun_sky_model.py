@@ -47,15 +47,15 @@ sky they describe (Ineichen 2006's validation of clear-sky models: beam RMSE ≈
 published descriptions of the same clear sky disagree by about a factor of two: on the simulator's sky (IES
 illuminances with a CIE type-12 distribution, deliberately a different model) the Perez fit reads a sky of
 ``T_L`` ≈ 3.7-4.9 (``ε`` ≈ 2.8-4.5) where the IES direct light corresponds to ``T_L`` ≈ 3, so the luminous
-ratio ``I K_dn / (D K_d)`` comes out ≈ 3.1-3.5 against the simulator's 6.6-7.1, while the diffuse ``D`` lands
-within 4 %.  Measured on small-preset sessions (seed 0) at 07:00, 12:30 and 17:00: the sun's band irradiance
-is 0.28-0.81 of the truth's (worst band 0.28, the blue ones: the modelled beam at 3200-4600 K is redder
-than the simulator's 5500-6500 K daylight), spectrum NRMSE 0.033-0.055, direction within 0.05°.  So the
-record says ``model_estimate: True`` and carries a relative standard deviation of :data:`MODEL_RELATIVE_STD`
-(added in quadrature to the fit's own spread over the turbidities that fit the sky about as well) and a
-spectral standard deviation that also spans ±:data:`CCT_SPREAD_K` of the beam's CCT: a sun of the right
-place and order of magnitude, so that the panorama no longer misses most of the direct light, not a
-measurement of it.
+ratio ``I K_dn / (D K_d)`` comes out ≈ 3.1-3.5 against the simulator's 5.3-6.7, while the diffuse ``D``
+lands within 5 % (1.02-1.05 of the truth's).  Measured on small-preset sessions (seed 0) at 07:00, 12:30 and
+17:00: the sun's band irradiance is 0.28-0.81 of the truth's (worst band 0.28, the blue ones: the modelled
+beam at 3200-4600 K is redder than the simulator's 5500-6500 K daylight), spectrum NRMSE 0.033-0.055,
+direction within 0.05°.  So the record says ``model_estimate: True`` and carries a relative standard
+deviation of :data:`MODEL_RELATIVE_STD` (added in quadrature to the fit's own spread over the turbidities
+that fit the sky about as well) and a spectral standard deviation that also spans ±:data:`CCT_SPREAD_K` of the
+beam's CCT: a sun of the right place and order of magnitude, so that the panorama no longer misses most of
+the direct light, not a measurement of it.
 
 Refusals (``recovered: False`` with a ``note``): no clipped sun, the sun at or below
 :data:`MIN_SUN_ELEVATION_DEG`, too little sky, a sky the clear model does not describe (log-domain RMS residual

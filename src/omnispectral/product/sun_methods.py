@@ -1,0 +1,46 @@
+"""How the saturated sun is recovered: the methods in order of preference, and the choice among them.
+
+``nd-bracket`` (:mod:`omnispectral.product.sun`): the attenuated bracket the capture aimed at the sun, a
+measurement; ``sky-model`` (:mod:`omnispectral.product.sun_sky_model`): a published clear-sky model fitted
+to the panorama's sky, a model estimate; ``none``: the sun's pixels keep the shortest exposure's value, a
+lower bound, and every consumer says so.  ``auto`` takes the first that recovers the sun.
+"""
+
+from __future__ import annotations
+
+from omnispectral.errors import ConfigurationError
+from omnispectral.imaging.geometry import CameraModel
+from omnispectral.product.sun import recover_sun_nd, sun_lower_bound_note
+from omnispectral.product.sun_sky_model import recover_sun_sky_model
+
+#: Methods of :func:`recover_sun`: ``auto`` and the methods in order of preference.
+SUN_METHODS = ("auto", "nd-bracket", "sky-model", "none")
+
+
+def recover_sun(session, models: dict[str, CameraModel], rig, band_names: list[str], method: str = "auto",
+                progress=None, store=None) -> dict:
+    """The sun by ``method``; ``auto`` takes the attenuated bracket when the session has one, else the
+    clear-sky model fitted to the panorama's sky (``store``, unpainted; :mod:`omnispectral.product.sun_sky_model`,
+    a model estimate), else keeps the lower bound.
+
+    Always returns a record: ``recovered`` says whether the panorama can hold the sun, ``method`` how.
+    """
+    if method not in SUN_METHODS:
+        raise ConfigurationError(f"sun method must be one of {', '.join(SUN_METHODS)}, got {method!r}")
+    tried = []
+    if method in ("auto", "nd-bracket"):
+        record = recover_sun_nd(session, models, rig.system(), band_names, progress)
+        if record is not None and (record.get("recovered") or method == "nd-bracket"):
+            return record
+        tried.append(record["note"] if record else "no attenuated sun bracket in the session")
+    if method in ("auto", "sky-model") and store is not None:
+        record = recover_sun_sky_model(store, rig.system(), band_names)
+        if record.get("recovered") or method == "sky-model":
+            return record
+        tried.append(record.get("note", "the sky model did not fit"))
+    if method == "nd-bracket":
+        return {"method": "nd-bracket", "recovered": False,
+                "note": "the session has no attenuated sun bracket (a rig without a [sun] table, or the "
+                        "sun never clipped)"}
+    return {"method": "none", "recovered": False,
+            "note": sun_lower_bound_note() + (f" (tried: {'; '.join(tried)})" if tried else "")}

@@ -89,8 +89,8 @@ def _synthetic(tmp_path, reflectance, shadowed=False, height=180):
     sun_spd *= 4.0 * (matrix @ e_rest_spectral)[1] / (matrix @ sun_spd)[1]
     e_sun_true = matrix @ sun_spd
     level = saturation_level_dn_s({"omnispectral": {"rig": {"toml": rig.toml_text}}})
-    r0 = int(round(90 - SUN_LAT - 0.5))
-    c0 = int(round(SUN_LON + 180 - 0.5))
+    r0 = round(90 - SUN_LAT - 0.5)
+    c0 = round(SUN_LON + 180 - 0.5)
     pano[r0 - 1:r0 + 2, c0 - 1:c0 + 2] = 0.97 * level  # clipped: the disk blurred over its 8 neighbours
     pano[r0, c0] = level
     for dr in range(-3, 4):  # the blur's unclipped tail

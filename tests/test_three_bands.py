@@ -74,7 +74,8 @@ def test_one_camera_session_processes_and_six_bands_beat_three(products):
     session, product, index, report = products["rgb"]
     assert Session.open(session).cameras() == ("A",)
     v = verify_session(session)
-    assert v["complete"] and v["n_planned"] == 12 * 6  # 12 directions x 6 exposures x one camera
+    # 12 directions x 6 exposures x one camera, and the sun bracket's 4 attenuated exposures
+    assert v["complete"] and v["n_planned"] == 12 * 6 + 4
     assert index["bands"] == BANDS3 and index["registration"]["method"] == "none"
     merged = MergedDirections.open(product / "merged")
     assert merged.n_bands == 3 and not list((product / "merged").glob("*_B.npy"))

@@ -287,8 +287,9 @@ def _run_capture_locked(session: Session, head: PanTiltHead, cameras: dict[str, 
         n = 0
         poses = sun_poses(first, session.rig().camera_a.pan_fov_deg)
         for i, pose in enumerate(poses):
-            if i and every_camera_saw_sun(session, plan, poses[:i], done, tuple(names_all)):
-                break
+            if i and (every_camera_saw_sun(session, plan, poses[:i], done, tuple(names_all))
+                      or not every_camera_saw_sun(session, plan, poses[:i], done, ("A",))):
+                break  # retries help camera B only, when A saw the sun whole
             started = sum(k[0] == pose.index for k in done)
             if started == n_sun:
                 continue

@@ -24,6 +24,7 @@ from omnispectral.product.rigcal import calibrate_session
 from omnispectral.product.series import DEFAULT_REGIONS, parse_region, process_series
 from omnispectral.product.spectra import spectrum_at
 from omnispectral.product.sun_methods import SUN_METHODS
+from omnispectral.product.sun_reference import parse_sun_reference
 from omnispectral.rig import PRESETS
 
 
@@ -33,7 +34,8 @@ def cmd_process(args) -> int:
                         scheduler=args.scheduler, skip_bad=args.skip_bad, min_confidence=args.min_confidence,
                         hdr_weight=args.hdr_weight, progress=bars, verify_checksums=not args.sizes_only,
                         registration=args.registration, rig_calibration=args.rig_calibration,
-                        overwrite=args.overwrite, sun=args.sun)
+                        overwrite=args.overwrite, sun=args.sun,
+                        sun_reference=parse_sun_reference(args.sun_reference) if args.sun_reference else None)
     if args.json:
         print_json(index)
         return 0
@@ -285,8 +287,12 @@ def add_commands(sub) -> None:
                    help="camera B's mounting from 'omnispectral calibrate rig' (default: fitted from this session)")
     p.add_argument("--sun", default="auto", choices=list(SUN_METHODS),
                    help="how the saturated sun is recovered: auto (the attenuated bracket when the session has "
-                        "one, else the clear-sky model), nd-bracket, sky-model (a model estimate fitted to the "
-                        "sky), or none (keep the lower bound)")
+                        "one, else the diffuse reference if given, else the clear-sky model), nd-bracket, "
+                        "diffuse-reference, sky-model (a model estimate fitted to the sky), or none (keep the "
+                        "lower bound)")
+    p.add_argument("--sun-reference", default=None, metavar="LON,LAT[,normal=AZ/EL][,reflectance=R|FILE.csv]",
+                   help="a white or grey target lit by the sun, where it is in the panorama (degrees; a negative "
+                        "longitude as --sun-reference=-20,-45); default a horizontal target of reflectance 0.95")
     p.add_argument("--min-confidence", type=float, default=None, help="with --registration paper: POC confidence "
                                                                       "below which the calibrated offset is used")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="Dask distributed scheduler address")

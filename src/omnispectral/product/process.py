@@ -208,15 +208,18 @@ def process(session: str | Path, output: str | Path, *, width: int | None = None
             interp: str | None = None, scheduler=None, workers: int | None = None, skip_bad: bool = False,
             min_confidence: float | None = None, hdr_weight: str = "noise", report: bool = True,
             progress: ProgressCallback | None = None, verify_checksums: bool = True, registration: str = "parallax",
-            rig_calibration: str | Path | None = None, overwrite: bool = False, sun: str = "auto") -> dict:
+            rig_calibration: str | Path | None = None, overwrite: bool = False, sun: str = "auto",
+            sun_reference=None) -> dict:
     """Run stages 1-4 (module docstring) and write ``product.json`` and, by default, the report.
 
     ``hdr_weight`` defaults to the inverse-variance weight: the paper's triangle weight lets 1-DN
     values of the shortest exposures bias dark regions upwards (+36 % at 360 DN in the longest
     exposure on the simulated rig; docs/benchmarks.md), which would show in the spectra.
 
-    ``sun`` chooses how the saturated sun is recovered (:mod:`omnispectral.product.sun`: ``auto``,
-    ``nd-bracket``, ``none``); the product records the method and ``sun.json``.
+    ``sun`` chooses how the saturated sun is recovered (:mod:`omnispectral.product.sun_methods`: ``auto``,
+    ``nd-bracket``, ``diffuse-reference`` with ``sun_reference`` (a
+    :class:`~omnispectral.product.sun_reference.SunReference`), ``sky-model``, ``none``); the product records
+    the method and ``sun.json``.
 
     ``progress(stage, done, total)`` is called as each stage advances (``merge``, ``parallax`` or
     ``merge + register``, then the mosaic's ``tiles`` and ``pyramid``); the command line draws it.
@@ -233,12 +236,13 @@ def process(session: str | Path, output: str | Path, *, width: int | None = None
                                scheduler=scheduler, workers=workers, skip_bad=skip_bad,
                                min_confidence=min_confidence, hdr_weight=hdr_weight, report=report,
                                progress=progress, verify_checksums=verify_checksums, registration=registration,
-                               rig_calibration=rig_calibration, overwrite=overwrite, sun_method=sun)
+                               rig_calibration=rig_calibration, overwrite=overwrite, sun_method=sun,
+                               sun_reference=sun_reference)
 
 
 def _process_locked(session_path: Path, paths: dict, calibration, *, width, tile, interp, scheduler, workers,
                     skip_bad, min_confidence, hdr_weight, report, progress, verify_checksums, registration,
-                    rig_calibration, overwrite, sun_method="auto") -> dict:
+                    rig_calibration, overwrite, sun_method="auto", sun_reference=None) -> dict:
     """:func:`process` while holding the product's lock."""
     clean_temp_files(paths["root"])
     timings: dict[str, float] = {}
@@ -279,7 +283,7 @@ def _process_locked(session_path: Path, paths: dict, calibration, *, width, tile
     t_sun = time.perf_counter()
     store = PanoramaStore.open(paths["panorama"])
     sun = recover_sun(s, {**models, **merged.cameras}, rig, list(merged.meta["band_names"]), sun_method,
-                      _stage(progress, "sun"), store)
+                      _stage(progress, "sun"), store, sun_reference)
     if sun.get("recovered"):
         sun["pixels"] = paint_sun(store, sun)
     store.update_attrs({"omnispectral": {**store.attrs()["omnispectral"], "sun": sun}})

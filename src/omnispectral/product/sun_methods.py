@@ -1,9 +1,14 @@
 """How the saturated sun is recovered: the methods in order of preference, and the choice among them.
 
-``nd-bracket`` (:mod:`omnispectral.product.sun`): the attenuated bracket the capture aimed at the sun, a
-measurement; ``sky-model`` (:mod:`omnispectral.product.sun_sky_model`): a published clear-sky model fitted
-to the panorama's sky, a model estimate; ``none``: the sun's pixels keep the shortest exposure's value, a
-lower bound, and every consumer says so.  ``auto`` takes the first that recovers the sun.
+- ``nd-bracket`` (:mod:`omnispectral.product.sun`): the attenuated bracket the capture aimed at the sun,
+  a measurement;
+- ``diffuse-reference`` (:mod:`omnispectral.product.sun_reference`): a white or grey target in the scene
+  lit by the sun, whose direction the user gives, a measurement;
+- ``sky-model`` (:mod:`omnispectral.product.sun_sky_model`): a published clear-sky model fitted to the
+  panorama's sky, a model estimate;
+- ``none``: the sun's pixels keep the shortest exposure's value, a lower bound, and every consumer says so.
+
+``auto`` takes the first that recovers the sun.
 """
 
 from __future__ import annotations
@@ -11,16 +16,17 @@ from __future__ import annotations
 from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.geometry import CameraModel
 from omnispectral.product.sun import recover_sun_nd, sun_lower_bound_note
+from omnispectral.product.sun_reference import SunReference, recover_sun_reference
 from omnispectral.product.sun_sky_model import recover_sun_sky_model
 
 #: Methods of :func:`recover_sun`: ``auto`` and the methods in order of preference.
-SUN_METHODS = ("auto", "nd-bracket", "sky-model", "none")
+SUN_METHODS = ("auto", "nd-bracket", "diffuse-reference", "sky-model", "none")
 
 
 def recover_sun(session, models: dict[str, CameraModel], rig, band_names: list[str], method: str = "auto",
-                progress=None, store=None) -> dict:
-    """The sun by ``method``; ``auto`` takes the attenuated bracket when the session has one, else the
-    clear-sky model fitted to the panorama's sky (``store``, unpainted; :mod:`omnispectral.product.sun_sky_model`,
+                progress=None, store=None, reference: SunReference | None = None) -> dict:
+    """The sun by ``method``; ``auto`` takes the attenuated bracket when the session has one, else the diffuse
+    ``reference`` when one is given, else the clear-sky model fitted to the panorama's sky (``store``, unpainted;
     a model estimate), else keeps the lower bound.
 
     Always returns a record: ``recovered`` says whether the panorama can hold the sun, ``method`` how.
@@ -33,6 +39,13 @@ def recover_sun(session, models: dict[str, CameraModel], rig, band_names: list[s
         if record is not None and (record.get("recovered") or method == "nd-bracket"):
             return record
         tried.append(record["note"] if record else "no attenuated sun bracket in the session")
+    if method == "diffuse-reference" and (reference is None or store is None):
+        raise ConfigurationError("--sun diffuse-reference needs --sun-reference LON,LAT (where the target is)")
+    if method in ("auto", "diffuse-reference") and reference is not None and store is not None:
+        record = recover_sun_reference(store, rig.system(), band_names, reference)
+        if record.get("recovered") or method == "diffuse-reference":
+            return record
+        tried.append(record.get("note", "the diffuse reference gave no sun"))
     if method in ("auto", "sky-model") and store is not None:
         record = recover_sun_sky_model(store, rig.system(), band_names)
         if record.get("recovered") or method == "sky-model":

@@ -2,7 +2,7 @@
 
 Every run simulates a session of the ``small`` preset with the procedural scene (its times of day and
 seeds are the registration matrix's, benchmarks/bench_registration_matrix.py: sun elevations from about
-5° to 75°), processes it with the default options (the sun from the attenuated bracket) and records:
+5° to 75°), processes it once per sun method (default: the attenuated bracket) and records:
 
 - the product's horizontal irradiance per band against the truth's (``ground_truth/bands.npy`` on the
   same grid, both integrated by :func:`omnispectral.product.irradiance.irradiance`), worst band;
@@ -10,8 +10,9 @@ seeds are the registration matrix's, benchmarks/bench_registration_matrix.py: su
 - the angle between the recovered and the true sun direction;
 - the sun stage's time and the whole processing time.
 
-    python benchmarks/bench_sun.py --out /tmp/sun                      # 9 times x 3 seeds
-    python benchmarks/bench_sun.py --times 06:30 12:30 --seeds 0 --out /tmp/sun
+    python benchmarks/bench_sun.py --out /tmp/sun                      # 9 times x 3 seeds, the ND bracket
+    python benchmarks/bench_sun.py --sun nd-bracket diffuse-reference sky-model --seeds 0 --out /tmp/sun
+        # every method on the same frames (the white target's place from the scene, as a user would note it)
 
 One JSON line per run in OUT/results.jsonl (resumable), a Markdown table on stdout and in OUT/table.md,
 with the machine's load average per run.
@@ -36,6 +37,7 @@ from omnispectral.capture.simulate import simulate_session
 from omnispectral.mosaic.store import PanoramaStore
 from omnispectral.product.irradiance import irradiance
 from omnispectral.product.process import process
+from omnispectral.product.sun_reference import SunReference
 from omnispectral.rig import load_preset
 from omnispectral.spectral.metrics import nrmse
 
@@ -70,22 +72,28 @@ def score(session: Path, product: Path) -> dict:
     return out
 
 
-def run_one(work: Path, time_hhmm: str, seed: int, sun_method: str) -> dict:
-    """Simulate one session, process it, score it."""
+def run_one(work: Path, time_hhmm: str, seed: int, methods: list[str]) -> list[dict]:
+    """Simulate one session, process it once per sun method, score each product."""
     shutil.rmtree(work, ignore_errors=True)
     h, m = (int(x) for x in time_hhmm.split(":"))
     start = dt.datetime(2026, 3, 21, h, m, tzinfo=dt.UTC)
     scene = ProceduralOutdoorScene(time_hhmm, seed=seed)
     t0 = time.perf_counter()
     simulate_session(work / "session", load_preset("small"), scene, start=start, seed=seed, progress=False)
-    t1 = time.perf_counter()
-    index = process(work / "session", work / "product", progress=False, sun=sun_method)
-    t2 = time.perf_counter()
-    row = {"time": time_hhmm, "seed": seed, "sun_method": sun_method, **score(work / "session", work / "product"),
-           "sun_s": index["timings_s"].get("sun"), "process_s": t2 - t1, "simulate_s": t1 - t0,
-           "load_avg": os.getloadavg()[0]}
+    simulate_s = time.perf_counter() - t0
+    # where the user put the white target (the scene's description stands in for the user's notes)
+    reference = SunReference.from_dict(scene.describe()["reference"])
+    rows = []
+    for method in methods:
+        t1 = time.perf_counter()
+        index = process(work / "session", work / method, progress=False, sun=method,
+                        sun_reference=reference if method == "diffuse-reference" else None)
+        rows.append({"time": time_hhmm, "seed": seed, "sun_method": method,
+                     **score(work / "session", work / method), "sun_s": index["timings_s"].get("sun"),
+                     "process_s": time.perf_counter() - t1, "simulate_s": simulate_s,
+                     "load_avg": os.getloadavg()[0]})
     shutil.rmtree(work, ignore_errors=True)
-    return row
+    return rows
 
 
 def table(rows: list[dict]) -> str:
@@ -110,25 +118,29 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--times", nargs="+", default=list(TIMES))
     ap.add_argument("--seeds", nargs="+", type=int, default=list(SEEDS))
-    ap.add_argument("--sun", default="auto", help="process --sun method")
+    ap.add_argument("--sun", nargs="+", default=["nd-bracket"], help="process --sun methods (each on the same frames)")
     ap.add_argument("--out", type=Path, default=Path("/tmp/omnispectral-bench-sun"))
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     results = args.out / "results.jsonl"
     done = {(r["time"], r["seed"], r["sun_method"]): r for r in map(json.loads, results.read_text().splitlines())} \
         if results.exists() else {}
-    rows = []
     for t in args.times:
         for s in args.seeds:
-            key = (t, s, args.sun)
-            if key not in done:
-                done[key] = run_one(args.out / "work", t, s, args.sun)
+            todo = [m for m in args.sun if (t, s, m) not in done]
+            if not todo:
+                continue
+            for row in run_one(args.out / "work", t, s, todo):
+                done[(t, s, row["sun_method"])] = row
                 with open(results, "a", encoding="utf-8") as fh:
-                    fh.write(json.dumps(done[key]) + "\n")
-                print(f"{t} seed {s}: worst ratio {done[key]['worst_ratio']:.4f}", flush=True)
-            rows.append(done[key])
-    text = table(rows)
-    (args.out / "table.md").write_text(text + "\n", encoding="utf-8")
+                    fh.write(json.dumps(row) + "\n")
+                print(f"{t} seed {s} {row['sun_method']}: worst ratio {row['worst_ratio']:.4f}", flush=True)
+    texts = []
+    for m in args.sun:
+        rows = [done[(t, s, m)] for t in args.times for s in args.seeds if (t, s, m) in done]
+        texts.append(f"### {m}\n\n{table(rows)}\n")
+    text = "\n".join(texts)
+    (args.out / "table.md").write_text(text, encoding="utf-8")
     print(text)
 
 

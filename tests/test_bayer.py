@@ -143,7 +143,8 @@ def test_cli_simulate_raw_bayer_then_process(tmp_path, capsys):
     assert main(["process", str(tmp_path / "s"), "-o", str(tmp_path / "p"), "--registration", "paper",
                  "--json"]) == 0
     index = json.loads(capsys.readouterr().out)
-    assert index["bands"] == ["A:R", "A:G", "A:B", "B:R", "B:G", "B:B"] and index["session_check"]["n_ok"] == 144
+    # 144 regular frames and the sun bracket's 8
+    assert index["bands"] == ["A:R", "A:G", "A:B", "B:R", "B:G", "B:B"] and index["session_check"]["n_ok"] == 152
 
 
 @pytest.mark.slow

@@ -35,8 +35,13 @@ TESTS = os.path.dirname(os.path.abspath(__file__))
 SRC = str(Path(TESTS).parent / "src")
 
 
+#: Frames of a tiny session at noon: 12 directions x 6 exposures x 2 cameras, and one sun bracket of 4
+#: attenuated exposures x 2 cameras.
+TINY_FRAMES = 144 + 8
+
+
 def tiny_rig(width_px: int = 96, height_px: int = 52):
-    """The ``small`` preset reduced to 12 directions × 6 exposures of 96 × 52 px (144 frames)."""
+    """The ``small`` preset reduced to 12 directions × 6 exposures of 96 × 52 px (144 regular frames)."""
     text = load_preset("small").toml_text
     for old, new in (("width_px = 256", f"width_px = {width_px}"), ("height_px = 136", f"height_px = {height_px}"),
                      ("count = 15", "count = 6"), ("shortest_s = 0.000015", "shortest_s = 0.0002"),
@@ -180,7 +185,7 @@ def test_case02_resume_with_other_parameters_is_refused(session, change, message
     n_before = len(read_journal(session / "journal.jsonl").records)
     with pytest.raises(InputFileError, match=message):
         simulate_tiny(session, **kwargs)
-    assert len(read_journal(session / "journal.jsonl").records) == n_before == 144
+    assert len(read_journal(session / "journal.jsonl").records) == n_before == TINY_FRAMES
 
 
 # ------------------------------------------------------------------ 3. concurrent runs
@@ -244,11 +249,11 @@ def test_case03_two_simultaneous_simulations_never_duplicate_frames(tmp_path):
     codes = [p.returncode for p in procs]
     written = sum(json.loads(o)["n_written"] for (o, _), c in zip(outs, codes, strict=True) if c == 0)
     refused = [e for (_, e), c in zip(outs, codes, strict=True) if c != 0]
-    assert written == 144  # every frame written exactly once, by one of them
+    assert written == TINY_FRAMES  # every frame written exactly once, by one of them
     assert all("in use by pid" in e and "Traceback" not in e for e in refused)
     lines = (tmp_path / "s" / "journal.jsonl").read_text().splitlines()
     keys = [(r["direction"], r["camera"], r["exposure_index"]) for r in map(json.loads, lines)]
-    assert len(keys) == len(set(keys)) == 144
+    assert len(keys) == len(set(keys)) == TINY_FRAMES
     assert verify_session(tmp_path / "s")["complete"]
 
 

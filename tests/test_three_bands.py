@@ -173,7 +173,7 @@ def test_cli_simulate_one_camera_writes_a_three_band_session_and_truth(tmp_path,
     assert main(["simulate", "--rig", str(tmp_path / "tiny.toml"), "--one-camera", "--gt-width", "64",
                  "-o", str(tmp_path / "s"), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["n_written"] == 12 * 6 and out["rig"] == "small-A"
+    assert out["n_written"] == 12 * 6 + 4 and out["rig"] == "small-A"  # + the sun bracket's 4 exposures
     s = Session.open(tmp_path / "s")
     assert s.cameras() == ("A",) and not list((tmp_path / "s" / "frames").rglob("B_*.tif"))
     gt = json.loads((tmp_path / "s" / "ground_truth" / "ground_truth.json").read_text())

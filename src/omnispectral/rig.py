@@ -206,6 +206,9 @@ class BracketSpec:
 #: Exposure index of the first frame of a direction's sun bracket (its files are ``A_e100.tif`` …): far from
 #: any regular bracket (at most 64 exposures), so the two never share a key in the journal.
 SUN_EXPOSURE_BASE = 100
+#: Sun brackets a capture may shoot: the one aimed at the sun and its retries for camera B
+#: (``omnispectral.capture.run.SUN_RETRY_PAN_FRACTIONS``); their direction indices follow the grid's.
+MAX_SUN_BRACKETS = 3
 #: Neutral-density filter of the presets' sun bracket (Kodak Wratten No. 96 at optical density 3.0).
 DEFAULT_SUN_FILTER = "wratten-96-nd3"
 

@@ -66,7 +66,8 @@ def run_demo(out: str | Path, *, full: bool = False, time_hhmm: str = "12:00", s
     summary = {"accuracy": report["accuracy"], "timings_s": report["timings_s"], "simulation_s": sim["wall_s"],
                "total_s": time.perf_counter() - t0, "panorama": [index["width"], index["height"]],
                "session": str(out / "session"), "product": str(out / "product"),
-               "report_html": str(report_dir / "report.html"), "exports": exports}
+               "report_html": str(report_dir / "report.html"), "exports": exports, "sun": index.get("sun"),
+               "irradiance": report.get("irradiance")}
     accuracy = dict(report["accuracy"])
     if accuracy.get("colorchecker"):  # the summary keeps the numbers, the product's report keeps the spectra
         accuracy["colorchecker"] = {k: v for k, v in accuracy["colorchecker"].items()

@@ -23,18 +23,41 @@ from omnispectral.capture.session import FRAME_NAME, Session, read_journal, reco
 from omnispectral.errors import InputFileError
 from omnispectral.io import atomic_write_text, clean_temp_files
 from omnispectral.locking import directory_lock
+from omnispectral.rig import MAX_SUN_BRACKETS, SUN_EXPOSURE_BASE
+
+
+def sun_bracket_order(plan, cameras: tuple[str, ...]) -> list[tuple[int, str, int]]:
+    """Every frame key the sun brackets may have, in capture order: the aimed pose and its retries
+    (direction indices from ``plan.n_directions``, ``omnispectral.capture.run``), exposure, camera."""
+    if not plan.sun_bracket:
+        return []
+    n = len(plan.sun_bracket["exposures_s"])
+    return [(plan.n_directions + i, c, SUN_EXPOSURE_BASE + k) for i in range(MAX_SUN_BRACKETS) for k in range(n)
+            for c in cameras]
 
 
 def capture_order(session: Session) -> dict[tuple[int, str, int], int]:
-    """Position of every planned frame in the capture loop's order (direction, exposure, camera)."""
+    """Position of every planned frame in the capture loop's order (direction, exposure, camera), the sun
+    brackets right after the direction that found the sun (its ``sun`` event; at the end when unknown)."""
     plan = session.plan()
     cameras = session.cameras()
+    sun_keys = sun_bracket_order(plan, cameras)
+    source = next((e.get("source_direction") for e in session.events()
+                   if e.get("event") == "sun" and e.get("source_direction") is not None), None)
     order, n = {}, 0
     for d in plan.directions:
         for k in range(len(plan.exposures_s)):
             for c in cameras:
                 order[(d.index, c, k)] = n
                 n += 1
+        if d.index == source:
+            for key in sun_keys:
+                order[key] = n
+                n += 1
+    for key in sun_keys:
+        if key not in order:
+            order[key] = n
+            n += 1
     return order
 
 

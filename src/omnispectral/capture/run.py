@@ -32,7 +32,7 @@ from omnispectral.errors import OmnispectralError
 from omnispectral.imaging.geometry import ray_to_lonlat
 from omnispectral.io import clean_temp_files
 from omnispectral.locking import directory_lock
-from omnispectral.rig import SUN_EXPOSURE_BASE
+from omnispectral.rig import MAX_SUN_BRACKETS, SUN_EXPOSURE_BASE
 
 
 @dataclass
@@ -150,6 +150,7 @@ def shortest_frame(session: Session, plan: Plan, direction: int,
 #: whole from the aimed pose (a near object hiding it from B's viewpoint only): each moves B's centre around
 #: the pan axis while the sun stays in both frames.
 SUN_RETRY_PAN_FRACTIONS = (-0.3, 0.3)
+assert len(SUN_RETRY_PAN_FRACTIONS) + 1 == MAX_SUN_BRACKETS
 
 
 def sun_poses(first: Direction, pan_fov_deg: float) -> list[Direction]:

@@ -62,7 +62,7 @@ def frame_relpath(direction: int, camera: str, exposure_index: int) -> str:
 
 
 #: A final frame name inside ``frames/`` (temporary files never match it).
-FRAME_NAME = re.compile(r"^d(\d{4})/([AB])_e(\d{2})\.tif$")
+FRAME_NAME = re.compile(r"^d(\d{4,})/([AB])_e(\d{2,3})\.tif$")
 
 
 def half_created_leftovers(path: Path) -> list[Path] | None:

@@ -81,6 +81,18 @@ def _print_sun(sun: dict) -> None:
         console.print(f"[yellow]sun:[/yellow] {escape(sun['note'])}")
 
 
+def _print_irradiance(irr: dict) -> None:
+    """The panorama's horizontal irradiance against the truth's (simulated sessions), and the sun's share."""
+    ratio = irr.get("ratio_to_truth")
+    if not ratio:
+        return
+    worst = irr["worst_band"]
+    share = irr.get("sun_fraction")
+    console.print(f"Horizontal irradiance of the panorama / the truth's: {min(ratio):.3f}–{max(ratio):.3f} over the "
+                  f"bands (worst {worst['name']} {worst['ratio_to_truth']:.3f})"
+                  + (f"; the sun carries {100 * min(share):.0f}–{100 * max(share):.0f} % of it." if share else "."))
+
+
 def cmd_spectrum(args) -> int:
     out = spectrum_at(args.product, args.lon, args.lat, level=args.level)
     if args.json:
@@ -176,6 +188,8 @@ def cmd_demo(args) -> int:
     with ProgressBars() as bars:
         summary = run_demo(out, full=args.full, time_hhmm=args.time, seed=args.seed, on_step=step, progress=bars)
     _print_accuracy(summary["accuracy"])
+    _print_sun(summary.get("sun") or {})
+    _print_irradiance(summary.get("irradiance") or {})
     console.print(f"Done in {summary['total_s']:.0f} s. Everything is in {out}/:")
     for label, path in (("session (raw frames, journal, ground truth)", summary["session"]),
                         ("product (six-band Zarr panorama + estimator)", summary["product"]),

@@ -35,7 +35,7 @@ from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.bracket import FLOAT_IMAGE_SUFFIXES, write_float_image
 from omnispectral.io import atomic_path
 from omnispectral.product.layout import open_product
-from omnispectral.product.saturation import saturated_mask, saturation_level_dn_s
+from omnispectral.product.saturation import recovered_sun_mask, saturated_mask, saturation_level_dn_s
 from omnispectral.product.spectra import SunOverlay, bands_to_linear_srgb, estimate_image
 from omnispectral.spectral.colour import spectra_to_linear_srgb, srgb_encode
 
@@ -267,21 +267,24 @@ CLIPPED_ESTIMATE_FRACTION = 0.1
 
 def _write_saturation_mask(output: Path, store, level: int, bands: np.ndarray, origin: tuple[int, int],
                            spectra: np.ndarray) -> dict:
-    """``OUTPUT_saturated.png`` beside an export: 255 where saturated in every exposure (a lower bound), 128
-    where not saturated but the estimate went negative by more than ``CLIPPED_ESTIMATE_FRACTION`` of its
-    peak before it was clipped to 0 (bands no spectrum explains: around the sun, where one camera clipped or
-    the views disagree); what was found."""
+    """``OUTPUT_saturated.png`` beside an export: 255 where saturated in every exposure (a lower bound), 64
+    where the pixel holds the recovered sun (:mod:`omnispectral.product.sun`: measured or, with the sky
+    model, estimated), 128 where not saturated but the estimate went negative by more than
+    ``CLIPPED_ESTIMATE_FRACTION`` of its peak before it was clipped to 0 (bands no spectrum explains: around
+    the sun, where one camera clipped or the views disagree); what was found."""
     finite = np.isfinite(spectra).all(axis=2)
     values = np.where(finite[..., None], spectra, 0.0)  # uncovered pixels (NaN) are not clipped estimates
     clipped = finite & (-values.min(axis=2) > CLIPPED_ESTIMATE_FRACTION * np.abs(values).max(axis=2))
     clip = saturation_level_dn_s(store.attrs())
     sat = saturated_mask(store, level, bands, clip, origin) if clip is not None else np.zeros_like(clipped)
-    mask = np.where(sat, 255, np.where(clipped, 128, 0)).astype(np.uint8)
+    sun = recovered_sun_mask(store.attrs(), level, sat.shape, origin, tuple(store.shapes[0]))
+    mask = np.where(sat, 255, np.where(sun, 64, np.where(clipped, 128, 0))).astype(np.uint8)
     path = output.with_name(f"{output.stem}_saturated.png")
     with atomic_path(path) as tmp:
         if not cv2.imwrite(str(tmp), mask):
             raise ConfigurationError(f"{path}: OpenCV cannot write the saturation mask")
-    out = {"mask": str(path), "saturated_px": int(sat.sum()), "clipped_estimate_px": int((clipped & ~sat).sum()),
+    out = {"mask": str(path), "saturated_px": int(sat.sum()), "recovered_sun_px": int((sun & ~sat).sum()),
+           "clipped_estimate_px": int((clipped & ~sat & ~sun).sum()),
            "known": clip is not None, "level_dn_s": clip}
     if clip is None:
         out["reason"] = "the product has no rig snapshot saying where clipping starts: only clipped estimates marked"

@@ -61,14 +61,9 @@ SUN_FILE = "sun.json"
 
 
 # ------------------------------------------------------------------------------------------ basis
-def daylight_basis(wavelength_nm, n_components: int = 4) -> np.ndarray:
-    """Principal spectral components ``(n, k)`` of daylight and of the low sun.
-
-    The set: CIE D-series daylight from 4000 K to 25000 K (CIE 015:2018) and Planckian radiators from
-    2000 K to 4000 K (the reddened sun near the horizon), each at unit norm; the first ``k`` right singular
-    vectors (no centring: the mean is the first vector).  Four components reproduce every member to
-    < 0.3 % (unit-norm RMS).
-    """
+def daylight_set(wavelength_nm) -> np.ndarray:
+    """Daylight and low-sun spectra at unit norm ``(N, n)``: CIE D-series daylight from 4000 K to 25000 K
+    (CIE 015:2018) and Planckian radiators from 2000 K to 4000 K (the reddened sun near the horizon)."""
     wl = np.asarray(wavelength_nm, np.float64)
     rows = []
     for cct in np.geomspace(4000.0, 24900.0, 24):
@@ -78,23 +73,51 @@ def daylight_basis(wavelength_nm, n_components: int = 4) -> np.ndarray:
         sd = colour.sd_blackbody(float(cct), colour.SpectralShape(float(wl.min()), float(wl.max()), 1.0))
         rows.append(np.interp(wl, sd.wavelengths, sd.values))
     a = np.array(rows)
-    a /= np.linalg.norm(a, axis=1, keepdims=True)
-    _, _, vt = np.linalg.svd(a, full_matrices=False)
+    return a / np.linalg.norm(a, axis=1, keepdims=True)
+
+
+def daylight_basis(wavelength_nm, n_components: int = 4) -> np.ndarray:
+    """Principal spectral components ``(n, k)`` of :func:`daylight_set`: the first ``k`` right singular
+    vectors (no centring: the mean is the first vector).  Four components reproduce every member to
+    < 0.3 % (unit-norm RMS)."""
+    _, _, vt = np.linalg.svd(daylight_set(wavelength_nm), full_matrices=False)
     return vt[:n_components].T
 
 
-def fit_spectrum(bands: np.ndarray, band_var: np.ndarray, matrix: np.ndarray,
-                 basis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def daylight_prior(wavelength_nm, n_components: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and standard deviation ``(k,)`` of each basis coefficient relative to the first one over
+    :func:`daylight_set` (the first: 1 and 0): the shape prior of :func:`fit_spectrum`."""
+    basis = daylight_basis(wavelength_nm, n_components)
+    c = daylight_set(wavelength_nm) @ basis
+    r = c / c[:, :1]
+    return r.mean(axis=0), r.std(axis=0)
+
+
+def fit_spectrum(bands: np.ndarray, band_var: np.ndarray, matrix: np.ndarray, basis: np.ndarray,
+                 prior: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Spectrum ``s = B x`` with ``matrix @ s ≈ bands``, by least squares weighted by ``1 / band_var``.
 
-    Returns the spectrum ``(n,)`` and its standard deviation ``(n,)`` (from the coefficients' covariance
-    ``(Aᵀ W A)⁻¹``, ``A = matrix @ B``).
+    With a ``prior`` (:func:`daylight_prior`: each coefficient ``x_j ≈ m_j x_0 ± σ_j x_0``) the fit is the
+    maximum a posteriori estimate under that Gaussian shape prior, the scale ``x_0`` free (two rounds, the
+    prior's width set from the previous round's ``x_0``): it decides what few bands cannot, e.g. the sun
+    seen by one camera only.  Returns the spectrum ``(n,)`` and its standard deviation ``(n,)`` (from the
+    coefficients' posterior covariance, ``(Aᵀ W A + P)⁻¹``, ``A = matrix @ B``).
     """
     a = matrix @ basis
     w = 1.0 / np.maximum(band_var, 1e-30 + 1e-12 * np.max(band_var))
     normal = a.T @ (a * w[:, None])
     cov = np.linalg.pinv(normal)
     x = cov @ (a.T @ (w * bands))
+    for _ in range(2 if prior is not None else 0):
+        mean, std = prior
+        k = basis.shape[1]
+        rows = np.zeros((k - 1, k))
+        rows[:, 0] = -mean[1:]
+        rows[np.arange(k - 1), np.arange(1, k)] = 1.0
+        scale = max(abs(float(x[0])), 1e-30)
+        pw = 1.0 / (np.maximum(std[1:], 1e-6) * scale) ** 2
+        cov = np.linalg.pinv(normal + rows.T @ (rows * pw[:, None]))
+        x = cov @ (a.T @ (w * bands))
     spectrum = basis @ x
     std = np.sqrt(np.maximum(np.einsum("ij,jk,ik->i", basis, cov, basis), 0.0))
     return spectrum, std
@@ -232,10 +255,11 @@ def sun_from_images(images: list[SunImage], system, filter_name: str, band_names
     bands, var = np.concatenate(bands), np.concatenate(var)
     wl = np.asarray(system.wavelength_nm, np.float64)
     m_nd = filter_matrix(np.asarray(system.matrix, np.float64), wl, filter_name)[rows]
-    # four daylight components from six bands, three from one camera's (on 44 measured daylight spectra the
-    # other camera's bands then come out 2 % off in the median, against 10 % with two components)
-    n_components = 4 if len(rows) >= 6 else len(rows)
-    spectrum_irr, std_irr = fit_spectrum(bands, var, m_nd, daylight_basis(wl, n_components))
+    # four daylight components under the daylight shape prior: it decides what one camera's three bands
+    # cannot when the other camera did not see the sun (docs/benchmarks.md, "The sun across the day")
+    n_components = 4
+    spectrum_irr, std_irr = fit_spectrum(bands, var, m_nd, daylight_basis(wl, n_components),
+                                         daylight_prior(wl, n_components))
     omega = cap_solid_angle_sr(sun_radius_rad)
     band_irr = np.asarray(system.matrix, np.float64) @ spectrum_irr
     # every image of camera A (the reference geometry) votes for the direction; B's agree at infinity

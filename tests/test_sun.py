@@ -95,3 +95,32 @@ def test_measured_daylight_spectra_come_back_from_six_filtered_bands(shared_data
         assert np.all(std > 0)
     assert len(errors) == 44
     assert max(errors) <= 0.02, f"worst NRMSE {max(errors):.4f}"
+
+
+@pytest.mark.slow
+def test_a_low_sun_is_recovered_by_the_bracket_and_by_the_white_plate(tmp_path):
+    """17:00 (sun at 9.6°), seed 1: both measuring methods put the panorama's horizontal irradiance within
+    5 % of the truth's in every band (docs/benchmarks.md, "The sun across the day", for the whole matrix)."""
+    import datetime as dt
+
+    from omnispectral.capture.scenes import ProceduralOutdoorScene
+    from omnispectral.capture.simulate import simulate_session
+    from omnispectral.mosaic.store import PanoramaStore
+    from omnispectral.product.irradiance import irradiance
+    from omnispectral.product.process import process
+    from omnispectral.product.sun_reference import SunReference
+
+    scene = ProceduralOutdoorScene("17:00", seed=1)
+    simulate_session(tmp_path / "s", load_preset("small"), scene, seed=1, progress=False,
+                     start=dt.datetime(2026, 3, 21, 17, 0, tzinfo=dt.UTC))
+    truth = irradiance(np.load(tmp_path / "s" / "ground_truth" / "bands.npy", mmap_mode="r")).band_irradiance_dn_s_sr
+    reference = SunReference.from_dict(scene.describe()["reference"])  # where the user put the plate
+    for method in ("nd-bracket", "diffuse-reference"):
+        index = process(tmp_path / "s", tmp_path / method, progress=False, sun=method, sun_reference=reference,
+                        report=False)
+        assert index["sun"]["recovered"] and index["sun"]["method"] == method
+        ratio = irradiance(PanoramaStore.open(tmp_path / method / "panorama.zarr")).band_irradiance_dn_s_sr / truth
+        assert np.all(np.abs(ratio - 1) <= 0.05), (method, ratio)
+    none = process(tmp_path / "s", tmp_path / "none", progress=False, sun="none", report=False)
+    ratio = irradiance(PanoramaStore.open(tmp_path / "none" / "panorama.zarr")).band_irradiance_dn_s_sr / truth
+    assert not none["sun"]["recovered"] and np.all(ratio < 0.9)  # the lower bound misses the direct light

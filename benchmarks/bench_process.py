@@ -34,6 +34,7 @@ def main() -> None:
     ap.add_argument("--width", type=int, default=7260)
     ap.add_argument("--keep", action="store_true", help="keep the product")
     ap.add_argument("--report", action="store_true", help="also write the report (accuracy at full size)")
+    ap.add_argument("--sun", default="auto", help="process --sun method (default auto: the attenuated bracket)")
     ap.add_argument("--rig-calibration", default=None, metavar="FILE.json",
                     help="camera B's mounting from this file (e.g. calibrate rig --chessboard) instead of fitted")
     args = ap.parse_args()
@@ -42,11 +43,12 @@ def main() -> None:
         shutil.rmtree(out)
     t0 = time.perf_counter()
     index = process(args.session, out, width=args.width, report=args.report, progress=stage_progress,
-                    rig_calibration=args.rig_calibration)
+                    rig_calibration=args.rig_calibration, sun=args.sun)
     wall = time.perf_counter() - t0
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
     print(json.dumps({"wall_s": round(wall, 1), "peak_rss_gib": round(rss, 2), "size": [index["width"],
-                      index["height"]], "timings_s": {k: round(v, 1) for k, v in index["timings_s"].items()}},
+                      index["height"]], "timings_s": {k: round(v, 1) for k, v in index["timings_s"].items()},
+                      "sun": index.get("sun")},
                      indent=1))
     if not args.keep:
         shutil.rmtree(out, ignore_errors=True)

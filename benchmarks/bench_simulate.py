@@ -14,6 +14,7 @@ import argparse
 import datetime as dt
 import resource
 import shutil
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -21,6 +22,12 @@ from pathlib import Path
 from omnispectral.capture.scenes import ProceduralOutdoorScene
 from omnispectral.capture.simulate import simulate_session
 from omnispectral.rig import load_preset
+
+
+def frame_progress(stage: str, done: int, total: int) -> None:
+    """Progress on stderr every 100 frames."""
+    if done % 100 == 0 or done == total:
+        print(f"{time.strftime('%H:%M:%S')} {stage}: {done}/{total}", file=sys.stderr, flush=True)
 
 
 def main() -> None:
@@ -33,7 +40,7 @@ def main() -> None:
     try:
         t0 = time.perf_counter()
         out = simulate_session(work / "session", rig, ProceduralOutdoorScene(time_hhmm="12:00"),
-                               start=dt.datetime(2017, 6, 21, 12, 0, tzinfo=dt.UTC), progress=True)
+                               start=dt.datetime(2017, 6, 21, 12, 0, tzinfo=dt.UTC), progress=frame_progress)
         wall = time.perf_counter() - t0
         size = sum(p.stat().st_size for p in (work / "session").rglob("*") if p.is_file())
         rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -124,3 +126,10 @@ def test_a_low_sun_is_recovered_by_the_bracket_and_by_the_white_plate(tmp_path):
     none = process(tmp_path / "s", tmp_path / "none", progress=False, sun="none", report=False)
     ratio = irradiance(PanoramaStore.open(tmp_path / "none" / "panorama.zarr")).band_irradiance_dn_s_sr / truth
     assert not none["sun"]["recovered"] and np.all(ratio < 0.9)  # the lower bound misses the direct light
+    # a probe at the sun says which it is
+    from omnispectral.product.spectra import spectrum_at
+
+    sun = json.loads((tmp_path / "nd-bracket" / "sun.json").read_text())
+    assert spectrum_at(tmp_path / "nd-bracket", sun["lon_deg"], sun["lat_deg"])["sun"] == "recovered"
+    probe = spectrum_at(tmp_path / "none", sun["lon_deg"], sun["lat_deg"])
+    assert probe["sun"] == "lower bound" and "lower bound" in probe["warning"]

@@ -106,6 +106,8 @@ def cmd_spectrum(args) -> int:
     console.print(f"lon {out['lon_deg']:.3f}°, lat {out['lat_deg']:.3f}° (pixel {out['pixel'][0]:.1f}, "
                   f"{out['pixel'][1]:.1f} of level {out['level']}); bands "
                   + ", ".join(f"{k} {v:.4g}" for k, v in out["bands"].items()))
+    if out.get("warning"):
+        console.print(f"[yellow]warning:[/yellow] {escape(out['warning'])}")
     t = Table(title=f"Estimated spectrum ({out['units']})")
     for col in ("λ (nm)", "value", "± std"):
         t.add_column(col, justify="right")

@@ -22,7 +22,7 @@ import numpy as np
 from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.geometry import lonlat_to_equirect_pixel
 from omnispectral.product.layout import open_product
-from omnispectral.product.saturation import recovered_sun_mask
+from omnispectral.product.saturation import recovered_sun_mask, saturated_mask, saturation_level_dn_s
 from omnispectral.spectral.colour import spectra_to_linear_srgb, spectra_to_xyz, xyz_to_linear_srgb
 
 
@@ -120,6 +120,19 @@ def estimate_image(bands: np.ndarray, estimator, with_std: bool = False, sun: Su
     return spectra.reshape(h, w, -1), std.reshape(h, w, -1)
 
 
+def sun_state(store, level: int, patch: np.ndarray, origin: tuple[int, int], recovered: bool) -> dict:
+    """What a probe at the sun says: ``sun`` is ``"recovered"`` (the disk's share is the measured or modelled
+    sun, :mod:`omnispectral.product.sun`), ``"lower bound"`` (clipped in every exposure and not recovered:
+    ``warning``) or absent."""
+    if recovered:
+        return {"sun": "recovered"}
+    level_dn_s = saturation_level_dn_s(store.attrs())
+    if level_dn_s is None or not saturated_mask(store, level, patch, level_dn_s, origin).any():
+        return {}
+    return {"sun": "lower bound", "warning": "the direction is clipped in every exposure (the sun) and the product "
+                                             "did not recover it: the values are a lower bound"}
+
+
 def spectrum_at(product: str | Path, lon_deg: float, lat_deg: float, level: int = 0) -> dict:
     """The six bands, estimated spectrum, its posterior std and colour at a direction (bilinear in the bands)."""
     return spectrum_in_store(*open_product(product), lon_deg, lat_deg, level=level)
@@ -153,6 +166,7 @@ def spectrum_in_store(index: dict, store, estimator, lon_deg: float, lat_deg: fl
         std = estimator.posterior_std(bands[None])[0]
     wl = np.asarray(estimator.wavelength_nm)
     return {"lon_deg": lon, "lat_deg": float(lat_deg), "level": level, "pixel": [float(col), float(row)],
+            **sun_state(store, level, patch, (r0, c0 % w), sun is not None),
             "units": index["units"] + " per unit of the system matrix (spectral radiance, relative)",
             "bands": dict(zip(index["bands"], map(float, bands), strict=True)),
             "wavelength_nm": wl.tolist(), "spectrum": spectrum.tolist(), "std": std.tolist(),

@@ -283,7 +283,7 @@ def _process_locked(session_path: Path, paths: dict, calibration, *, width, tile
     t_sun = time.perf_counter()
     store = PanoramaStore.open(paths["panorama"])
     sun = recover_sun(s, {**models, **merged.cameras}, rig, list(merged.meta["band_names"]), sun_method,
-                      _stage(progress, "sun"), store, sun_reference)
+                      _stage(progress, "sun"), store, sun_reference, merged)
     if sun.get("recovered"):
         sun["pixels"] = paint_sun(store, sun)
     store.update_attrs({"omnispectral": {**store.attrs()["omnispectral"], "sun": sun}})

@@ -47,7 +47,7 @@ from omnispectral.imaging.geometry import (
 )
 from omnispectral.imaging.hdr import merge_exposures
 from omnispectral.imaging.sundisk import cap_solid_angle_sr, equirect_disk_coverage, pixel_solid_angles_sr
-from omnispectral.product.saturation import clipped_mask, saturation_level_dn_s
+from omnispectral.product.saturation import SATURATION_FRACTION, clipped_mask, saturation_level_dn_s
 from omnispectral.rig import SUN_EXPOSURE_BASE
 from omnispectral.spectral.library import daylight_spd, load_filter
 
@@ -349,6 +349,48 @@ width); ``None`` when nothing clipped.  For the methods without an attenuated
     lon0, lat0 = ray_to_lonlat(centre / np.linalg.norm(centre))
     return {"lon_deg": float(lon0), "lat_deg": float(lat0), "n_clipped_px": int(pick.sum()),
             "rows": [int(rows.min()), int(rows.max()) + 1], "cols": [int(cols.min()), int(cols.max()) + 1]}
+
+
+def refine_clipped_direction(clipped: dict, merged, level_dn_s: float) -> dict:
+    """``clipped`` (:func:`clipped_sun_direction`) with its direction from camera A's merged images instead of
+    the panorama: in every direction whose image holds a clipped group away from the frame's edges, the
+    group's centroid through camera A's model; their mean.  The mosaic's resampling blurs the panorama's
+    clipped group; the native images do not, and several directions average their pixel phases (on the small
+    preset 0.011° from the true sun with 12 directions, 0.040° with two, against 0.060-0.069° from the
+    panorama).  Unchanged when no image qualifies."""
+    centre = lonlat_to_ray(clipped["lon_deg"], clipped["lat_deg"])
+    rays = []
+    for src in merged.sources():
+        if src.camera != "A":
+            continue
+        ray = _clipped_centroid_ray(src, merged, level_dn_s)
+        if ray is not None and float(ray @ centre) > math.cos(math.radians(2.0)):
+            rays.append(ray)
+    if not rays:
+        return clipped
+    mean = np.mean(rays, axis=0)
+    lon, lat = ray_to_lonlat(mean / np.linalg.norm(mean))
+    return {**clipped, "lon_deg": float(lon), "lat_deg": float(lat),
+            "direction_from": f"camera A's merged images ({len(rays)} directions)"}
+
+
+def _clipped_centroid_ray(src, merged, level_dn_s: float) -> np.ndarray | None:
+    """The world ray of the largest clipped group's centroid in one merged image, or ``None`` (nothing clipped,
+    or the group touches the frame's edge)."""
+    img = src.read()
+    clip = np.nan_to_num(img, nan=0.0).max(axis=2) >= SATURATION_FRACTION * level_dn_s
+    if not clip.any():
+        return None
+    labels, n = ndimage.label(clip, structure=np.ones((3, 3)))
+    sizes = ndimage.sum(clip, labels, range(1, n + 1))
+    rows, cols = np.nonzero(labels == int(np.argmax(sizes)) + 1)
+    h, w = clip.shape
+    if rows.min() == 0 or cols.min() == 0 or rows.max() == h - 1 or cols.max() == w - 1:
+        return None
+    d = next(x for x in merged.directions if int(x["index"]) == src.direction)
+    ray, _ = merged.cameras["A"].pixel_to_world(np.array([cols.mean(), rows.mean()]), float(d["pan_deg"]),
+                                                float(d["tilt_deg"]))
+    return ray / np.linalg.norm(ray)
 
 
 # ----------------------------------------------------------------------------------- painting

@@ -15,7 +15,13 @@ from __future__ import annotations
 
 from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.geometry import CameraModel
-from omnispectral.product.sun import recover_sun_nd, sun_lower_bound_note
+from omnispectral.product.saturation import saturation_level_dn_s
+from omnispectral.product.sun import (
+    clipped_sun_direction,
+    recover_sun_nd,
+    refine_clipped_direction,
+    sun_lower_bound_note,
+)
 from omnispectral.product.sun_reference import SunReference, recover_sun_reference
 from omnispectral.product.sun_sky_model import recover_sun_sky_model
 
@@ -24,10 +30,11 @@ SUN_METHODS = ("auto", "nd-bracket", "diffuse-reference", "sky-model", "none")
 
 
 def recover_sun(session, models: dict[str, CameraModel], rig, band_names: list[str], method: str = "auto",
-                progress=None, store=None, reference: SunReference | None = None) -> dict:
+                progress=None, store=None, reference: SunReference | None = None, merged=None) -> dict:
     """The sun by ``method``; ``auto`` takes the attenuated bracket when the session has one, else the diffuse
     ``reference`` when one is given, else the clear-sky model fitted to the panorama's sky (``store``, unpainted;
-    a model estimate), else keeps the lower bound.
+    a model estimate), else keeps the lower bound.  The last two find the clipped sun in the panorama, its
+    direction refined on the ``merged`` directions when given (:func:`refine_clipped_direction`).
 
     Always returns a record: ``recovered`` says whether the panorama can hold the sun, ``method`` how.
     """
@@ -39,15 +46,21 @@ def recover_sun(session, models: dict[str, CameraModel], rig, band_names: list[s
         if record is not None and (record.get("recovered") or method == "nd-bracket"):
             return record
         tried.append(record["note"] if record else "no attenuated sun bracket in the session")
+    clipped = None
+    if store is not None and method in ("auto", "diffuse-reference", "sky-model"):
+        clipped = clipped_sun_direction(store)
+        level = saturation_level_dn_s(store.attrs())
+        if clipped is not None and merged is not None and level is not None:
+            clipped = refine_clipped_direction(clipped, merged, level)
     if method == "diffuse-reference" and (reference is None or store is None):
         raise ConfigurationError("--sun diffuse-reference needs --sun-reference LON,LAT (where the target is)")
     if method in ("auto", "diffuse-reference") and reference is not None and store is not None:
-        record = recover_sun_reference(store, rig.system(), band_names, reference)
+        record = recover_sun_reference(store, rig.system(), band_names, reference, clipped=clipped)
         if record.get("recovered") or method == "diffuse-reference":
             return record
         tried.append(record.get("note", "the diffuse reference gave no sun"))
     if method in ("auto", "sky-model") and store is not None:
-        record = recover_sun_sky_model(store, rig.system(), band_names)
+        record = recover_sun_sky_model(store, rig.system(), band_names, clipped=clipped)
         if record.get("recovered") or method == "sky-model":
             return record
         tried.append(record.get("note", "the sky model did not fit"))

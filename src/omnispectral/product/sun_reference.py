@@ -354,7 +354,8 @@ def effective_reflectance(matrix: np.ndarray, reflectance: np.ndarray, spectrum:
 # ------------------------------------------------------------------------------------------ the sun
 def recover_sun_reference(store, system, band_names: list[str], reference: SunReference, *,
                           sky_rel_std: float = SKY_REL_STD, margin_px: int = MARGIN_PX, ring_px: int = RING_PX,
-                          n_passes: int = N_PASSES, direction_std_deg: float | None = None) -> dict:
+                          n_passes: int = N_PASSES, direction_std_deg: float | None = None,
+                          clipped: dict | None = None) -> dict:
     """The sun's record (as :func:`omnispectral.product.sun.recover_sun_nd`'s, ``"method": "diffuse-reference"``)
     from a diffuse reference target in the panorama ``store`` (module docstring).
 
@@ -386,6 +387,8 @@ def recover_sun_reference(store, system, band_names: list[str], reference: SunRe
         ``spectral_radiance``, ``spectral_radiance_std``, ``fit_relative_residual``, ``cos_incidence``,
         ``direction_std_deg``, ``reference``, ``target``, ``rest`` (the irradiance on the target's plane without
         the sun), ``effective_reflectance``, ``sun_term_snr``, ``warnings``; else a ``note`` saying why.
+    ``clipped`` is the clipped sun's record when the caller has it (e.g. refined on the merged images by
+    :func:`~omnispectral.product.sun.refine_clipped_direction`); default :func:`clipped_sun_direction`.
     """
     matrix = np.asarray(system.matrix, np.float64)
     wl = np.asarray(system.wavelength_nm, np.float64)
@@ -394,7 +397,7 @@ def recover_sun_reference(store, system, band_names: list[str], reference: SunRe
         raise ConfigurationError(f"the system has {m} bands, the panorama {store.n_bands}, band_names "
                                  f"{len(band_names)}")
     base = {"method": METHOD, "recovered": False, "reference": reference.to_dict()}
-    clipped = clipped_sun_direction(store)
+    clipped = clipped if clipped is not None else clipped_sun_direction(store)
     if clipped is None:
         return {**base, "note": "the panorama holds no clipped sun (nothing saturated in every exposure, or no rig "
                                 "snapshot giving the clipping level): nothing to recover"}

@@ -359,7 +359,7 @@ def refuse(note: str, **extra) -> dict:
     return {"method": METHOD, "recovered": False, "model_estimate": True, "note": note, **extra}
 
 
-def recover_sun_sky_model(store, system, band_names: list[str]) -> dict:
+def recover_sun_sky_model(store, system, band_names: list[str], clipped: dict | None = None) -> dict:
     """The sun estimated from the clear sky around it (module docstring): the ``nd-bracket`` record's fields with
     ``method: "sky-model"`` and ``model_estimate: True``, or ``recovered: False`` with a ``note``.
 
@@ -372,8 +372,11 @@ def recover_sun_sky_model(store, system, band_names: list[str]) -> dict:
         The rig's spectral system (``matrix`` ``(m, n)``, ``wavelength_nm``) for the panorama's ``band_names``.
     band_names : list of str
         The panorama's bands.
+    clipped : dict, optional
+        The clipped sun's record when the caller has it (e.g. refined on the merged images by
+        :func:`~omnispectral.product.sun.refine_clipped_direction`).
     """
-    found = clipped_sun_direction(store)
+    found = clipped if clipped is not None else clipped_sun_direction(store)
     if found is None:
         return refuse("no clipped sun in the panorama: nothing to estimate")
     lon, lat = found["lon_deg"], found["lat_deg"]

@@ -8,7 +8,9 @@ seeds are the registration matrix's, benchmarks/bench_registration_matrix.py: su
   same grid, both integrated by :func:`omnispectral.product.irradiance.irradiance`), worst band;
 - the sun's spectrum (unit-norm NRMSE) against the truth's sun spectrum (the scene's CIE D-series sun);
 - the angle between the recovered and the true sun direction;
-- the sun stage's time and the whole processing time.
+- the sun stage's time and the whole processing time;
+- with ``--render``, Fig. 16's mirror ball on a grey plate lit by the product against the same scene lit
+  by the truth's environment (the plate's worst block ratio per band).
 
     python benchmarks/bench_sun.py --out /tmp/sun                      # 9 times x 3 seeds, the ND bracket
     python benchmarks/bench_sun.py --sun nd-bracket diffuse-reference sky-model --seeds 0 --out /tmp/sun
@@ -72,7 +74,24 @@ def score(session: Path, product: Path) -> dict:
     return out
 
 
-def run_one(work: Path, time_hhmm: str, seed: int, methods: list[str]) -> list[dict]:
+def plate_ratio(session: Path, product: Path, size: int = 64, spp: int = 128) -> list[float]:
+    """Fig. 16's mirror ball on a grey plate lit by the product against the same scene lit by the truth's
+    environment: the worst (furthest from 1) ratio per band of the plate's block medians (four blocks)."""
+    from omnispectral.apps.environment import environment_from_bands, environment_from_product
+    from omnispectral.apps.render import MirrorBallScene, render_fast
+
+    env, est = environment_from_product(product)
+    truth_env = environment_from_bands(np.load(session / "ground_truth" / "bands.npy"), est, env.units)
+    ours = render_fast(env, est, MirrorBallScene(), size, size, spp=spp).bands
+    theirs = render_fast(truth_env, est, MirrorBallScene(), size, size, spp=spp).bands
+    plate = slice(int(0.8 * size), size)
+    ratios = np.array([np.median(ours[plate, c:c + size // 4].reshape(-1, ours.shape[2]), axis=0)
+                       / np.median(theirs[plate, c:c + size // 4].reshape(-1, ours.shape[2]), axis=0)
+                       for c in range(0, size, size // 4)])
+    return ratios[np.argmax(np.abs(ratios - 1), axis=0), np.arange(ratios.shape[1])].tolist()
+
+
+def run_one(work: Path, time_hhmm: str, seed: int, methods: list[str], render: bool = False) -> list[dict]:
     """Simulate one session, process it once per sun method, score each product."""
     shutil.rmtree(work, ignore_errors=True)
     h, m = (int(x) for x in time_hhmm.split(":"))
@@ -88,7 +107,8 @@ def run_one(work: Path, time_hhmm: str, seed: int, methods: list[str]) -> list[d
         t1 = time.perf_counter()
         index = process(work / "session", work / method, progress=False, sun=method,
                         sun_reference=reference if method == "diffuse-reference" else None)
-        rows.append({"time": time_hhmm, "seed": seed, "sun_method": method,
+        extra = {"render_plate_ratio": plate_ratio(work / "session", work / method)} if render else {}
+        rows.append({"time": time_hhmm, "seed": seed, "sun_method": method, **extra,
                      **score(work / "session", work / method), "sun_s": index["timings_s"].get("sun"),
                      "process_s": time.perf_counter() - t1, "simulate_s": simulate_s,
                      "load_avg": os.getloadavg()[0]})
@@ -120,6 +140,7 @@ def main() -> None:
     ap.add_argument("--seeds", nargs="+", type=int, default=list(SEEDS))
     ap.add_argument("--sun", nargs="+", default=["nd-bracket"], help="process --sun methods (each on the same frames)")
     ap.add_argument("--out", type=Path, default=Path("/tmp/omnispectral-bench-sun"))
+    ap.add_argument("--render", action="store_true", help="also render the mirror ball against the truth's")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     results = args.out / "results.jsonl"
@@ -130,11 +151,12 @@ def main() -> None:
             todo = [m for m in args.sun if (t, s, m) not in done]
             if not todo:
                 continue
-            for row in run_one(args.out / "work", t, s, todo):
+            for row in run_one(args.out / "work", t, s, todo, args.render):
                 done[(t, s, row["sun_method"])] = row
                 with open(results, "a", encoding="utf-8") as fh:
                     fh.write(json.dumps(row) + "\n")
-                print(f"{t} seed {s} {row['sun_method']}: worst ratio {row['worst_ratio']:.4f}", flush=True)
+                print(f"{t} seed {s} {row['sun_method']}: worst ratio {row['worst_ratio']:.4f}"
+                      + (f", plate {row['render_plate_ratio']}" if "render_plate_ratio" in row else ""), flush=True)
     texts = []
     for m in args.sun:
         rows = [done[(t, s, m)] for t in args.times for s in args.seeds if (t, s, m) in done]

@@ -65,8 +65,9 @@ DEFAULT_INTERP = "spline"
 #: Bands of a two-camera rig's panorama; a one-camera rig's has three (``MosaicJob.n_bands``).
 N_BANDS = 6
 #: Registration-quality layer of a panorama whose camera B carries parallax maps: blended registration
-#: confidence (0..1) and occluded (1 where every direction that sees the pixel with B has it hidden).
-N_QUALITY = 2
+#: confidence (0..1), occluded (1 where every direction that sees the pixel with B has it hidden) and sun
+#: (0 from the mosaic; 1 where processing painted the recovered sun, ``omnispectral.product.sun``).
+N_QUALITY = 3
 
 
 # ------------------------------------------------------------------------------------------ the job
@@ -285,6 +286,7 @@ def render_tile(job: MosaicJob, rect: Rect) -> tuple[np.ndarray, dict]:
         if quality is not None:
             stats_q = quality.result()
             stats_q[..., 1] = (stats_q[..., 1] > 0.5).astype(np.float32)
+            stats_q[..., 2] = np.where(np.isfinite(stats_q[..., 0]), np.float32(0.0), np.float32(np.nan))
             stats_quality = stats_q
     holes = int((~np.isfinite(out)).any(axis=-1).sum())
     stats = {"n_sources": len(steps), "holes": holes, "map_step_min": min(steps, default=0),

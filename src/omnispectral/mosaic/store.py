@@ -215,10 +215,12 @@ class PanoramaStore:
             group.create_array(QUALITY, shape=(quality_bands, *shapes[0]), chunks=(quality_bands, tile, tile),
                                dtype="float32", fill_value=np.nan, compressors=_compressors(compression),
                                dimension_names=DIMENSIONS, config={"write_empty_chunks": True})
-            attrs = {**attrs, "quality": {"array": QUALITY, "layers": ["registration_confidence", "occluded"],
+            layers = ["registration_confidence", "occluded", "sun"][:quality_bands]
+            attrs = {**attrs, "quality": {"array": QUALITY, "layers": layers,
                                           "description": "camera B's registration confidence (0..1, feather-"
-                                          "weighted over directions) and 1 where B's view of the pixel is "
-                                          "hidden by a nearer surface in every direction that sees it"}}
+                                          "weighted over directions), 1 where B's view of the pixel is "
+                                          "hidden by a nearer surface in every direction that sees it, and 1 "
+                                          "where the pixel holds the recovered sun"}}
         summary = {"format": FORMAT, "format_version": FORMAT_VERSION, "metadata": METADATA, "tile": tile,
                    "levels": [list(s) for s in shapes], "compression": compression,
                    **{k: attrs[k] for k in SUMMARY_KEYS if k in attrs}}
@@ -373,8 +375,21 @@ class PanoramaStore:
     def has_quality(self) -> bool:
         return (self.path / QUALITY / "zarr.json").is_file()
 
+    def write_quality_layer(self, layer: int, r0: int, cols: np.ndarray, values: np.ndarray) -> bool:
+        """Set one layer of the quality array in a window (rows from ``r0``, the given level-0 columns);
+        False when the store has no such layer."""
+        if not self.has_quality():
+            return False
+        q = self._quality("r+")
+        if q.shape[2] <= layer:
+            return False
+        for c, col in zip(np.asarray(cols), np.asarray(values, np.float32).T, strict=True):
+            q[r0:r0 + len(col), int(c):int(c) + 1, layer:layer + 1] = col[:, None, None]
+        return True
+
     def read_quality(self, rows: slice = slice(None), cols: slice = slice(None)) -> np.ndarray:
-        """The quality layer ``(h, w, 2)`` (registration confidence, occluded); NaN where not computed."""
+        """The quality layer ``(h, w, 3)`` (registration confidence, occluded, sun; two layers in products
+        made before the sun was recovered); NaN where not computed."""
         return np.asarray(self._quality()[rows, cols, :])
 
     def read(self, level: int = 0, rows: slice = slice(None), cols: slice = slice(None)) -> np.ndarray:

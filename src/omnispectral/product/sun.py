@@ -426,6 +426,9 @@ def paint_sun(store, sun: dict, margin_px: int = 2) -> dict:
     painted = bg[None, None, :] + coverage[..., None] * radiance[None, None, :]
     window[region] = painted[region]
     _write_level0_window(store, r0, cols, window)
+    quality = store.read_quality(slice(r0, r1))[:, cols] if store.has_quality() else None
+    if quality is not None and quality.shape[2] > 2:  # the quality layer's sun flag: 1 where painted
+        store.write_quality_layer(2, r0, cols, np.where(region, 1.0, quality[..., 2]))
     return {"row0": r0, "col0": int(c0 % w), "rows": int(r1 - r0), "cols": int(c1 - c0),
             "mask": region.astype(int).tolist(), "n_pixels": int(region.sum()),
             "background": bg.tolist()}

@@ -44,8 +44,8 @@ from omnispectral.product.spectra import linear_srgb_map
 MODES = ("colour", "band", "uncertainty", "registration")
 #: Colour of occluded pixels in the ``registration`` mode.
 OCCLUDED_RGB = (230, 30, 30)
-#: The recovered sun's pixels in the registration display.
-SUN_RGB = (255, 200, 0)
+#: The recovered sun's pixels in the registration display (off the viridis scale of the confidence).
+SUN_RGB = (255, 0, 255)
 #: Automatic exposure puts this percentile of the luminance (or band value) at 1 before the tone curve.
 AUTO_PERCENTILE = 99.0
 #: Subsampling of the window on which the posterior uncertainty is computed.
@@ -170,9 +170,9 @@ class SlotRenderer:
             conf, occ = quantity[..., 0], quantity[..., 1]
             rgb = self._lut[np.clip(np.nan_to_num(conf, nan=0.0) * 255, 0, 255).astype(np.uint8)]
             rgb[np.nan_to_num(occ) > 0.5] = OCCLUDED_RGB
-            if quantity.shape[-1] > 2:  # the recovered sun's pixels
-                rgb[np.nan_to_num(quantity[..., 2]) > 0.5] = SUN_RGB
             rgb[~np.isfinite(conf)] = 0
+            if quantity.shape[-1] > 2:  # the recovered sun's pixels (camera B's confidence there is moot)
+                rgb[np.nan_to_num(quantity[..., 2]) > 0.5] = SUN_RGB
             return rgb
         if display.mode == "uncertainty":
             q = quantity[..., 0]

@@ -377,7 +377,7 @@ def test_case05_corrupted_same_size_frames_count_as_damaged_and_are_skippable(se
         process(bad, tmp_path / "p", progress=False, report=False)
     index = process(bad, tmp_path / "p2", progress=False, report=False, skip_bad=True)
     assert [d["direction"] for d in index["skipped_directions"]] == [4, 7]
-    assert index["session_check"]["n_damaged"] == 2 and index["session_check"]["n_ok"] == 142
+    assert index["session_check"]["n_damaged"] == 2 and index["session_check"]["n_ok"] == TINY_FRAMES - 2
 
 
 # ------------------------------------------------------------------ 6. absurd exposure times, CSV scales

@@ -51,7 +51,7 @@ from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.geometry import equirect_pixel_to_lonlat, lonlat_to_equirect_pixel, lonlat_to_ray
 from omnispectral.io import atomic_path, atomic_write_json
 from omnispectral.product.exports import reinhard_srgb8
-from omnispectral.product.spectra import estimate_image, open_product
+from omnispectral.product.spectra import SunOverlay, estimate_image, open_product
 from omnispectral.spectral.curves import concatenate
 from omnispectral.spectral.library import PRIOR_REFLECTANCE_SETS, load_illuminant, load_reflectances
 from omnispectral.spectral.prior import exclude_near
@@ -157,6 +157,8 @@ class Relighter:
     method: str = "wiener"
     sigma2_relative: float = 2e-5
     source_factor: float = DEFAULT_SOURCE_FACTOR
+    #: the product's store, when its recovered sun's pixels are to take its measured spectrum (``SunOverlay``)
+    sun_store: object = None
 
     def __post_init__(self):
         if self.sources not in ("keep", "relight"):
@@ -286,7 +288,8 @@ def measure_relighter(store, estimator, whites: list[WhiteReference], to: str, r
         signal = estimator.estimate(disk_mean_bands(store, level, wref)[None])[0]
         ill.append(signal / rho_w)
     return Relighter(wl, np.array([w.ray for w in whites]), np.array(ill), target_illuminant(to, wl),
-                     np.asarray(estimator.system_matrix, float), sources, method, source_factor=source_factor)
+                     np.asarray(estimator.system_matrix, float), sources, method, source_factor=source_factor,
+                     sun_store=store)
 
 
 def pixel_rays(rows: slice, cols: slice, height: int, width: int) -> np.ndarray:
@@ -314,7 +317,12 @@ def relight_block(bands: np.ndarray, estimator, relighter: Relighter, rows: slic
     """``(relit spectra (h, w, n), captured spectra (h, w, n), light-source flag (h, w))`` of a block of a level."""
 
     h, w = bands.shape[:2]
-    spectra = estimate_image(bands, estimator)
+    sun = None
+    if relighter.sun_store is not None:  # the recovered sun's pixels take its measured spectrum
+        store = relighter.sun_store
+        levels = [i for i, sh in enumerate(store.shapes) if tuple(sh) == tuple(shape)]
+        sun = SunOverlay.of(store, levels[0], (h, w), (rows.start, cols.start)) if levels else None
+    spectra = estimate_image(bands, estimator, sun=sun)
     flat = spectra.reshape(-1, spectra.shape[2])
     ok = np.isfinite(flat).all(axis=1)
     relit = np.full_like(flat, np.nan)

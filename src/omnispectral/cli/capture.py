@@ -53,11 +53,17 @@ def cmd_plan(args) -> int:
                   f"{len(plan.exposures_s)} exposures {max(plan.exposures_s) * 1e3:.4g} ms -> "
                   f"{min(plan.exposures_s) * 1e3:.4g} ms")
     table = Table(title=f"Estimated acquisition time: {format_duration(plan.estimated_s)}")
-    for col in ("head moves", "settling", "exposures", "read-out", "per direction", "total"):
+    columns = [("head moves", "moves"), ("settling", "settle"), ("exposures", "exposures"), ("read-out", "readout"),
+               *([("sun bracket", "sun_bracket")] if "sun_bracket" in t else []), ("per direction", "per_direction"),
+               ("total", "total")]
+    for col, _ in columns:
         table.add_column(col, justify="right")
-    table.add_row(*(format_duration(t[k]) for k in ("moves", "settle", "exposures", "readout", "per_direction",
-                                                    "total")))
+    table.add_row(*(format_duration(t[k]) for _, k in columns))
     console.print(table)
+    if plan.sun_bracket:
+        console.print(f"sun bracket: through {plan.sun_bracket['filter']} "
+                      f"({len(plan.sun_bracket['exposures_s'])} exposures), aimed at the sun once a direction's "
+                      f"shortest exposure clips; filter changer: {plan.sun_bracket['changer']}")
     if args.tradeoff:
         console.print(f"Overlap trade-off (paper Fig. 15a; the rig's own grid marked at "
                       f"{100 * make_plan(rig).overlap:.1f} %): {out['tradeoff']['png']} and {out['tradeoff']['json']}")

@@ -67,6 +67,17 @@ def test_envi_round_trip(tmp_path):
     np.testing.assert_allclose(np.asarray(img.load()), cube)
     np.testing.assert_allclose([float(w) for w in img.metadata["wavelength"]], WL)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["pano.hdr", "pano.img"]
+    # band-sequential as the docstring says, band names from the wavelengths, no ignore value without holes
+    assert img.metadata["interleave"] == "bsq" and img.metadata["band names"][0] == f"{WL[0]:g} nm"
+    assert "data ignore value" not in img.metadata
+    # pixels nothing covers carry the declared ignore value; every other pixel its light
+    ignore = np.zeros(cube.shape[:2], bool)
+    ignore[0, :3] = True
+    write_envi(tmp_path / "holes.hdr", cube, WL, ignore=ignore)
+    img = envi.open(str(tmp_path / "holes.hdr"))
+    data = np.asarray(img.load())
+    value = float(img.metadata["data ignore value"])
+    assert value < 0 and np.all(data[ignore] == value) and np.allclose(data[~ignore], cube[~ignore])
 
 
 def test_preview_and_radiance_hdr(tmp_path):

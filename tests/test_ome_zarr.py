@@ -43,6 +43,9 @@ def test_store_is_valid_ome_zarr_0_5_with_small_root_attributes(product):
     ms = ome.multiscales[0]
     assert [(a.name, a.type) for a in ms.axes] == [("c", "channel"), ("y", "space"), ("x", "space")]
     assert [d.path for d in ms.datasets] == ["0", "1", "2"]
+    # the bands' names as OME channel labels (what napari and ome-zarr show)
+    root = json.loads((path / "zarr.json").read_text())["attributes"]["ome"]
+    assert [c["label"] for c in root["omero"]["channels"]] == BANDS
     for k, ds in enumerate(ms.datasets):
         arr = zarr.open_array(str(path / ds.path), mode="r")
         assert arr.metadata.dimension_names == ("c", "y", "x")
@@ -53,7 +56,7 @@ def test_store_is_valid_ome_zarr_0_5_with_small_root_attributes(product):
         assert translation.translation == [0.0, step / 2, -180.0 + step / 2]  # pixel centres
     # the big metadata (here a 20000-element estimator) lives in its own group, not in the image's zarr.json
     root_bytes = (path / "zarr.json").stat().st_size
-    assert root_bytes < 4000
+    assert root_bytes < 6000  # the OME metadata with six channel labels, not the estimator
     meta = json.loads((path / "omnispectral" / "zarr.json").read_text())
     assert meta["node_type"] == "group" and len(meta["attributes"]["omnispectral"]["estimator"]["blob"]) == 20000
     store = PanoramaStore.open(path)

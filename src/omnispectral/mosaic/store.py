@@ -67,6 +67,19 @@ def pyramid_shapes(height: int, width: int, tile: int) -> list[tuple[int, int]]:
     return shapes
 
 
+#: Display colour of a band by its channel letter (``A:R`` …): what OME-Zarr viewers (napari) tint it with.
+BAND_COLOURS = {"R": "FF0000", "G": "00FF00", "B": "0000FF"}
+
+
+def omero_attr(band_names: list[str]) -> dict:
+    """OME-NGFF ``omero`` channel metadata: each band's name as its ``label`` (napari and ome-zarr show it), a
+    colour from its channel letter, and a display window (the values are radiances in DN/s, not known when
+    the store is made: 0 to 1e6, which viewers let the user change)."""
+    return {"channels": [{"label": name, "color": BAND_COLOURS.get(name.rsplit(":", 1)[-1], "FFFFFF"),
+                          "active": True, "window": {"min": 0.0, "max": 1e6, "start": 0.0, "end": 1e6}}
+                         for name in band_names]}
+
+
 def multiscales_attr(shapes: list[tuple[int, int]], name: str) -> list[dict]:
     """OME-NGFF 0.5 ``multiscales`` for axes (c, y, x).
 
@@ -224,9 +237,10 @@ class PanoramaStore:
         summary = {"format": FORMAT, "format_version": FORMAT_VERSION, "metadata": METADATA, "tile": tile,
                    "levels": [list(s) for s in shapes], "compression": compression,
                    **{k: attrs[k] for k in SUMMARY_KEYS if k in attrs}}
-        group.attrs.update(_jsonable({"ome": {"version": OME_VERSION,
-                                              "multiscales": multiscales_attr(shapes, final.name)},
-                                      "omnispectral": summary}))
+        ome = {"version": OME_VERSION, "multiscales": multiscales_attr(shapes, final.name)}
+        if attrs.get("bands"):
+            ome["omero"] = omero_attr(list(attrs["bands"]))
+        group.attrs.update(_jsonable({"ome": ome, "omnispectral": summary}))
         _write_metadata(path, {"omnispectral": {**attrs, **summary}, "fingerprint": fingerprint})
         os.replace(path, final)
         return cls(final, tile, shapes, n_bands, FORMAT_VERSION)

@@ -132,9 +132,16 @@ def write_spectral_exr(path: str | Path, spectra: np.ndarray, wavelength_nm: np.
     return _write_exr_channels(Path(path), header, channels)
 
 
+#: ENVI ``data ignore value`` of the pixels no direction covers (an export's values are light: never negative).
+ENVI_IGNORE_VALUE = -1.0
+
+
 def write_envi(path: str | Path, cube: np.ndarray, wavelength_nm: np.ndarray | None = None,
-               band_names: list[str] | None = None, description: str = "") -> Path:
-    """ENVI image (``.hdr`` header + ``.img`` data, float32, BSQ by Spectral Python) with wavelengths in nm."""
+               band_names: list[str] | None = None, description: str = "",
+               ignore: np.ndarray | None = None) -> Path:
+    """ENVI image (``.hdr`` header + ``.img`` data, float32, band-sequential (BSQ) by Spectral Python) with
+    wavelengths in nm and band names (``λ nm`` unless ``band_names`` are given); pixels where ``ignore``
+    ``(H, W)`` is True hold :data:`ENVI_IGNORE_VALUE`, declared as the header's ``data ignore value``."""
 
     path = Path(path)
     if path.suffix.lower() != ".hdr":
@@ -144,11 +151,17 @@ def write_envi(path: str | Path, cube: np.ndarray, wavelength_nm: np.ndarray | N
     if wavelength_nm is not None:
         meta["wavelength"] = [f"{w:g}" for w in np.asarray(wavelength_nm, float)]
         meta["wavelength units"] = "nm"
+        if band_names is None:
+            band_names = [f"{w:g} nm" for w in np.asarray(wavelength_nm, float)]
     if band_names is not None:
         meta["band names"] = list(band_names)
+    if ignore is not None and np.any(ignore):
+        cube = cube.copy()
+        cube[np.asarray(ignore, bool)] = ENVI_IGNORE_VALUE
+        meta["data ignore value"] = f"{ENVI_IGNORE_VALUE:g}"
     data = path.with_suffix(".img")
     with atomic_path(path) as tmp_hdr, atomic_path(data) as tmp_img:
-        envi.save_image(str(tmp_hdr), cube, metadata=meta, force=True, ext=tmp_img.suffix)
+        envi.save_image(str(tmp_hdr), cube, metadata=meta, force=True, ext=tmp_img.suffix, interleave="bsq")
         # Spectral Python names the data file after the header; move it onto the reserved temporary name
         written = tmp_hdr.with_suffix(tmp_img.suffix)
         written.replace(tmp_img)
@@ -255,7 +268,8 @@ def export_product(product: str | Path, fmt: str, output: str | Path, region: tu
             path = write_spectral_exr(output, spectra, wl, units=units, attributes=attrs, half=half)
         else:
             path = write_envi(output, light_values(spectra), wl,
-                              description=f"omnispectral {attrs['omnispectral_region']}")
+                              description=f"omnispectral {attrs['omnispectral_region']}",
+                              ignore=~np.isfinite(bands).any(axis=2))
         extra["saturation"] = _write_saturation_mask(Path(output), store, level, bands, (r0, c0), spectra)
     return {"output": str(path), "format": fmt, "level": level, "region": [r0, r1, c0, c1],
             "width": c1 - c0, "height": r1 - r0, **extra}

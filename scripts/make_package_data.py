@@ -29,33 +29,30 @@ def write_csv(path: Path, wavelength_nm, columns: dict[str, np.ndarray], comment
     print("wrote", path.relative_to(ROOT))
 
 
-def wratten_34a() -> None:
+WRATTEN_SOURCE = ("Source: Kodak publication 'Kodak Wratten Filters for Scientific and Technical Use' "
+                  "(A. C. Peed Jr.),\nas tabulated in m-lohmann/SpectralVis.jl (MIT) data/spectra/spectrum_Wratten.jl")
+
+
+def wratten_column(column: str, file_name: str, label: str, description: str) -> None:
+    """One filter of the Wratten table (percent, 400-700 nm / 10 nm) as a package CSV."""
     src = SHARED / "filter_transmittance" / "wratten_visible_400-700nm_10nm_percent.csv"
     with open(src) as fh:
         rows = list(csv.reader(fh))
     header, data = rows[0], np.array(rows[1:], dtype=float)
-    col = header.index("34A")
-    write_csv(
-        OUT / "filters" / "wratten_34a.csv", data[:, 0], {"Wratten 34A": data[:, col]},
-        "Kodak Wratten No. 34A (violet) spectral transmittance in PERCENT, 400-700 nm / 10 nm.\n"
-        "Source: Kodak publication 'Kodak Wratten Filters for Scientific and Technical Use' (A. C. Peed Jr.),\n"
-        "as tabulated in m-lohmann/SpectralVis.jl (MIT) data/spectra/spectrum_Wratten.jl.",
-    )
+    write_csv(OUT / "filters" / file_name, data[:, 0], {label: data[:, header.index(column)]}, description)
+
+
+def wratten_34a() -> None:
+    wratten_column("34A", "wratten_34a.csv", "Wratten 34A",
+                   "Kodak Wratten No. 34A (violet) spectral transmittance in PERCENT, 400-700 nm / 10 nm.\n"
+                   + WRATTEN_SOURCE + ".")
 
 
 def wratten_96() -> None:
-    src = SHARED / "filter_transmittance" / "wratten_visible_400-700nm_10nm_percent.csv"
-    with open(src) as fh:
-        rows = list(csv.reader(fh))
-    header, data = rows[0], np.array(rows[1:], dtype=float)
-    col = header.index("96")
-    write_csv(
-        OUT / "filters" / "wratten_96.csv", data[:, 0], {"Wratten 96 (ND 1.0)": data[:, col]},
-        "Kodak Wratten No. 96 neutral density 1.0 spectral transmittance in PERCENT, 400-700 nm / 10 nm.\n"
-        "Source: Kodak publication 'Kodak Wratten Filters for Scientific and Technical Use' (A. C. Peed Jr.),\n"
-        "as tabulated in m-lohmann/SpectralVis.jl (MIT) data/spectra/spectrum_Wratten.jl; column '96'\n"
-        "identified as ND 1.0 by its flat ~9 % transmittance (shared/data/filter_transmittance/SOURCE.txt).",
-    )
+    wratten_column("96", "wratten_96.csv", "Wratten 96 (ND 1.0)",
+                   "Kodak Wratten No. 96 neutral density 1.0 spectral transmittance in PERCENT, 400-700 nm / 10 nm.\n"
+                   + WRATTEN_SOURCE + "; column '96'\nidentified as ND 1.0 by its flat ~9 % transmittance "
+                   "(shared/data/filter_transmittance/SOURCE.txt).")
 
 
 def vrhel() -> None:

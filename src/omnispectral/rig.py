@@ -421,16 +421,20 @@ def _side(r: _Reader, key: str) -> int:
     return v
 
 
+def _exposure_list(r: _Reader, times) -> tuple[float, ...]:
+    """A table's ``exposures_s``: positive seconds within the limits, longest first; else the key's error."""
+    if len(times) < 1 or not all(isinstance(t, int | float) and not isinstance(t, bool) and t > 0 for t in times):
+        r.fail("exposures_s", f"expected a list of positive seconds, got {times!r}")
+    try:
+        check_exposure_times(times, "exposures_s")
+    except ConfigurationError as exc:
+        r.fail("exposures_s", str(exc).removeprefix("exposures_s: "))
+    return tuple(sorted((float(t) for t in times), reverse=True))
+
+
 def _bracket(r: _Reader) -> BracketSpec:
     if "exposures_s" in r.data:
-        times = r.get("exposures_s", list)
-        if len(times) < 1 or not all(isinstance(t, int | float) and not isinstance(t, bool) and t > 0 for t in times):
-            r.fail("exposures_s", f"expected a list of positive seconds, got {times!r}")
-        try:
-            check_exposure_times(times, "exposures_s")
-        except ConfigurationError as exc:
-            r.fail("exposures_s", str(exc).removeprefix("exposures_s: "))
-        return BracketSpec(tuple(sorted((float(t) for t in times), reverse=True)))
+        return BracketSpec(_exposure_list(r, r.get("exposures_s", list)))
     longest = r.get("longest_s", float, positive=True)
     shortest = r.get("shortest_s", float, positive=True)
     count = r.get("count", int, positive=True)
@@ -457,21 +461,16 @@ def _sun(r: _Reader | None) -> SunBracketSpec | None:
     except (ConfigurationError, InputFileError) as exc:
         r.fail("filter", str(exc))
     times = r.get("exposures_s", list, list(default.exposures_s))
-    if len(times) < 1 or not all(isinstance(t, int | float) and not isinstance(t, bool) and t > 0 for t in times):
-        r.fail("exposures_s", f"expected a list of positive seconds, got {times!r}")
-    try:
-        check_exposure_times(times, "exposures_s")
-    except ConfigurationError as exc:
-        r.fail("exposures_s", str(exc).removeprefix("exposures_s: "))
     if len(times) > 64:
         r.fail("exposures_s", f"{len(times)} exposures is above the limit of 64")
+    times = _exposure_list(r, times)
     changer = r.get("changer", str, default.changer)
     if changer not in SUN_FILTER_CHANGERS:
         r.fail("changer", f"expected one of {SUN_FILTER_CHANGERS}, got {changer!r}")
     clip = r.get("clip_fraction", float, default.clip_fraction, positive=True)
     if clip > 1:
         r.fail("clip_fraction", f"must be in (0, 1], got {clip}")
-    return SunBracketSpec(name, tuple(sorted((float(t) for t in times), reverse=True)), changer,
+    return SunBracketSpec(name, times, changer,
                           r.get("change_s", float, default.change_s, minimum=0.0), clip,
                           r.get("min_clipped_px", int, default.min_clipped_px, positive=True))
 

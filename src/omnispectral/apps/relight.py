@@ -157,8 +157,10 @@ class Relighter:
     method: str = "wiener"
     sigma2_relative: float = 2e-5
     source_factor: float = DEFAULT_SOURCE_FACTOR
-    #: the product's store, when its recovered sun's pixels are to take its measured spectrum (``SunOverlay``)
-    sun_store: object = None
+    #: the product's store attributes and pyramid shapes, read once, when its recovered sun's pixels are to take
+    #: its measured spectrum (``SunOverlay``)
+    sun_attrs: dict | None = None
+    level_shapes: tuple = ()
 
     def __post_init__(self):
         if self.sources not in ("keep", "relight"):
@@ -289,7 +291,7 @@ def measure_relighter(store, estimator, whites: list[WhiteReference], to: str, r
         ill.append(signal / rho_w)
     return Relighter(wl, np.array([w.ray for w in whites]), np.array(ill), target_illuminant(to, wl),
                      np.asarray(estimator.system_matrix, float), sources, method, source_factor=source_factor,
-                     sun_store=store)
+                     sun_attrs=store.attrs(), level_shapes=tuple(tuple(sh) for sh in store.shapes))
 
 
 def pixel_rays(rows: slice, cols: slice, height: int, width: int) -> np.ndarray:
@@ -318,10 +320,10 @@ def relight_block(bands: np.ndarray, estimator, relighter: Relighter, rows: slic
 
     h, w = bands.shape[:2]
     sun = None
-    if relighter.sun_store is not None:  # the recovered sun's pixels take its measured spectrum
-        store = relighter.sun_store
-        levels = [i for i, sh in enumerate(store.shapes) if tuple(sh) == tuple(shape)]
-        sun = SunOverlay.of(store, levels[0], (h, w), (rows.start, cols.start)) if levels else None
+    if relighter.sun_attrs is not None and tuple(shape) in relighter.level_shapes:
+        # the recovered sun's pixels take its measured spectrum
+        sun = SunOverlay.from_attrs(relighter.sun_attrs, relighter.level_shapes[0],
+                                    relighter.level_shapes.index(tuple(shape)), (h, w), (rows.start, cols.start))
     spectra = estimate_image(bands, estimator, sun=sun)
     flat = spectra.reshape(-1, spectra.shape[2])
     ok = np.isfinite(flat).all(axis=1)

@@ -218,6 +218,22 @@ def run_capture(session: Session, head: PanTiltHead, cameras: dict[str, Camera],
         return _run_capture_locked(session, head, cameras, clock, policy, progress, filters)
 
 
+def expose_and_write(session: Session, d: Direction, cameras: dict[str, Camera], names: list[str], index: int,
+                     exposure_s: float, policy: RetryPolicy, pose: tuple[float, float], clock: Clock,
+                     extra: dict | None = None) -> dict:
+    """One exposure on the named cameras (:func:`expose_all`), each frame written with its journal record
+    (exposure ``index``, the head's commanded and reported pose, ``extra`` fields); returns the frames."""
+    frames = expose_all(cameras, names, exposure_s, policy)
+    for c in names:
+        data, meta = frames[c]
+        session.write_frame(data, direction=d.index, camera=c, exposure_index=index, exposure_s=exposure_s,
+                            pan_deg_commanded=d.pan_deg, tilt_deg_commanded=d.tilt_deg,
+                            pan_deg_reported=pose[0], tilt_deg_reported=pose[1],
+                            timestamp=clock.now().isoformat(timespec="milliseconds"),
+                            bit_depth=cameras[c].bit_depth, extra={"camera_metadata": meta, **(extra or {})})
+    return frames
+
+
 def shoot_sun_bracket(session: Session, plan: Plan, d: Direction, cameras: dict[str, Camera], names_all,
                       filters: FilterChanger, policy: RetryPolicy, pose: tuple[float, float], clock: Clock,
                       done: set, on_frame: Callable[[], None], source: int | None = None) -> int:
@@ -239,15 +255,9 @@ def shoot_sun_bracket(session: Session, plan: Plan, d: Direction, cameras: dict[
             names = [c for c in names_all if (d.index, c, index) not in done]
             if not names:
                 continue
-            frames = expose_all(cameras, names, exposure, policy)
+            expose_and_write(session, d, cameras, names, index, exposure, policy, pose, clock,
+                             {"filter": sun["filter"]})
             for c in names:
-                data, meta = frames[c]
-                session.write_frame(data, direction=d.index, camera=c, exposure_index=index, exposure_s=exposure,
-                                    pan_deg_commanded=d.pan_deg, tilt_deg_commanded=d.tilt_deg,
-                                    pan_deg_reported=pose[0], tilt_deg_reported=pose[1],
-                                    timestamp=clock.now().isoformat(timespec="milliseconds"),
-                                    bit_depth=cameras[c].bit_depth,
-                                    extra={"camera_metadata": meta, "filter": sun["filter"]})
                 done.add((d.index, c, index))
                 written += 1
                 on_frame()
@@ -315,14 +325,10 @@ def _run_capture_locked(session: Session, head: PanTiltHead, cameras: dict[str, 
                     names = [c for c in names_all if (d.index, c, k) not in done]
                     if not names:
                         continue
-                    frames = expose_all(cameras, names, exposure, policy)
+                    frames = expose_and_write(session, d, cameras, names, k, exposure, policy, (pan_r, tilt_r),
+                                              clock)
                     for c in names:
-                        data, meta = frames[c]
-                        session.write_frame(data, direction=d.index, camera=c, exposure_index=k, exposure_s=exposure,
-                                            pan_deg_commanded=d.pan_deg, tilt_deg_commanded=d.tilt_deg,
-                                            pan_deg_reported=pan_r, tilt_deg_reported=tilt_r,
-                                            timestamp=clock.now().isoformat(timespec="milliseconds"),
-                                            bit_depth=cameras[c].bit_depth, extra={"camera_metadata": meta})
+                        data = frames[c][0]
                         done.add((d.index, c, k))
                         written += 1
                         if k == k_short:

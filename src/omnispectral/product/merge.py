@@ -93,17 +93,27 @@ def _demosaic_frames(frames: list[np.ndarray], times: list[float], pattern: str,
     return out
 
 
-def merge_direction(session, direction: int, camera: str, n_exposures: int, raw: RawSettings | None = None,
-                    **merge_options) -> tuple[np.ndarray, tuple[float, float]]:
-    """HDR merge (Eqs. (1)-(2)) of one camera's bracket; returns radiance (H, W, 3) and the reported pan/tilt.
+@dataclass
+class Bracket:
+    """One camera's frames of a bracket as read from a session, corrected, ready for the HDR merge."""
 
-    Raw frames are corrected first (:func:`omnispectral.imaging.bayer.correct_raw`: the exposure's dark frame,
-    else the black level); Bayer mosaics are merged and then demosaiced once, or demosaiced frame by frame
-    and then merged, as the rig's ``[cameras.X.raw] order`` says (:mod:`omnispectral.imaging.bayer`).
-    """
+    frames: list
+    times: list
+    pose: tuple[float, float]  # the head's mean reported pan/tilt over the bracket
+    bit_depth: int
+    pattern: str | None  # the CFA layout of raw mosaics, else None
+    merge_options: dict
+    filter_name: str | None  # the filter in front of the lens (the sun bracket), else None
+
+
+def read_bracket(session, direction: int, camera: str, indices, raw: RawSettings | None = None,
+                 **merge_options) -> Bracket:
+    """Read the frames ``indices`` of one camera in one direction: raw frames corrected
+    (:func:`omnispectral.imaging.bayer.correct_raw`: the exposure's dark frame, else the black level), the
+    response of imported 8-bit images added to ``merge_options``."""
     raw = raw or RawSettings()
-    frames, times, pans, tilts, bit_depth, pattern = [], [], [], [], 12, None
-    for k in range(n_exposures):
+    frames, times, pans, tilts, bit_depth, pattern, filt = [], [], [], [], 12, None, None
+    for k in indices:
         frame, meta = session.read_frame(direction, camera, k)
         camera_meta = meta.get("camera_metadata") or {}
         if camera_meta.get("response") == "srgb":  # imported 8-bit images (omnispectral.capture.importer)
@@ -119,14 +129,30 @@ def merge_direction(session, direction: int, camera: str, n_exposures: int, raw:
         times.append(float(meta["exposure_s"]))
         pans.append(float(meta.get("pan_deg_reported", meta.get("pan_deg_commanded"))))
         tilts.append(float(meta.get("tilt_deg_reported", meta.get("tilt_deg_commanded"))))
+        filt = meta.get("filter", filt)
+    return Bracket(frames, times, (float(np.mean(pans)), float(np.mean(tilts))), bit_depth, pattern,
+                   merge_options, filt)
+
+
+def merge_direction(session, direction: int, camera: str, n_exposures: int, raw: RawSettings | None = None,
+                    **merge_options) -> tuple[np.ndarray, tuple[float, float]]:
+    """HDR merge (Eqs. (1)-(2)) of one camera's bracket; returns radiance (H, W, 3) and the reported pan/tilt.
+
+    Frames are read and corrected by :func:`read_bracket`; Bayer mosaics are merged and then demosaiced once,
+    or demosaiced frame by frame and then merged, as the rig's ``[cameras.X.raw] order`` says
+    (:mod:`omnispectral.imaging.bayer`).
+    """
+    raw = raw or RawSettings()
+    b = read_bracket(session, direction, camera, range(n_exposures), raw, **merge_options)
+    frames, pattern = b.frames, b.pattern
     spec = raw.raw or RawSpec()
     if pattern is not None and spec.order == "demosaic-first":
-        frames = _demosaic_frames(frames, times, pattern, spec, bit_depth)
-    result = merge_exposures(frames, times, bit_depth, **merge_options)
+        frames = _demosaic_frames(frames, b.times, pattern, spec, b.bit_depth)
+    result = merge_exposures(frames, b.times, b.bit_depth, **b.merge_options)
     radiance = result.radiance if result.radiance.ndim == 3 else result.radiance[..., None]
     if pattern is not None and spec.order == "merge-first":
         radiance = demosaic(radiance[..., 0], pattern, spec.demosaic)
-    return radiance, (float(np.mean(pans)), float(np.mean(tilts)))
+    return radiance, b.pose
 
 
 def merge_session(session: Session | str | Path, output: str | Path, *, register: RegisterFn | None = None,

@@ -79,10 +79,16 @@ class SunOverlay:
     @classmethod
     def of(cls, store, level: int, shape: tuple[int, int], origin: tuple[int, int] = (0, 0)) -> SunOverlay | None:
         """The overlay of a ``shape`` window at ``origin`` of ``level``, or ``None`` (no recovered sun there)."""
-        sun = (store.attrs().get("omnispectral") or {}).get("sun") or {}
+        return cls.from_attrs(store.attrs(), tuple(store.shapes[0]), level, shape, origin)
+
+    @classmethod
+    def from_attrs(cls, attrs: dict, level0_shape: tuple[int, int], level: int, shape: tuple[int, int],
+                   origin: tuple[int, int] = (0, 0)) -> SunOverlay | None:
+        """:meth:`of` from the store's attributes already read (a caller visiting many windows reads them once)."""
+        sun = (attrs.get("omnispectral") or {}).get("sun") or {}
         if not sun.get("recovered"):
             return None
-        mask = recovered_sun_mask(store.attrs(), level, shape, origin, tuple(store.shapes[0]))
+        mask = recovered_sun_mask(attrs, level, shape, origin, level0_shape)
         if not mask.any():
             return None
         return cls(mask, np.asarray(sun["pixels"]["background"], np.float64),

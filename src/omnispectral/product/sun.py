@@ -37,7 +37,7 @@ import colour
 import numpy as np
 from scipy import ndimage
 
-from omnispectral.imaging.bayer import correct_raw, demosaic
+from omnispectral.imaging.bayer import demosaic
 from omnispectral.imaging.geometry import (
     CameraModel,
     equirect_pixel_to_lonlat,
@@ -47,6 +47,7 @@ from omnispectral.imaging.geometry import (
 )
 from omnispectral.imaging.hdr import merge_exposures
 from omnispectral.imaging.sundisk import cap_solid_angle_sr, equirect_disk_coverage, pixel_solid_angles_sr
+from omnispectral.product.merge import RawSettings, read_bracket
 from omnispectral.product.saturation import SATURATION_FRACTION, clipped_mask, saturation_level_dn_s
 from omnispectral.rig import SUN_EXPOSURE_BASE
 from omnispectral.spectral.library import daylight_spd, load_filter
@@ -197,30 +198,18 @@ def sun_directions(session) -> dict[int, dict[str, list[int]]]:
     return {d: {c: sorted(ks) for c, ks in cams.items()} for d, cams in sorted(out.items())}
 
 
-def merge_sun_bracket(session, direction: int, camera: str, indices: list[int], black_level_dn: float = 0.0):
-    """HDR merge (Eq. (1), inverse-variance weight) of one camera's attenuated bracket; returns the merge
-    result, the reported pose and the filter's name."""
-    frames, times, pans, tilts, bit_depth, pattern, filt = [], [], [], [], 12, None, None
-    for k in indices:
-        frame, meta = session.read_frame(direction, camera, k)
-        cm = meta.get("camera_metadata") or {}
-        bit_depth = int(meta.get("bit_depth", bit_depth))
-        black = float(cm.get("black_level", black_level_dn))
-        if black:
-            frame = correct_raw(frame, bit_depth, black, None)
-        pattern = cm.get("cfa_pattern") if frame.ndim == 2 else None
-        frames.append(frame)
-        times.append(float(meta["exposure_s"]))
-        pans.append(float(meta.get("pan_deg_reported", meta.get("pan_deg_commanded"))))
-        tilts.append(float(meta.get("tilt_deg_reported", meta.get("tilt_deg_commanded"))))
-        filt = meta.get("filter", filt)
-    result = merge_exposures(frames, times, bit_depth, weight="noise")
-    if pattern is not None:  # a raw mosaic: merged first, then demosaiced once
-        rad = demosaic(np.squeeze(result.radiance).astype(np.float32), pattern, "bilinear")
-        var = demosaic(np.squeeze(result.variance).astype(np.float32), pattern, "bilinear")
+def merge_sun_bracket(session, direction: int, camera: str, indices: list[int], raw: RawSettings | None = None):
+    """HDR merge (Eq. (1), inverse-variance weight) of one camera's attenuated bracket (frames read by
+    :func:`~omnispectral.product.merge.read_bracket`); returns the merge result, the reported pose and the
+    filter's name."""
+    b = read_bracket(session, direction, camera, indices, raw)
+    result = merge_exposures(b.frames, b.times, b.bit_depth, weight="noise")
+    if b.pattern is not None:  # a raw mosaic: merged first, then demosaiced once
+        rad = demosaic(np.squeeze(result.radiance).astype(np.float32), b.pattern, "bilinear")
+        var = demosaic(np.squeeze(result.variance).astype(np.float32), b.pattern, "bilinear")
         sat = np.repeat(np.squeeze(result.saturated)[..., None], 3, axis=2)
         result = SimpleNamespace(radiance=rad, variance=var, saturated=sat)
-    return result, (float(np.mean(pans)), float(np.mean(tilts))), filt
+    return result, b.pose, b.filter_name
 
 
 def filter_matrix(matrix: np.ndarray, wavelength_nm: np.ndarray, filter_name: str) -> np.ndarray:
@@ -260,7 +249,6 @@ def sun_from_images(images: list[SunImage], system, filter_name: str, band_names
     n_components = 4
     spectrum_irr, std_irr = fit_spectrum(bands, var, m_nd, daylight_basis(wl, n_components),
                                          daylight_prior(wl, n_components))
-    omega = cap_solid_angle_sr(sun_radius_rad)
     band_irr = np.asarray(system.matrix, np.float64) @ spectrum_irr
     # every image of camera A (the reference geometry) votes for the direction; B's agree at infinity
     rays = np.array([im.ray_world for im in per_camera["A"]])
@@ -269,19 +257,31 @@ def sun_from_images(images: list[SunImage], system, filter_name: str, band_names
     spread = float(np.degrees(np.max(np.arccos(np.clip(rays @ ray, -1, 1))))) if len(rays) > 1 else 0.0
     lon, lat = ray_to_lonlat(ray)
     fit_residual = float(np.linalg.norm(m_nd @ spectrum_irr - bands) / max(np.linalg.norm(bands), 1e-30))
+    band_std = np.sqrt(np.asarray(system.matrix) ** 2 @ std_irr ** 2)
     return {"lon_deg": float(lon), "lat_deg": float(lat), "direction_spread_deg": spread,
-            "angular_diameter_deg": math.degrees(2 * sun_radius_rad), "solid_angle_sr": omega,
-            "band_names": list(band_names), "band_irradiance": band_irr.tolist(),
-            "band_radiance": (band_irr / omega).tolist(),
-            "band_radiance_std": (np.sqrt(np.asarray(system.matrix) ** 2 @ std_irr ** 2) / omega).tolist(),
-            "wavelength_nm": wl.tolist(), "spectral_radiance": (spectrum_irr / omega).tolist(),
-            "spectral_radiance_std": (std_irr / omega).tolist(), "filter": filter_name,
+            **sun_radiance_fields(band_names, band_irr, band_std, wl, spectrum_irr, std_irr, sun_radius_rad),
+            "filter": filter_name,
             "measured_bands": [band_names[r] for r in rows], "fit_relative_residual": fit_residual,
             "daylight_components": n_components,
             **({"note": f"only camera {cams[0]} saw the sun whole in the attenuated bracket: the other camera's "
                         f"bands of the sun are predicted through the daylight basis"} if len(cams) < 2
                and len(band_names) > 3 else {}),
             "images": [im.to_dict() for im in images]}
+
+
+def sun_radiance_fields(band_names: list[str], band_irradiance, band_irradiance_std, wavelength_nm,
+                        spectral_irradiance, spectral_irradiance_std,
+                        sun_radius_rad: float = math.radians(SUN_DIAMETER_DEG / 2)) -> dict:
+    """The fields every method's sun record shares: the disk's size, and its band and spectral irradiance at
+    normal incidence turned into the disk's mean radiance (``/ Ω_sun``), with standard deviations."""
+    omega = cap_solid_angle_sr(sun_radius_rad)
+    e, e_std = np.asarray(band_irradiance, float), np.asarray(band_irradiance_std, float)
+    s, s_std = np.asarray(spectral_irradiance, float), np.asarray(spectral_irradiance_std, float)
+    return {"angular_diameter_deg": math.degrees(2 * sun_radius_rad), "solid_angle_sr": omega,
+            "band_names": list(band_names), "band_irradiance": e.tolist(), "band_irradiance_std": e_std.tolist(),
+            "band_radiance": (e / omega).tolist(), "band_radiance_std": (e_std / omega).tolist(),
+            "wavelength_nm": np.asarray(wavelength_nm, float).tolist(), "spectral_radiance": (s / omega).tolist(),
+            "spectral_radiance_std": (s_std / omega).tolist()}
 
 
 def recover_sun_nd(session, models: dict[str, CameraModel], system, band_names: list[str],
@@ -295,7 +295,7 @@ def recover_sun_nd(session, models: dict[str, CameraModel], system, band_names: 
     images, filt = [], None
     todo = [(d, c, ks) for d, cams in found.items() for c, ks in cams.items() if c in models]
     for i, (d, c, ks) in enumerate(todo):
-        res, (pan, tilt), f = merge_sun_bracket(session, d, c, ks, rig.cameras[c].black_level_dn)
+        res, (pan, tilt), f = merge_sun_bracket(session, d, c, ks, RawSettings.of(session, rig, c))
         filt = filt or f
         im = measure_sun_image(res.radiance, res.variance, res.saturated, models[c], pan, tilt, d, c, radius)
         if im is not None:
@@ -416,11 +416,11 @@ def paint_sun(store, sun: dict, margin_px: int = 2) -> dict:
     bg = np.median(window[ring], axis=0) if ring.any() else np.zeros(window.shape[2])
     rows_c, cols_c, frac = equirect_disk_coverage(sun["lon_deg"], sun["lat_deg"], radius_deg, w, h)
     coverage = np.zeros(region.shape)
+    where = {int(c): j for j, c in enumerate(cols)}  # level-0 column -> window column
     for r, c, f in zip(rows_c, cols_c, frac, strict=True):
-        i = int(r) - r0
-        j = int(np.flatnonzero(cols == int(c))[0]) if np.any(cols == int(c)) else -1
-        if 0 <= i < coverage.shape[0] and j >= 0:
-            coverage[i, j] += f
+        j = where.get(int(c))
+        if 0 <= int(r) - r0 < coverage.shape[0] and j is not None:
+            coverage[int(r) - r0, j] += f
     region |= coverage > 0
     radiance = np.asarray(sun["band_radiance"], np.float64)
     painted = bg[None, None, :] + coverage[..., None] * radiance[None, None, :]

@@ -71,10 +71,14 @@ from scipy import ndimage
 
 from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.geometry import equirect_pixel_to_lonlat, lonlat_to_equirect_pixel, lonlat_to_ray
-from omnispectral.imaging.sundisk import cap_solid_angle_sr
 from omnispectral.product.irradiance import cosine_weights, irradiance, unit_normal
 from omnispectral.product.saturation import clipped_mask, saturation_level_dn_s
-from omnispectral.product.sun import SUN_DIAMETER_DEG, clipped_sun_direction, daylight_basis, fit_spectrum
+from omnispectral.product.sun import (
+    clipped_sun_direction,
+    daylight_basis,
+    fit_spectrum,
+    sun_radiance_fields,
+)
 from omnispectral.spectral.curves import read_spectral_csv
 from omnispectral.spectral.library import load_reflectances
 
@@ -450,17 +454,11 @@ def recover_sun_reference(store, system, band_names: list[str], reference: SunRe
     if np.max(spread) > PATCH_SPREAD_WARN:
         warnings.append(f"the reference's patch is not uniform (relative spread up to {np.max(spread):.2f}): a "
                         "shadow edge, the target's border or something else within radius_deg of it")
-    radius = math.radians(SUN_DIAMETER_DEG / 2)
-    omega = cap_solid_angle_sr(radius)
     fit_residual = float(np.linalg.norm(matrix @ sun_spd - e_sun) / max(np.linalg.norm(e_sun), 1e-30))
     sun_std_band = np.sqrt(np.maximum(var_sun, 0.0))
     return {**base, "recovered": True, "direction_std_deg": dir_std, "n_clipped_px": clipped["n_clipped_px"],
-            "angular_diameter_deg": SUN_DIAMETER_DEG, "solid_angle_sr": omega,
-            "band_names": list(band_names), "band_irradiance": e_sun.tolist(),
-            "band_irradiance_std": sun_std_band.tolist(),
-            "band_radiance": (e_sun / omega).tolist(), "band_radiance_std": (sun_std_band / omega).tolist(),
-            "wavelength_nm": wl.tolist(), "spectral_radiance": (sun_spd / omega).tolist(),
-            "spectral_radiance_std": (sun_std / omega).tolist(), "fit_relative_residual": fit_residual,
+            **sun_radiance_fields(band_names, e_sun, sun_std_band, wl, sun_spd, sun_std),
+            "fit_relative_residual": fit_residual,
             "measured_bands": list(band_names),
             "rest": {**rest, "band_irradiance": e_rest.tolist(), "band_irradiance_std": np.sqrt(var_rest).tolist(),
                      "relative_std_assumed": sky_rel_std},

@@ -74,9 +74,14 @@ import colour
 import numpy as np
 
 from omnispectral.imaging.geometry import equirect_pixel_to_lonlat, lonlat_to_ray
-from omnispectral.imaging.sundisk import cap_solid_angle_sr, equirect_pixel_solid_angle_sr
+from omnispectral.imaging.sundisk import equirect_pixel_solid_angle_sr
 from omnispectral.product.saturation import clipped_mask, saturation_level_dn_s
-from omnispectral.product.sun import SUN_DIAMETER_DEG, clipped_sun_direction, daylight_basis, fit_spectrum
+from omnispectral.product.sun import (
+    clipped_sun_direction,
+    daylight_basis,
+    fit_spectrum,
+    sun_radiance_fields,
+)
 from omnispectral.spectral.colour import cmfs_xyz, spectrum_cct_K
 from omnispectral.spectral.library import daylight_spd
 
@@ -424,8 +429,6 @@ def recover_sun_sky_model(store, system, band_names: list[str], clipped: dict | 
     lo, hi = (daylight_shape(wl, cct + s * CCT_SPREAD_K) for s in (-1.0, 1.0))
     shape_std = np.abs(hi / (hi @ ybar) - lo / (lo @ ybar)) / 2.0 * float(sun_spd @ ybar)
     spd_std = np.sqrt((rel * sun_spd) ** 2 + shape_std ** 2)
-    radius = math.radians(SUN_DIAMETER_DEG / 2.0)
-    omega = cap_solid_angle_sr(radius)
     band_std = np.sqrt((rel * band_irr) ** 2 + (matrix @ shape_std) ** 2)
     note = ("model estimate, not a measurement: the sun's direct light from the unsaturated clear sky around it "
             "(Ineichen & Perez 2002 clear sky at the fitted Linke turbidity, Perez et al. 1993 sky luminance "
@@ -434,12 +437,7 @@ def recover_sun_sky_model(store, system, band_names: list[str], clipped: dict | 
             "spectrum's colour temperature by over 1000 K")
     return {"method": METHOD, "recovered": True, "model_estimate": True, "note": note,
             "lon_deg": lon, "lat_deg": lat, "clipped_px": found["n_clipped_px"],
-            "angular_diameter_deg": SUN_DIAMETER_DEG, "solid_angle_sr": omega,
-            "band_names": list(band_names), "band_irradiance": band_irr.tolist(),
-            "band_irradiance_std": band_std.tolist(),
-            "band_radiance": (band_irr / omega).tolist(), "band_radiance_std": (band_std / omega).tolist(),
-            "wavelength_nm": wl.tolist(), "spectral_radiance": (sun_spd / omega).tolist(),
-            "spectral_radiance_std": (spd_std / omega).tolist(), "relative_std": rel,
+            **sun_radiance_fields(band_names, band_irr, band_std, wl, sun_spd, spd_std), "relative_std": rel,
             "sky_diffuse_horizontal_band_irradiance": d_band.tolist(), "aureole_band_irradiance": aureole_band.tolist(),
             "beam_cct_K": cct, "fit": {**diagnostics, "irradiance_ratio_dni_dhi": state["irradiance_ratio"],
                                         "luminous_ratio_dni_dhi": state["luminous_ratio"],

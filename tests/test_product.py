@@ -292,3 +292,44 @@ def test_a_mirror_ball_lit_by_the_product_matches_one_lit_by_the_truth(product):
     # the ball's shadow: the plate under the ball is darker than beside it, in both renders
     for img in (ours, theirs):
         assert img[int(0.70 * size), size // 2].sum() < 0.6 * img[int(0.70 * size), 2].sum()
+
+
+def test_every_covered_pixel_holds_six_bands_and_says_which_b_bands_were_predicted(product, tmp_path):
+    import OpenEXR
+
+    from omnispectral.product.exports import export_product
+    from omnispectral.product.layout import open_product
+    from omnispectral.product.spectra import estimate_image, spectrum_in_store
+
+    root, _ = product
+    index, store, estimator = open_product(root / "p")
+    bands, quality = store.read(0), store.read_quality()
+    covered = np.isfinite(bands[..., :3]).all(axis=-1)
+    assert covered.all() and np.isfinite(bands).all()  # the whole sphere, no hole in B's bands
+    assert store.attrs()["omnispectral"]["quality"]["layers"][3] == "b_predicted"
+    predicted = quality[..., 3] > 0
+    assert 0 < predicted.sum() < 0.01 * predicted.size  # depth edges only
+    # against the truth, with camera A's own error at those pixels divided out (the prediction can only be
+    # as right as A): the recorded relative error covers 90 % of the pixels at 2 sigma
+    truth = np.load(root / "s" / "ground_truth" / "bands.npy")
+    p, t = bands[predicted], truth[predicted]
+    err = np.abs(p[:, 3:] / p[:, :3].sum(1, keepdims=True) / (t[:, 3:] / t[:, :3].sum(1, keepdims=True)) - 1)
+    assert np.median(err.max(axis=1)) < 0.3
+    assert np.mean(err.max(axis=1) <= 2 * quality[..., 3][predicted]) > 0.9
+    # the prediction's error enters the posterior: a predicted pixel's std exceeds that of the same bands measured
+    r, c = map(int, np.argwhere(predicted)[0])
+    px = bands[r:r + 1, c:c + 1]
+    _, std_measured = estimate_image(px, estimator, True)
+    _, std_predicted = estimate_image(px, estimator, True, b_rel_std=quality[r:r + 1, c:c + 1, 3])
+    assert std_predicted.mean() > 1.05 * std_measured.mean()
+    lon, lat = (c + 0.5) / store.shapes[0][1] * 360 - 180, 90 - (r + 0.5) / store.shapes[0][0] * 180
+    probe = spectrum_in_store(index, store, estimator, lon, lat)
+    assert probe["b_predicted_rel_std"] > 0 and np.isfinite(probe["std"]).all()
+    # the spectral EXR says where nothing was seen and where B was predicted
+    region = (max(0, r - 8), r + 8, max(0, c - 8), c + 8)
+    export_product(root / "p", "spectral-exr", tmp_path / "s.exr", region=region)
+    with OpenEXR.File(str(tmp_path / "s.exr")) as f:
+        channels = f.channels()
+        assert channels["mask.valid"].pixels.min() == 1.0
+        layer = channels["quality.b_predicted"].pixels
+    np.testing.assert_allclose(layer, quality[region[0]:region[1], region[2]:region[3], 3], rtol=1e-6)

@@ -56,8 +56,10 @@ from omnispectral.mosaic.interp import (
     spline_prefilter,
 )
 from omnispectral.mosaic.maps import Canvas, Rect, SourceGeometry, exact_map, source_map, tile_cone
+from omnispectral.mosaic.predict import fill_missing_b
 from omnispectral.mosaic.sources import BAND_NAMES, MergedDirections, SourceImage, read_npy_rows
 from omnispectral.mosaic.store import PanoramaStore
+from omnispectral.spectral.conditional import BandPredictor
 from omnispectral.threads import worker_call
 
 DEFAULT_TILE = 512
@@ -65,9 +67,11 @@ DEFAULT_INTERP = "spline"
 #: Bands of a two-camera rig's panorama; a one-camera rig's has three (``MosaicJob.n_bands``).
 N_BANDS = 6
 #: Registration-quality layer of a panorama whose camera B carries parallax maps: blended registration
-#: confidence (0..1), occluded (1 where every direction that sees the pixel with B has it hidden) and sun
-#: (0 from the mosaic; 1 where processing painted the recovered sun, ``omnispectral.product.sun``).
-N_QUALITY = 3
+#: confidence (0..1), occluded (1 where every direction that sees the pixel with B has it hidden), sun
+#: (0 from the mosaic; 1 where processing painted the recovered sun, ``omnispectral.product.sun``) and
+#: b_predicted (the relative error of B's bands predicted from A's where B saw nothing,
+#: :mod:`omnispectral.mosaic.predict`; 0 where B measured the pixel).
+N_QUALITY = 4
 
 
 # ------------------------------------------------------------------------------------------ the job
@@ -86,6 +90,8 @@ class MosaicJob:
     store_path: Path
     run_id: str = ""  # recorded in the markers of the tiles this run computes
     n_bands: int = N_BANDS  # three per camera of the merged directions
+    #: the prior's predictor of B's bands from A's (None: fitted per tile, mosaic.predict.tile_predictor)
+    b_predictor: BandPredictor | None = None
     axes: np.ndarray = field(init=False)
     radii: np.ndarray = field(init=False)
     #: for a camera-B source with a parallax map: the index of camera A's source of the same direction
@@ -111,14 +117,15 @@ class MosaicJob:
 
 
 def build_job(merged: MergedDirections, store_path: Path, width: int, tile: int, interp: str, blend: str,
-              multiband_levels: int, gains: np.ndarray | None = None) -> MosaicJob:
+              multiband_levels: int, gains: np.ndarray | None = None,
+              b_predictor: BandPredictor | None = None) -> MosaicJob:
     images = merged.sources()
     geometry = [SourceGeometry.build(merged.cameras[s.camera], s.pan_deg, s.tilt_deg, s.offset_px) for s in images]
     if gains is None:
         gains = np.ones((len(images), 3), np.float32)
     return MosaicJob(Canvas(width, width // 2), tile, interp, blend, multiband_levels, images, geometry,
                      np.asarray(gains, np.float32), Path(store_path), run_id=f"{os.getpid()}-{time.time_ns()}",
-                     n_bands=merged.n_bands)
+                     n_bands=merged.n_bands, b_predictor=b_predictor)
 
 
 # ------------------------------------------------------------------------------------------ one tile
@@ -260,6 +267,7 @@ def render_tile(job: MosaicJob, rect: Rect) -> tuple[np.ndarray, dict]:
         steps, errors = [w.step for w in warped], [w.max_error_px for w in warped]
         out = _multiband(job, warped, work)[halo:halo + rect.shape[0], halo:halo + rect.shape[1]]
         del warped
+        predicted = _predict_missing_b(job, out, None)
     else:
         acc = LinearBlend(rect.shape, job.n_bands)
         quality = LinearBlend(rect.shape, N_QUALITY) if job.has_quality else None
@@ -283,17 +291,33 @@ def render_tile(job: MosaicJob, rect: Rect) -> tuple[np.ndarray, dict]:
                 quality.add((0, 1), w.row0 - rect.row0, w.col0 - rect.col0,
                             np.stack([w.confidence, w.occluded], axis=-1).astype(np.float32), weight)
         out = acc.result()
+        stats_quality = None
         if quality is not None:
-            stats_q = quality.result()
-            stats_q[..., 1] = (stats_q[..., 1] > 0.5).astype(np.float32)
-            stats_q[..., 2] = np.where(np.isfinite(stats_q[..., 0]), np.float32(0.0), np.float32(np.nan))
-            stats_quality = stats_q
+            stats_quality = quality.result()
+            stats_quality[..., 1] = (stats_quality[..., 1] > 0.5).astype(np.float32)
+        predicted = _predict_missing_b(job, out, stats_quality)
     holes = int((~np.isfinite(out)).any(axis=-1).sum())
     stats = {"n_sources": len(steps), "holes": holes, "map_step_min": min(steps, default=0),
-             "map_error_px": max(errors, default=0.0)}
+             "map_error_px": max(errors, default=0.0), "predicted_px": int(np.isfinite(predicted).sum())}
     if job.has_quality and job.blend != "multiband":
         stats["quality"] = stats_quality
     return out, stats
+
+
+def _predict_missing_b(job: MosaicJob, out: np.ndarray, quality: np.ndarray | None) -> np.ndarray:
+    """Fill camera B's bands of a rendered tile where no direction measured them
+    (:mod:`omnispectral.mosaic.predict`); completes ``quality``'s sun (0) and b_predicted layers.
+    Returns the prediction's relative error per pixel (NaN where B was measured or nothing covers)."""
+    if job.n_bands != N_BANDS:
+        return np.full(out.shape[:2], np.nan, np.float32)
+    missing = ~np.isfinite(out[..., 3:6]).all(axis=-1)
+    predicted = fill_missing_b(out, missing, job.b_predictor)
+    if quality is not None:
+        covered = np.isfinite(out).all(axis=-1)
+        quality[..., 2] = np.where(covered, np.float32(0.0), np.float32(np.nan))
+        quality[..., 3] = np.where(np.isfinite(predicted), predicted, quality[..., 2])
+        quality[~covered, 0:2] = np.nan
+    return predicted
 
 
 def _multiband(job: MosaicJob, warped: list[Warped], work: Rect) -> np.ndarray:
@@ -415,7 +439,7 @@ def mosaic(source: str | Path | MergedDirections, output: str | Path, *, width: 
            tile: int = DEFAULT_TILE, interp: str = DEFAULT_INTERP, blend: str = "linear",
            multiband_levels: int = DEFAULT_MULTIBAND_LEVELS, gain_compensation: bool = False,
            scheduler=None, workers: int | None = None, overwrite: bool = False, compression: str = "blosc-zstd",
-           region: tuple[int, int, int, int] | None = None,
+           region: tuple[int, int, int, int] | None = None, b_predictor: BandPredictor | None = None,
            progress: Callable[[str, dict, int, int], None] | None = None) -> dict:
     """Stitch a six-band panorama into a Zarr store; returns a summary (see :func:`summarise`).
 
@@ -440,6 +464,10 @@ def mosaic(source: str | Path | MergedDirections, output: str | Path, *, width: 
     region
         ``(row0, row1, col0, col1)``: compute only the tiles meeting this window of level 0 (the
         rest stays NaN; a later run can add more).
+    b_predictor
+        The spectral prior's predictor of camera B's bands from A's
+        (:func:`omnispectral.spectral.conditional.b_from_a_predictor`), used where B saw nothing
+        (:mod:`omnispectral.mosaic.predict`); ``None`` fits one per tile to the tile's measured pixels.
     progress
         ``progress(stage, result, done, total)`` per finished tile (``stage`` is ``"tiles"`` or ``"pyramid"``).
     """
@@ -458,7 +486,7 @@ def mosaic(source: str | Path | MergedDirections, output: str | Path, *, width: 
     gains = None
     if gain_compensation:
         gains = estimate_gains(merged)
-    job = build_job(merged, Path(output), width, tile, interp, blend, multiband_levels, gains)
+    job = build_job(merged, Path(output), width, tile, interp, blend, multiband_levels, gains, b_predictor)
     attrs = panorama_attributes(merged, job, gain_compensation)
     store = PanoramaStore.create(output, width // 2, width, job.n_bands, tile, attrs, fingerprint(merged, job),
                                  overwrite=overwrite, compression=compression,
@@ -555,7 +583,9 @@ def panorama_attributes(merged: MergedDirections, job: MosaicJob, gain_compensat
                    "gain_compensation": gain_compensation,
                    "gains": job.gains.tolist() if gain_compensation else None,
                    "weights": "linear blending: tent (1 - |2(u+1/2)/W - 1|)(1 - |2(v+1/2)/H - 1|) per sensor",
-                   "fill": "NaN where no direction covers a pixel"},
+                   "fill": "NaN where camera A covers no direction; camera B's bands predicted from A's where B "
+                           "saw nothing (omnispectral.mosaic.predict; quality layer b_predicted)",
+                   "b_predictor": job.b_predictor.to_dict() if job.b_predictor is not None else "per tile"},
     }
 
 
@@ -571,8 +601,9 @@ def fingerprint(merged: MergedDirections, job: MosaicJob) -> dict:
         h.update(json.dumps([str(img.path.resolve()), st.st_size, st.st_mtime_ns, img.pan_deg, img.tilt_deg,
                              img.scale, list(img.offset_px), geo.model.to_dict(), par], sort_keys=True).encode())
     h.update(job.gains.tobytes())
+    predictor = job.b_predictor.to_dict() if job.b_predictor is not None else None
     return {"inputs_sha256": h.hexdigest(), "width": job.canvas.width, "tile": job.tile, "interp": job.interp,
-            "blend": job.blend, "multiband_levels": job.multiband_levels}
+            "blend": job.blend, "multiband_levels": job.multiband_levels, "b_predictor": predictor}
 
 
 def peak_rss_mb() -> float:

@@ -164,6 +164,8 @@ def _compressors(name: str):
 
 #: Name of the registration-quality array (level 0 only).
 QUALITY = "quality"
+#: The quality array's layers, in order (``mosaic.engine.N_QUALITY``; older products hold a prefix).
+QUALITY_LAYERS = ("registration_confidence", "occluded", "sun", "b_predicted")
 #: Entries of the metadata also kept in the (small) group attributes, for readers that look only there.
 SUMMARY_KEYS = ("bands", "units", "camera_bands")
 
@@ -228,12 +230,14 @@ class PanoramaStore:
             group.create_array(QUALITY, shape=(quality_bands, *shapes[0]), chunks=(quality_bands, tile, tile),
                                dtype="float32", fill_value=np.nan, compressors=_compressors(compression),
                                dimension_names=DIMENSIONS, config={"write_empty_chunks": True})
-            layers = ["registration_confidence", "occluded", "sun"][:quality_bands]
+            layers = list(QUALITY_LAYERS[:quality_bands])
             attrs = {**attrs, "quality": {"array": QUALITY, "layers": layers,
                                           "description": "camera B's registration confidence (0..1, feather-"
                                           "weighted over directions), 1 where B's view of the pixel is "
-                                          "hidden by a nearer surface in every direction that sees it, and 1 "
-                                          "where the pixel holds the recovered sun"}}
+                                          "hidden by a nearer surface in every direction that sees it, 1 "
+                                          "where the pixel holds the recovered sun, and the relative error of "
+                                          "B's bands where they are predicted from A's (B saw nothing; 0 "
+                                          "where B measured them)"}}
         summary = {"format": FORMAT, "format_version": FORMAT_VERSION, "metadata": METADATA, "tile": tile,
                    "levels": [list(s) for s in shapes], "compression": compression,
                    **{k: attrs[k] for k in SUMMARY_KEYS if k in attrs}}
@@ -402,8 +406,8 @@ class PanoramaStore:
         return True
 
     def read_quality(self, rows: slice = slice(None), cols: slice = slice(None)) -> np.ndarray:
-        """The quality layer ``(h, w, 3)`` (registration confidence, occluded, sun; two layers in products
-        made before the sun was recovered); NaN where not computed."""
+        """The quality layer ``(h, w, k)``, :data:`QUALITY_LAYERS` (older products hold the first two or
+        three); NaN where not computed."""
         return np.asarray(self._quality()[rows, cols, :])
 
     def read(self, level: int = 0, rows: slice = slice(None), cols: slice = slice(None)) -> np.ndarray:

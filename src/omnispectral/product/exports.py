@@ -36,7 +36,7 @@ from omnispectral.imaging.bracket import FLOAT_IMAGE_SUFFIXES, write_float_image
 from omnispectral.io import atomic_path
 from omnispectral.product.layout import open_product
 from omnispectral.product.saturation import recovered_sun_mask, saturated_mask, saturation_level_dn_s
-from omnispectral.product.spectra import SunOverlay, bands_to_linear_srgb, estimate_image
+from omnispectral.product.spectra import SunOverlay, bands_to_linear_srgb, estimate_image, predicted_b_rel_std
 from omnispectral.spectral.colour import spectra_to_linear_srgb, srgb_encode
 
 SPECTRAL_LAYOUT_VERSION = "1.0"
@@ -97,14 +97,27 @@ def write_preview(path: str | Path, rgb_linear: np.ndarray) -> Path:
     return path
 
 
+def validity_layers(bands: np.ndarray, b_rel_std: np.ndarray | None) -> dict[str, np.ndarray]:
+    """The spectral EXR's extra channels: ``mask.valid`` (1 where a direction covers the pixel, 0 where the
+    written 0 means nothing was seen) and, for six-band products, ``quality.b_predicted`` (relative error of
+    camera B's bands predicted from A's where B saw nothing, :mod:`omnispectral.mosaic.predict`; 0 where
+    measured)."""
+    layers = {"mask.valid": np.isfinite(bands).all(axis=2).astype(np.float32)}
+    if b_rel_std is not None:
+        layers["quality.b_predicted"] = np.asarray(b_rel_std, np.float32)
+    return layers
+
+
 def write_spectral_exr(path: str | Path, spectra: np.ndarray, wavelength_nm: np.ndarray, *, units: str,
-                       attributes: Mapping[str, str] | None = None, tile: int = 64, half: bool = False) -> Path:
+                       attributes: Mapping[str, str] | None = None, tile: int = 64, half: bool = False,
+                       layers: Mapping[str, np.ndarray] | None = None) -> Path:
     """Spectral OpenEXR (Fichet et al. 2021 layout, emissive), tiled, with an sRGB preview in R, G, B.
 
     ``emissiveUnits`` is the layout's ``W.m^-2.sr^-1``; when ``units`` (the values' real unit) is another,
     it is recorded in ``omnispectral_units``.  Values are written finite and ≥ 0 (:func:`light_values`).
     ``half``: 16-bit floats; values above the half range (65504) are scaled by a power of two recorded in
-    ``omnispectral_scale`` (stored value × scale = value in ``units``).  Extra ``attributes`` as strings.
+    ``omnispectral_scale`` (stored value × scale = value in ``units``).  Extra ``attributes`` as strings;
+    extra ``layers`` (channel name → ``(H, W)``, e.g. :func:`validity_layers`) are written as they are.
     """
 
     spectra = light_values(spectra)
@@ -125,6 +138,8 @@ def write_spectral_exr(path: str | Path, spectra: np.ndarray, wavelength_nm: np.
                 enumerate(wl)}
     for i, c in enumerate("RGB"):
         channels[c] = np.ascontiguousarray(rgb[..., i].astype(dtype))
+    for name, layer in (layers or {}).items():
+        channels[name] = np.ascontiguousarray(np.asarray(layer).astype(dtype))
     tiles = OpenEXR.TileDescription()
     tiles.xSize, tiles.ySize, tiles.mode = tile, tile, OpenEXR.ONE_LEVEL  # no mip-maps (see module docstring)
     header = {"type": OpenEXR.tiledimage, "tiles": tiles, "spectralLayoutVersion": SPECTRAL_LAYOUT_VERSION,
@@ -251,21 +266,23 @@ def export_product(product: str | Path, fmt: str, output: str | Path, region: tu
              "omnispectral_region": f"level {level} rows {r0}-{r1} cols {c0}-{c1}",
              "omnispectral_geometry": "equirectangular; row 0 at latitude +90 of the full panorama, column 0 at -180"}
     sun = SunOverlay.of(store, level, bands.shape[:2], (r0, c0))
+    b_rel = predicted_b_rel_std(store, level, bands.shape[:2], (r0, c0))
     if fmt in ("png", "jpg"):
         path = write_preview(output, bands_to_linear_srgb(bands, estimator, sun))
     elif fmt in ("rgb-exr", "hdr"):
         rgb = bands_to_linear_srgb(bands, estimator, sun)
         path = write_rgb_exr(output, rgb, attrs) if fmt == "rgb-exr" else write_radiance_hdr(output, rgb)
     elif fmt == "uncertainty":
-        spectra, std = estimate_image(bands, estimator, with_std=True, sun=sun)
+        spectra, std = estimate_image(bands, estimator, with_std=True, sun=sun, b_rel_std=b_rel)
         rms = np.sqrt(np.mean(std**2, axis=2))
         rel = rms / np.maximum(np.sqrt(np.mean(spectra**2, axis=2)), 1e-30)
 
         path = write_float_image(output, np.stack([rel, rms], axis=2), ["relative_std", "std_rms"], attrs)
     else:
-        spectra = estimate_image(bands, estimator, sun=sun)
+        spectra = estimate_image(bands, estimator, sun=sun, b_rel_std=b_rel)
         if fmt == "spectral-exr":
-            path = write_spectral_exr(output, spectra, wl, units=units, attributes=attrs, half=half)
+            path = write_spectral_exr(output, spectra, wl, units=units, attributes=attrs, half=half,
+                                      layers=validity_layers(bands, b_rel))
         else:
             path = write_envi(output, light_values(spectra), wl,
                               description=f"omnispectral {attrs['omnispectral_region']}",

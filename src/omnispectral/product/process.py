@@ -56,6 +56,7 @@ from omnispectral.product.report import write_report
 from omnispectral.product.rigcal import RigCalibration, calibrate_from_merged
 from omnispectral.product.sun import SUN_FILE, paint_sun, sun_summary
 from omnispectral.product.sun_methods import recover_sun
+from omnispectral.spectral.conditional import b_from_a_predictor
 from omnispectral.threads import ordered_thread_map
 
 #: ``progress(stage, done, total)``: how far a named stage of a long run is (the command line draws it).
@@ -272,9 +273,14 @@ def _process_locked(session_path: Path, paths: dict, calibration, *, width, tile
         merged, calibration, parallax_stats = register_parallax(merged, calibration, _stage(progress, "parallax"),
                                                                 timings)
         alignments = []
+    t2 = time.perf_counter()
+    est, est_info = rig_estimator(rig)
+    timings["estimator"] = time.perf_counter() - t2
     t1 = time.perf_counter()
     kwargs = {k: v for k, v in (("width", width), ("tile", tile)) if v is not None}
     kwargs["interp"] = interp or DEFAULT_INTERP
+    if est.n_bands == 6:  # B's bands where B saw nothing: the prior's prediction from A's (mosaic.predict)
+        kwargs["b_predictor"] = b_from_a_predictor(est)
     summary = engine.mosaic(merged, paths["panorama"], scheduler=scheduler, workers=workers,
                             progress=None if progress is None else
                             (lambda stage, _result, done, total: progress(stage, done, total)),
@@ -290,11 +296,10 @@ def _process_locked(session_path: Path, paths: dict, calibration, *, width, tile
     atomic_write_json(paths["root"] / SUN_FILE, sun)
     timings["sun"] = time.perf_counter() - t_sun
     t2 = time.perf_counter()
-    est, est_info = rig_estimator(rig)
     estimator = {"params": est_info["params"], "sigma2": est_info["sigma2"], "prior": est_info["prior"],
                  "linear_maps": est.to_dict()}
     store.update_attrs({"omnispectral": {**store.attrs()["omnispectral"], "estimator": estimator}})
-    timings["estimator"] = time.perf_counter() - t2
+    timings["estimator"] += time.perf_counter() - t2
     timings["total"] = time.perf_counter() - t0
     index = {"format": PRODUCT_FORMAT, "format_version": 1, "session": str(session_path.resolve()),
              "session_kind": s.metadata().get("kind"), "rig": rig.name, "panorama": PANORAMA, "merged": MERGED,

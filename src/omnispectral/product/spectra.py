@@ -102,9 +102,49 @@ class SunOverlay:
         return np.clip((bands - self.background) @ lr / float(lr @ lr), 0.0, None)
 
 
-def estimate_image(bands: np.ndarray, estimator, with_std: bool = False, sun: SunOverlay | None = None):
+#: Index of the b_predicted layer in the store's quality array (``mosaic.store.QUALITY_LAYERS``).
+B_PREDICTED_LAYER = 3
+
+
+def predicted_b_rel_std(store, level: int, shape: tuple[int, int],
+                        origin: tuple[int, int] = (0, 0)) -> np.ndarray | None:
+    """The relative error of camera B's predicted bands over a ``shape`` window at ``origin`` of ``level``
+    (the quality layer's b_predicted; a pixel of a coarser level takes the largest of the level-0 pixels it
+    averages), 0 where B measured the pixel; ``None`` when the product has no such layer."""
+    if not store.has_quality():
+        return None
+    layers = (store.attrs().get("omnispectral", {}).get("quality") or {}).get("layers", [])
+    if len(layers) <= B_PREDICTED_LAYER:
+        return None
+    f = 2 ** level
+    h0, w0 = store.shapes[0]
+    r0, c0 = origin[0] * f, origin[1] * f
+    rows = slice(r0, min(h0, r0 + shape[0] * f))
+    cols = slice(c0, min(w0, c0 + shape[1] * f))
+    layer = np.nan_to_num(store.read_quality(rows, cols)[..., B_PREDICTED_LAYER], nan=0.0)
+    out = np.zeros(shape, np.float32)
+    hh, ww = -(-layer.shape[0] // f), -(-layer.shape[1] // f)
+    padded = np.zeros((hh * f, ww * f), np.float32)
+    padded[:layer.shape[0], :layer.shape[1]] = layer
+    coarse = padded.reshape(hh, f, ww, f).max(axis=(1, 3))
+    out[:min(hh, shape[0]), :min(ww, shape[1])] = coarse[:shape[0], :shape[1]]
+    return out
+
+
+def predicted_noise_variance(bands: np.ndarray, b_rel_std: np.ndarray) -> np.ndarray:
+    """Noise variance ``(k, m)`` of bands ``(k, m)`` whose camera-B bands (3–5) were predicted from A's with
+    relative error ``b_rel_std`` ``(k,)`` (the quality layer's b_predicted, :mod:`omnispectral.mosaic.predict`)."""
+    var = np.zeros(bands.shape, np.float64)
+    var[:, 3:6] = (np.asarray(b_rel_std, np.float64)[:, None] * bands[:, 3:6]) ** 2
+    return var
+
+
+def estimate_image(bands: np.ndarray, estimator, with_std: bool = False, sun: SunOverlay | None = None,
+                   b_rel_std: np.ndarray | None = None):
     """Per-pixel mixture estimate of an image ``(H, W, 6)`` → ``(H, W, n)`` (NaN where bands are not finite);
-    ``sun`` replaces the prior's guess at the recovered sun's pixels (module docstring)."""
+    ``sun`` replaces the prior's guess at the recovered sun's pixels (module docstring).  ``b_rel_std``
+    ``(H, W)`` (the quality layer's b_predicted, NaN or 0 where B measured the pixel) adds the error of B's
+    predicted bands to their noise variance there, so estimate and posterior std weigh them accordingly."""
     h, w, c = bands.shape
     flat = bands.reshape(-1, c)
     ok = np.isfinite(flat).all(axis=1)
@@ -113,14 +153,24 @@ def estimate_image(bands: np.ndarray, estimator, with_std: bool = False, sun: Su
         at = sun.mask.reshape(-1) & ok
         cov[at] = sun.coverage(flat[at].astype(np.float64))
         flat = flat - (cov[:, None] * sun.band_radiance[None, :]).astype(flat.dtype)
+    noisy = np.zeros(flat.shape[0], bool)
+    if b_rel_std is not None and c == 6:
+        rel = np.nan_to_num(np.asarray(b_rel_std, np.float64).reshape(-1), nan=0.0)
+        noisy = ok & (rel > 0)
+    plain = ok & ~noisy
+    var = predicted_noise_variance(flat[noisy].astype(np.float64), rel[noisy]) if noisy.any() else None
     spectra = np.full((flat.shape[0], len(estimator.wavelength_nm)), np.nan, np.float32)
-    spectra[ok] = estimator.estimate(flat[ok])
+    spectra[plain] = estimator.estimate(flat[plain])
+    if var is not None:
+        spectra[noisy] = estimator.estimate(flat[noisy], noise_variance=var)
     if sun is not None:
         spectra += (cov[:, None] * sun.spectral_radiance[None, :]).astype(np.float32)
     if not with_std:
         return spectra.reshape(h, w, -1)
     std = np.full_like(spectra, np.nan)
-    std[ok] = estimator.posterior_std(flat[ok])
+    std[plain] = estimator.posterior_std(flat[plain])
+    if var is not None:
+        std[noisy] = estimator.posterior_std(flat[noisy], noise_variance=var)
     if sun is not None:
         std = np.hypot(std, (cov[:, None] * sun.spectral_radiance_std[None, :]).astype(np.float32))
     return spectra.reshape(h, w, -1), std.reshape(h, w, -1)
@@ -166,13 +216,13 @@ def spectrum_in_store(index: dict, store, estimator, lon_deg: float, lat_deg: fl
     if sun is not None:  # bilinear weights over the four pixels: the sun's share follows the same weights
         sun = SunOverlay(np.ones((1, 1), bool), sun.background, sun.band_radiance, sun.spectral_radiance,
                          sun.spectral_radiance_std)
-        spectrum, std = (x[0, 0] for x in estimate_image(bands[None, None], estimator, True, sun))
-    else:
-        spectrum = estimator.estimate(bands[None])[0]
-        std = estimator.posterior_std(bands[None])[0]
+    rel_cols = [predicted_b_rel_std(store, level, (2, 1), (r0, c)) for c in cols]
+    b_rel = None if rel_cols[0] is None else np.array([[float((wts * np.hstack(rel_cols)).sum())]])
+    spectrum, std = (x[0, 0] for x in estimate_image(bands[None, None], estimator, True, sun, b_rel))
     wl = np.asarray(estimator.wavelength_nm)
     return {"lon_deg": lon, "lat_deg": float(lat_deg), "level": level, "pixel": [float(col), float(row)],
             **sun_state(store, level, patch, (r0, c0 % w), sun is not None),
+            **({"b_predicted_rel_std": float(b_rel[0, 0])} if b_rel is not None and b_rel[0, 0] > 0 else {}),
             "units": index["units"] + " per unit of the system matrix (spectral radiance, relative)",
             "bands": dict(zip(index["bands"], map(float, bands), strict=True)),
             "wavelength_nm": wl.tolist(), "spectrum": spectrum.tolist(), "std": std.tolist(),

@@ -1,0 +1,145 @@
+"""Camera B's bands where B saw nothing: predicted from camera A's bands and the surface around the pixel.
+
+A tile pixel needs B's bands where no direction gives them (B's views of the point disagree and are
+all dropped, :func:`~omnispectral.mosaic.blending.reject_inconsistent`; the point lies beyond B's
+frame) or where every direction's view is hidden by a nearer surface (``occluded``): B's value
+there would be the occluder's.  Such a pixel takes
+
+.. math:: \\hat\\rho_B = (M\\rho_A) \\odot \\exp\\bar\\ell, \\qquad
+          \\bar\\ell = \\frac{\\sum_q w_q \\log\\big(\\rho_B(q) / M\\rho_A(q)\\big)}{\\sum_q w_q},
+
+``M`` the prior's linear predictor (:func:`omnispectral.spectral.conditional.b_from_a_predictor`) and
+``q`` the neighbours (within :data:`RADII_PX`) whose B bands were measured, weighted as a joint
+bilateral filter guided by camera A (Kopf et al., "Joint bilateral upsampling", SIGGRAPH 2007): by
+the difference of A's chromaticity (σ :data:`SIGMA_CHROMA`), of A's log brightness (σ
+:data:`SIGMA_LOG_BRIGHTNESS`) and by distance, so the neighbours of the same surface set the
+correction and those across a depth edge do not.  Its relative error per band,
+:math:`\\sqrt{\\mathrm{var}_w(\\ell) + s_0^2/(1 + n_\\mathrm{eff})}` (``s0`` the prior's relative error,
+``n_eff`` the weights' effective count), is what the quality layer records (its largest band) and what
+the estimator adds to B's noise variance there (:func:`omnispectral.product.spectra.estimate_image`).
+Without neighbours the prior's ``M ρ_A`` stands with error ``s0``.  The panorama covers what camera A
+covers: a pixel only B sees is left out (NaN), like the rest of the uncovered sphere.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from omnispectral.spectral.conditional import BandPredictor
+
+__all__ = ["fill_missing_b", "tile_predictor"]
+
+#: Neighbourhood radii (px) tried in turn: a pixel with no measured neighbour like it within the first
+#: looks within the second (sampled every :data:`WIDE_STEP_PX`).
+RADII_PX = (5, 16)
+WIDE_STEP_PX = 3
+#: Joint-bilateral guide widths: A's chromaticity ``a / Σa`` and A's natural-log brightness.
+SIGMA_CHROMA = 0.03
+SIGMA_LOG_BRIGHTNESS = 0.4
+#: Sum of neighbour weights below which the neighbourhood says nothing about the pixel.
+MIN_WEIGHT = 0.05
+#: Fewest measured pixels in a tile for fitting the tile's own predictor (when none is given).
+MIN_TILE_SAMPLES = 64
+
+
+def tile_predictor(a: np.ndarray, b: np.ndarray) -> BandPredictor | None:
+    """A predictor fitted to the tile's measured pixels (``a``, ``b`` ``(k, 3)``), relative least squares;
+    ``None`` with fewer than :data:`MIN_TILE_SAMPLES` pixels.  Used when the mosaic is not given the prior's."""
+    ok = np.isfinite(a).all(axis=1) & np.isfinite(b).all(axis=1) & (a.sum(axis=1) > 0)
+    if ok.sum() < MIN_TILE_SAMPLES:
+        return None
+    s = a[ok].sum(axis=1, keepdims=True)
+    an, bn = (a[ok] / s).astype(np.float64), (b[ok] / s).astype(np.float64)
+    m, *_ = np.linalg.lstsq(an, bn, rcond=None)
+    resid = bn - an @ m
+    rel = np.sqrt((resid ** 2).mean(axis=0) / np.maximum((bn ** 2).mean(axis=0), 1e-30))
+    return BandPredictor(m.T, rel)
+
+
+def _neighbour_stats(todo_yx: tuple[np.ndarray, np.ndarray], usable: np.ndarray, log_ratio: np.ndarray,
+                     chroma: np.ndarray, log_bright: np.ndarray, radius: int, step: int):
+    """Weighted sums over the neighbours of the ``todo`` pixels: ``(Σw, Σw², Σwℓ, Σwℓ²)``."""
+    ys, xs = todo_yx
+    h, w = usable.shape
+    n = ys.size
+    sw, sw2 = np.zeros(n), np.zeros(n)
+    sl, sl2 = np.zeros((n, 3)), np.zeros((n, 3))
+    c0, b0 = chroma[ys, xs], log_bright[ys, xs]
+    sigma_px2 = 2.0 * (radius / 2.0) ** 2
+    for dy in range(-radius, radius + 1, step):
+        for dx in range(-radius, radius + 1, step):
+            yy, xx = ys + dy, xs + dx
+            inside = (yy >= 0) & (yy < h) & (xx >= 0) & (xx < w)
+            yy, xx = np.where(inside, yy, 0), np.where(inside, xx, 0)
+            ok = inside & usable[yy, xx]
+            if not ok.any():
+                continue
+            d_chroma = ((chroma[yy, xx] - c0) ** 2).sum(axis=1) / (2 * SIGMA_CHROMA ** 2)
+            d_bright = (log_bright[yy, xx] - b0) ** 2 / (2 * SIGMA_LOG_BRIGHTNESS ** 2)
+            wt = np.where(ok, np.exp(-d_chroma - d_bright - (dy * dy + dx * dx) / sigma_px2), 0.0)
+            ell = log_ratio[yy, xx]
+            sw += wt
+            sw2 += wt * wt
+            sl += wt[:, None] * ell
+            sl2 += wt[:, None] * ell * ell
+    return sw, sw2, sl, sl2
+
+
+def fill_missing_b(values: np.ndarray, missing: np.ndarray, predictor: BandPredictor | None = None) -> np.ndarray:
+    """Predict camera B's bands (3–5) of ``values`` ``(h, w, 6)`` in place at ``missing`` pixels (module docstring).
+
+    Parameters
+    ----------
+    values
+        A tile's six bands; A's (0–2) must be finite where B's are to be predicted.
+    missing
+        ``(h, w)`` bool: pixels whose B bands are not to be trusted (not finite, or hidden in every view).
+    predictor
+        The prior's predictor; ``None`` fits one to the tile's measured pixels (:func:`tile_predictor`).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(h, w)`` float32: the prediction's relative error (largest band) where predicted, NaN elsewhere.
+        Pixels with A not finite get NaN B bands (the panorama covers what camera A covers).
+    """
+    a, b = values[..., :3], values[..., 3:6]
+    a_ok = np.isfinite(a).all(axis=-1)
+    rel_out = np.full(missing.shape, np.nan, np.float32)
+    b[~a_ok] = np.nan
+    todo = missing & a_ok
+    if not todo.any():
+        return rel_out
+    measured = a_ok & np.isfinite(b).all(axis=-1) & ~missing
+    if predictor is None:
+        predictor = tile_predictor(a[measured], b[measured])
+        if predictor is None:
+            b[todo] = np.nan
+            return rel_out
+    prior_b = (a.astype(np.float64) @ np.asarray(predictor.matrix, np.float64).T)
+    bright = a.sum(axis=-1, dtype=np.float64)
+    with np.errstate(all="ignore"):
+        usable = measured & (prior_b > 0).all(axis=-1) & (b > 0).all(axis=-1) & (bright > 0)
+        log_ratio = np.where(usable[..., None], np.log(b / prior_b), 0.0)
+        chroma = np.where(bright[..., None] > 0, a / bright[..., None], 0.0)
+        log_bright = np.log(np.maximum(bright, 1e-30))
+    ys, xs = np.nonzero(todo)
+    sw, sw2 = np.zeros(ys.size), np.zeros(ys.size)
+    sl, sl2 = np.zeros((ys.size, 3)), np.zeros((ys.size, 3))
+    pending = np.ones(ys.size, bool)
+    for radius, step in zip(RADII_PX, (1, WIDE_STEP_PX), strict=True):
+        if not pending.any():
+            break
+        idx = np.flatnonzero(pending)
+        stats = _neighbour_stats((ys[idx], xs[idx]), usable, log_ratio, chroma, log_bright, radius, step)
+        for acc, new in zip((sw, sw2, sl, sl2), stats, strict=True):
+            acc[idx] = new
+        pending = sw < MIN_WEIGHT
+    seen = sw >= MIN_WEIGHT
+    mean = np.where(seen[:, None], sl / np.maximum(sw, 1e-30)[:, None], 0.0)
+    var = np.where(seen[:, None], np.clip(sl2 / np.maximum(sw, 1e-30)[:, None] - mean ** 2, 0.0, None), 0.0)
+    n_eff = np.where(seen, sw ** 2 / np.maximum(sw2, 1e-30), 0.0)
+    rel = np.sqrt(var + np.asarray(predictor.rel_std) ** 2 / (1.0 + n_eff[:, None]))
+    b[ys, xs] = (np.maximum(prior_b[ys, xs], 0.0) * np.exp(mean)).astype(b.dtype)
+    rel_out[ys, xs] = rel.max(axis=1)
+    return rel_out

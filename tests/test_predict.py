@@ -1,0 +1,84 @@
+"""Camera B's bands where B saw nothing: the prior's predictor (spectral.conditional) and its neighbourhood
+adaptation (mosaic.predict)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from omnispectral.mosaic.predict import fill_missing_b, tile_predictor
+from omnispectral.spectral.conditional import BandPredictor, b_from_a_predictor
+
+
+@pytest.fixture(scope="module")
+def estimator():
+    from omnispectral.product.estimator import rig_estimator
+    from omnispectral.rig import load_preset
+
+    return rig_estimator(load_preset("small"))[0]
+
+
+def test_prior_predictor_equals_least_squares_on_samples_of_the_prior(estimator):
+    rng = np.random.default_rng(0)
+    k = rng.choice(len(estimator.weights), size=40000, p=estimator.weights)
+    chol = np.linalg.cholesky(estimator.covariances + 1e-12 * np.eye(estimator.covariances.shape[1]))
+    z = rng.standard_normal((k.size, estimator.means.shape[1]))
+    signals = estimator.means[k] + np.einsum("kij,kj->ki", chol[k], z)
+    bands = signals @ estimator.system_matrix.T
+    m_lstsq, *_ = np.linalg.lstsq(bands[:, :3], bands[:, 3:], rcond=None)
+    resid = bands[:, 3:] - bands[:, :3] @ m_lstsq
+    pred = b_from_a_predictor(estimator)
+    np.testing.assert_allclose(pred.matrix, m_lstsq.T, rtol=0.05, atol=0.05 * np.abs(pred.matrix).max())
+    rel = np.sqrt((resid ** 2).mean(axis=0) / (bands[:, 3:] ** 2).mean(axis=0))
+    np.testing.assert_allclose(pred.rel_std, rel, rtol=0.05)
+    back = BandPredictor.from_dict(pred.to_dict())
+    np.testing.assert_array_equal(back.matrix, pred.matrix)
+    np.testing.assert_array_equal(back.rel_std, pred.rel_std)
+
+
+def _two_surfaces(shape=(40, 60)):
+    """Left half: a = (1, 2, 1), b = 1.5 · M a; right half: a = (2, 1, 1) · 3, b = 0.6 · M a (M = identity)."""
+    h, w = shape
+    img = np.zeros((h, w, 6), np.float32)
+    img[:, : w // 2, :3] = (1.0, 2.0, 1.0)
+    img[:, w // 2:, :3] = (6.0, 3.0, 3.0)
+    img[:, : w // 2, 3:] = 1.5 * img[:, : w // 2, :3]
+    img[:, w // 2:, 3:] = 0.6 * img[:, w // 2:, :3]
+    return img
+
+
+def test_missing_b_is_predicted_from_the_surface_that_looks_alike_in_a():
+    img = _two_surfaces()
+    truth = img.copy()
+    missing = np.zeros(img.shape[:2], bool)
+    missing[10:20, 25:35] = True  # straddles the edge between the two surfaces
+    img[missing, 3:] = np.nan
+    prior = BandPredictor(np.eye(3), np.full(3, 0.4))
+    rel = fill_missing_b(img, missing, prior)
+    assert np.isfinite(img).all()
+    err = np.abs(img[missing, 3:] - truth[missing, 3:]) / truth[missing, 3:]
+    assert err.max() < 1e-4  # each side takes its own surface's ratio (1.5 or 0.6), never the mix
+    assert np.isfinite(rel[missing]).all() and not np.isfinite(rel[~missing]).any()
+    assert rel[missing].max() < 0.4 * 0.5  # many agreeing neighbours: well below the prior's error
+
+
+def test_without_neighbours_the_prior_stands_with_its_error():
+    img = _two_surfaces((30, 30))
+    missing = np.ones(img.shape[:2], bool)
+    img[..., 3:] = np.nan
+    prior = BandPredictor(np.diag([2.0, 1.0, 0.5]), np.array([0.1, 0.3, 0.2]))
+    rel = fill_missing_b(img, missing, prior)
+    np.testing.assert_allclose(img[..., 3:], img[..., :3] * np.array([2.0, 1.0, 0.5]), rtol=1e-6)
+    np.testing.assert_allclose(rel, 0.3)
+
+
+def test_b_outside_camera_a_coverage_is_dropped_and_a_tile_fits_its_own_predictor():
+    img = _two_surfaces()
+    img[:5, :, :3] = np.nan  # camera A covers nothing there: neither camera counts
+    missing = ~np.isfinite(img[..., 3:]).all(axis=-1)
+    missing[20, 5] = True
+    img[20, 5, 3:] = np.nan
+    fill_missing_b(img, missing, None)
+    assert not np.isfinite(img[:5]).any()
+    np.testing.assert_allclose(img[20, 5, 3:], 1.5 * img[20, 5, :3], rtol=1e-3)
+    assert tile_predictor(np.ones((10, 3)), np.ones((10, 3))) is None  # too few pixels to fit

@@ -69,3 +69,10 @@ def test_user_prior_sets(tmp_path, capsys):
     prior = out["six_band"]["prior"]
     assert prior["reflectance_sets"] == [str(mine)] and prior["illuminants"] == ["D65", "A"]
     assert prior["n_reflectances"] + prior["n_excluded_as_held_out"] == 120
+
+
+def test_evaluate_writes_no_plot_unless_asked(tmp_path, monkeypatch, capsys):
+    """``spectral evaluate`` without ``--plot`` leaves the working directory as it was (issue 29)."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["spectral", "evaluate", "--noise", "off", "--estimator", "pooled"]) == 0
+    assert list(tmp_path.iterdir()) == [] and "Plot of" not in capsys.readouterr().out

@@ -96,3 +96,22 @@ def test_preview_and_radiance_hdr(tmp_path):
     # brighter input never gives a darker preview pixel (monotone tone curve, same exposure)
     ramp = np.linspace(0, 5, 50, dtype=np.float32)[None, :, None].repeat(3, axis=2)
     assert np.all(np.diff(tone_map_srgb(ramp)[0, :, 1].astype(int)) >= 0)
+
+
+def test_radiance_hdr_declares_rec709_primaries_and_d65_and_stays_readable(tmp_path):
+    """The ``.hdr`` header says which RGB it holds (``PRIMARIES=``, before ``FORMAT=`` for rgbe.c readers);
+    OpenCV and OpenImageIO still read the same pixels."""
+    import cv2
+
+    rgb = np.random.default_rng(3).uniform(0.01, 5.0, (6, 8, 3)).astype(np.float32)
+    path = write_radiance_hdr(tmp_path / "p.hdr", rgb)
+    header = path.read_bytes().split(b"\n\n", 1)[0].decode("ascii").splitlines()
+    assert header == ["#?RADIANCE", "PRIMARIES= 0.640 0.330 0.300 0.600 0.150 0.060 0.3127 0.3290",
+                      "FORMAT=32-bit_rle_rgbe"]
+    assert [p.name for p in tmp_path.iterdir()] == ["p.hdr"]
+    back = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)[..., ::-1]
+    tol = rgb.max(axis=2, keepdims=True) / 100  # RGBE: 8-bit mantissas with a shared exponent
+    assert np.all(np.abs(back - rgb) <= tol)
+    oiio = pytest.importorskip("OpenImageIO")
+    buf = oiio.ImageBuf(str(path))
+    assert buf.spec().format == oiio.FLOAT and np.all(np.abs(buf.get_pixels(oiio.FLOAT) - rgb) <= tol)

@@ -14,6 +14,7 @@ from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.imaging import merge_exposures
 from omnispectral.imaging.bracket import (
     exif_exposure_s,
+    exposure_time_mismatches,
     load_bracket,
     merge_bracket,
     parse_exposure_s,
@@ -97,7 +98,8 @@ def test_memorial_bracket_matches_debevecs_radiance_map(shared_data):
     paths = sorted(d.glob("memorial00*.png"))
     bracket = load_bracket(paths, times_list=d / "memorial.hdr_image_list.txt")
     assert bracket.exposure_s[0] == 32 and bracket.exposure_s[-1] == 1 / 1024
-    result, _, _ = merge_bracket(bracket, weight="noise")
+    result, response, depth = merge_bracket(bracket, weight="noise")
+    assert exposure_time_mismatches(bracket, response, depth) == []  # a dark floor (codes 13-19) does not fool it
     ref = cv2.imread(str(d / "memorial.hdr"), cv2.IMREAD_UNCHANGED)[..., ::-1].astype(np.float64)
     ok = result.valid.all(axis=2)  # the blue border (0, 0, 255) is flagged: zero codes and clipped blue
     assert 0.9 < ok.mean() < 0.97
@@ -271,3 +273,30 @@ def test_deghosting_takes_a_moving_object_from_the_reference_exposure():
     # the static background is left alone: few false detections, same accuracy
     assert (clean.ghost & ~moving).mean() < 0.03
     assert np.median(err(clean)[~moving]) == pytest.approx(np.median(err(plain)[~moving]), rel=0.05)
+
+
+@pytest.mark.parametrize("wrong", ["none", "one", "reversed"])
+def test_cli_warns_once_when_exposure_times_disagree_with_the_frames(tmp_path, capsys, wrong):
+    """Frame brightness ratios (median over values usable in both) against the stated times: right times say
+    nothing; one wrong time names both pairs it belongs to; times in the wrong order name every pair."""
+    _, _, paths, times = _raw_tiffs(tmp_path, np.random.default_rng(6), PAPER_TIMES_S[::2][:5])
+    stated = list(times)
+    if wrong == "one":
+        stated[2] = times[2] / 3
+    elif wrong == "reversed":
+        stated = stated[::-1]
+    out = tmp_path / "merged.exr"
+    assert main(["hdr", "merge", *map(str, paths), "--bit-depth", "12", "--times", *map(str, stated),
+                 "-o", str(out), "--json"]) == 0
+    captured = capsys.readouterr()
+    warnings = json.loads(captured.out)["exposure_time_warnings"]
+    if wrong == "none":
+        assert warnings == [] and captured.err == ""
+        return
+    assert captured.err.count("\n") == 1 and "exposure times inconsistent with the frames" in captured.err
+    assert "--times" in captured.err and out.is_file()
+    if wrong == "one":  # raw02 is 3x shorter than its real time: its two neighbours disagree with it
+        assert len(warnings) == 2 and all("raw02.tif" in w for w in warnings)
+        assert "raw01.tif" in captured.err and "raw03.tif" in captured.err
+    else:
+        assert len(warnings) == 4

@@ -395,3 +395,36 @@ def test_variant_choice_avoids_an_llvm_too_old_for_mitsuba():
     assert auto_variant(both, (15, 0, 6)) == "scalar_rgb"
     assert auto_variant(both, None) == "scalar_rgb"
     assert auto_variant(["scalar_rgb"], (19, 1, 7)) == "scalar_rgb"
+
+
+def test_render_scene_file_film_size_and_sample_count_unless_given(tmp_path, small_estimator):
+    """``render --scene FILE.xml`` renders at the scene file's film size and sample count (``$param`` read
+    from its ``<default>``); ``--width``/``--height``/``--spp`` given on the command line win."""
+    from omnispectral.cli import main
+
+    write_band_product(tmp_path / "p", _band_env(small_estimator, 16),
+                       {"bands": list(small_estimator.band_names), "units": "DN/s",
+                        "estimator": {"params": estimator_params(load_preset("small"))}}, tile=16)
+    grey = "".join(f"{w},0.5\n" for w in range(400, 701, 50))
+    (tmp_path / "grey.csv").write_text("wavelength_nm,reflectance\n" + grey)
+    (tmp_path / "plate.xml").write_text("""<scene version="3.0.0">
+  <default name="spp" value="3"/>
+  <sensor type="perspective"><float name="fov" value="30"/>
+    <sampler type="independent"><integer name="sample_count" value="$spp"/></sampler>
+    <film type="hdrfilm"><integer name="width" value="12"/><integer name="height" value="5"/></film>
+  </sensor>
+  <shape type="sphere"><bsdf type="diffuse"><spectrum name="reflectance" filename="grey.csv"/></bsdf></shape>
+</scene>""")
+    base = ["render", str(tmp_path / "p"), "--scene", str(tmp_path / "plate.xml"), "--wavelength-step", "60",
+            "--json"]
+    assert main([*base, "-o", str(tmp_path / "a")]) == 0
+    meta = json.loads((tmp_path / "a" / "render.json").read_text())
+    assert (meta["width"], meta["height"], meta["spp"]) == (12, 5, 3)
+    assert main([*base, "-o", str(tmp_path / "b"), "--width", "7", "--spp", "2"]) == 0
+    meta = json.loads((tmp_path / "b" / "render.json").read_text())
+    assert (meta["width"], meta["height"], meta["spp"]) == (7, 5, 2)
+    import cv2
+
+    assert cv2.imread(str(tmp_path / "b" / "render.png")).shape == (5, 7, 3)
+    # a grid too coarse for the render's colour is a usage error, not a traceback
+    assert main([*base[:-2], "100", "-o", str(tmp_path / "c")]) == 2

@@ -302,12 +302,21 @@ def test_view_slots_and_cli_errors(tiny_product, tmp_path, capsys):
         s.bind(("127.0.0.1", 0))
         s.listen()
         port = s.getsockname()[1]
-        assert main(["view", str(tiny_product), "--port", str(port)]) == 2
-        assert "cannot listen" in capsys.readouterr().err
+        # a busy port: the work failed (1), one line naming host:port, nothing opened first
+        assert main(["view", str(tiny_product), "--port", str(port)]) == 1
+        err = capsys.readouterr().err
+        assert f"cannot listen on 127.0.0.1:{port}" in err and err.count("\n") == 1
         # another address than loopback: a warning first (here the port is taken on all addresses too)
-        assert main(["view", str(tiny_product), "--port", str(port), "--host", "0.0.0.0"]) == 2
+        assert main(["view", str(tiny_product), "--port", str(port), "--host", "0.0.0.0"]) == 1
     err = capsys.readouterr().err
-    assert "warning" in err and "0.0.0.0" in err and "cannot listen" in err
+    assert "warning" in err and "0.0.0.0" in err and f"cannot listen on 0.0.0.0:{port}" in err
+
+
+@pytest.mark.parametrize("port", ["99999", "65536", "-1"])
+def test_view_port_out_of_range_is_a_one_line_usage_error(tiny_product, capsys, port):
+    assert main(["view", str(tiny_product), "--port", port]) == 2
+    err = capsys.readouterr().err
+    assert f"--port {port}: a TCP port is 0..65535" in err and err.count("\n") == 1 and "Traceback" not in err
 
 
 def test_probes_csv_of_nothing_is_refused(client):

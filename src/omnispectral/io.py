@@ -63,19 +63,46 @@ def follow_umask(path: str | Path, directory: bool = False) -> None:
     os.chmod(path, (0o777 if directory else 0o666) & ~current_umask())
 
 
+def names_temp_file_of(name: str | os.PathLike | None, path: Path) -> bool:
+    """Whether ``name`` is one of :func:`atomic_path`'s temporary files for ``path`` (or names no file at all)."""
+    if name is None:
+        return True
+    if isinstance(name, int):  # a file descriptor
+        return False
+    other = Path(os.path.abspath(os.fsdecode(name)))
+    return other.parent == Path(os.path.abspath(path)).parent and other.name.startswith(f".{path.name}{TEMP_MARK}")
+
+
+def error_naming_output(exc: OSError, path: Path) -> OSError:
+    """``exc`` as an error of the output ``path`` when it names a temporary file of ``path`` or no file (a
+    failed ``write`` names none): the user asked for ``path`` and never saw the temporary name.  Other
+    errors (a parent directory, an input) come back unchanged."""
+    if exc.errno is None or not names_temp_file_of(exc.filename, path) \
+            or not (exc.filename2 is None or os.path.abspath(os.fsdecode(exc.filename2)) == os.path.abspath(path)):
+        return exc
+    return OSError(exc.errno, exc.strerror, str(path))  # OSError picks the subclass (PermissionError, …)
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` if the block succeeds.
 
     The temporary file lives in the same directory (so the rename is atomic on POSIX) and keeps
     the target's suffix (so libraries that choose a format by extension still work).  On error
-    the temporary file is removed and ``path`` is left untouched.  The file gets the permissions the
-    umask gives new files (:func:`follow_umask`), not :func:`tempfile.mkstemp`'s ``0o600``.
+    the temporary file is removed and ``path`` is left untouched; an operating-system error of the
+    temporary file is raised as one of ``path`` (:func:`error_naming_output`).  The file gets the
+    permissions the umask gives new files (:func:`follow_umask`), not :func:`tempfile.mkstemp`'s ``0o600``.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}{TEMP_MARK}", suffix=suffix if suffix is not None else path.suffix,
-                               dir=path.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}{TEMP_MARK}",
+                                   suffix=suffix if suffix is not None else path.suffix, dir=path.parent)
+    except OSError as exc:
+        renamed = error_naming_output(exc, path)
+        if renamed is exc:
+            raise
+        raise renamed from exc
     os.close(fd)
     tmp_path = Path(tmp)
     try:
@@ -84,10 +111,20 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
         with open(tmp_path, "rb+") as fh:
             os.fsync(fh.fileno())
         os.replace(tmp_path, path)
+    except OSError as exc:
+        _remove_quietly(tmp_path)
+        renamed = error_naming_output(exc, path)
+        if renamed is exc:
+            raise
+        raise renamed from exc
     except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            tmp_path.unlink()
+        _remove_quietly(tmp_path)
         raise
+
+
+def _remove_quietly(path: Path) -> None:
+    with contextlib.suppress(FileNotFoundError):
+        path.unlink()
 
 
 def atomic_write_text(path: str | Path, text: str) -> Path:

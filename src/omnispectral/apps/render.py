@@ -19,7 +19,9 @@ and with the mixture prior the estimate of a sum of radiances is not the sum of 
 ball, Palik's optical constants; plate = the ColorChecker's neutral 5 patch).  :class:`XmlScene` takes any
 Mitsuba scene file whose spectral parameters are given as CSV files (``<spectrum name="reflectance"
 filename="paint.csv"/>``; for conductors ``name="eta"`` / ``name="k"`` with a ``wavelength_nm,n,k`` file);
-its environment emitter, if any, is replaced by the product's map (its ``to_world`` and ``scale`` kept).
+its environment emitter, if any, is replaced by the product's map (its ``to_world`` and ``scale`` kept); its
+film's width and height and its sampler's ``sample_count`` are the render's unless the caller gives others
+(:func:`render_settings`), and a file without an ``<integrator>`` gets Mitsuba's ``path``.
 
 **Variant.** ``llvm_ad_rgb`` when Dr.Jit finds an LLVM library of version 17 or later (Debian
 ``libllvm19``; older ones abort the process while compiling Mitsuba's kernels), else ``scalar_rgb``;
@@ -252,6 +254,35 @@ class XmlScene:
         if not any(el.tag == "sensor" for el in root):
             raise InputFileError(self.path, "has no <sensor>")
 
+    def _integer(self, tag: str, name: str) -> int | None:
+        """The first ``<integer name=NAME>`` of a ``<TAG>`` inside the first ``<sensor>`` (``$param`` resolved
+        through the file's ``<default>`` elements); ``None`` when the file does not say."""
+        root = self.tree.getroot()
+        sensor = next(el for el in root if el.tag == "sensor")
+        defaults = {el.get("name"): el.get("value") for el in root if el.tag == "default"}
+        for el in sensor.iter(tag):
+            for child in el:
+                if child.tag == "integer" and child.get("name") == name:
+                    text = str(child.get("value", "")).strip()
+                    text = defaults.get(text[1:], "") if text.startswith("$") else text
+                    try:
+                        value = int(text)
+                    except ValueError:
+                        raise InputFileError(self.path, f"<{tag}>'s {name} is {child.get('value')!r}, not a "
+                                                        "whole number") from None
+                    if value < 1:
+                        raise InputFileError(self.path, f"<{tag}>'s {name} must be positive, not {value}")
+                    return value
+        return None
+
+    def film_size(self) -> tuple[int | None, int | None]:
+        """Width and height of the scene file's film in pixels (``None`` for what the file does not give)."""
+        return self._integer("film", "width"), self._integer("film", "height")
+
+    def sample_count(self) -> int | None:
+        """Samples per pixel of the scene file's sampler (``None`` when the file does not give it)."""
+        return self._integer("sampler", "sample_count")
+
     def build(self, mi, material_rgb: dict, env_rgb: np.ndarray, width: int, height: int, spp: int):
         root = copy.deepcopy(self.tree.getroot())
         slots = iter(self._slots)
@@ -264,10 +295,9 @@ class XmlScene:
                                              "value": ", ".join(f"{float(v):.9g}" for v in np.asarray(values)[:3])})
                     parent.remove(el)
                     parent.insert(i, new)
-        for el in root.iter("film"):
-            for child in el:
-                if child.tag == "integer" and child.get("name") in ("width", "height"):
-                    child.set("value", str(width if child.get("name") == "width" else height))
+        _set_film_size(root, width, height)
+        if not any(el.tag == "integrator" for el in root):  # Mitsuba's render() refuses a scene without one
+            root.insert(0, ET.Element("integrator", {"type": "path"}))
         with tempfile.TemporaryDirectory(prefix="omnispectral-render-") as tmp:
             env_path = Path(tmp) / "environment.exr"
             mi.Bitmap(np.ascontiguousarray(env_rgb, np.float32)).write(str(env_path))
@@ -294,6 +324,18 @@ class XmlScene:
         return {"kind": self.kind, "file": str(self.path.resolve()), "materials": sorted(self.materials)}
 
 
+def _set_film_size(root: ET.Element, width: int, height: int) -> None:
+    """Give every sensor's film ``width`` × ``height`` pixels (a film is added where a sensor has none)."""
+    for sensor in root.iter("sensor"):
+        films = [el for el in sensor if el.tag == "film"] or [ET.SubElement(sensor, "film", {"type": "hdrfilm"})]
+        for film in films:
+            for name, value in (("width", width), ("height", height)):
+                el = next((c for c in film if c.tag == "integer" and c.get("name") == name), None)
+                if el is None:
+                    el = ET.SubElement(film, "integer", {"name": name})
+                el.set("value", str(value))
+
+
 def scene_from_name(scene: str | None, **kwargs):
     """``mirror-ball`` (default; keyword arguments go to :class:`MirrorBallScene`) or a Mitsuba XML file."""
     if scene in (None, "mirror-ball"):
@@ -315,6 +357,11 @@ class RenderResult:
         return spectra_to_linear_srgb(self.spectra, self.wavelength_nm)
 
 
+#: Fewest wavelengths of a spectral render: colour-science interpolates the colour-matching functions onto the
+#: grid with a 6-point (Sprague) kernel.
+MIN_WAVELENGTHS = 6
+
+
 def wavelength_grid(env: EnvironmentMap, step_nm: float | None) -> np.ndarray:
     """The environment's own grid, or a coarser one every ``step_nm`` within it."""
     wl = env.wavelength_nm
@@ -323,8 +370,9 @@ def wavelength_grid(env: EnvironmentMap, step_nm: float | None) -> np.ndarray:
     if step_nm <= 0:
         raise ConfigurationError(f"wavelength step must be positive, got {step_nm}")
     grid = np.arange(wl[0], wl[-1] + 1e-9, float(step_nm))
-    if grid.size < 3:
-        raise ConfigurationError(f"a {step_nm:g} nm step leaves fewer than 3 wavelengths in {wl[0]:g}-{wl[-1]:g} nm")
+    if grid.size < MIN_WAVELENGTHS:
+        raise ConfigurationError(f"a {step_nm:g} nm step leaves fewer than {MIN_WAVELENGTHS} wavelengths in "
+                                 f"{wl[0]:g}-{wl[-1]:g} nm (the render's colour needs {MIN_WAVELENGTHS})")
     return grid
 
 
@@ -411,6 +459,21 @@ def render_fast(env: EnvironmentMap, estimator, scene, width: int = 256, height:
     return result
 
 
+#: Image size and samples per pixel of a render when neither the caller nor the scene file gives them.
+DEFAULT_WIDTH, DEFAULT_HEIGHT, DEFAULT_SPP = 256, 256, 64
+
+
+def render_settings(scene, width: int | None = None, height: int | None = None,
+                    spp: int | None = None) -> tuple[int, int, int]:
+    """Width, height and samples per pixel of a render: each value given wins, else the scene file's (its film's
+    ``width``/``height``, its sampler's ``sample_count``), else ``DEFAULT_WIDTH``/``DEFAULT_HEIGHT``/``DEFAULT_SPP``."""
+    film_w, film_h = scene.film_size() if hasattr(scene, "film_size") else (None, None)
+    count = scene.sample_count() if hasattr(scene, "sample_count") else None
+    return (next(v for v in (width, film_w, DEFAULT_WIDTH) if v is not None),
+            next(v for v in (height, film_h, DEFAULT_HEIGHT) if v is not None),
+            next(v for v in (spp, count, DEFAULT_SPP) if v is not None))
+
+
 def _check_size(width: int, height: int, spp: int) -> None:
     if min(width, height, spp) < 1:
         raise ConfigurationError(f"image size and samples per pixel must be positive, got {width}x{height}, {spp} spp")
@@ -450,16 +513,20 @@ def auto_exposure_reference(rgb: np.ndarray, percentile: float = 99.0) -> float:
     return float(np.percentile(pos, percentile)) if pos.size else 1.0
 
 
-def render_product(product: str | Path, out_dir: str | Path, scene: str | None = None, width: int = 256,
-                   height: int = 256, spp: int = 64, level: int | None = None, max_env_width: int = 1024,
-                   wavelength_step_nm: float | None = None, fast: bool = False, seed: int = 0,
-                   variant: str | None = None, name: str = "render", exposure: float | None = None,
+def render_product(product: str | Path, out_dir: str | Path, scene: str | None = None, width: int | None = None,
+                   height: int | None = None, spp: int | None = None, level: int | None = None,
+                   max_env_width: int = 1024, wavelength_step_nm: float | None = None, fast: bool = False,
+                   seed: int = 0, variant: str | None = None, name: str = "render", exposure: float | None = None,
                    progress: Callable[[str], None] | None = None, **scene_kwargs) -> dict:
-    """Render a product's environment with a scene (mirror ball by default) and write the outputs."""
+    """Render a product's environment with a scene (mirror ball by default) and write the outputs.
+
+    ``width``, ``height`` and ``spp`` left at ``None`` come from a scene file's film and sampler, else the
+    defaults (:func:`render_settings`)."""
 
     t0 = time.perf_counter()
-    env, estimator = environment_from_product(product, level, max_env_width)
     sc = scene_from_name(scene, **scene_kwargs)
+    width, height, spp = render_settings(sc, width, height, spp)
+    env, estimator = environment_from_product(product, level, max_env_width)
     if fast:
         result = render_fast(env, estimator, sc, width, height, spp, seed, variant, progress=progress)
     else:

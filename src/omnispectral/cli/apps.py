@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from rich.markup import escape
 
 from omnispectral.apps.materials import load_metal
@@ -65,8 +67,8 @@ def cmd_render_series(args) -> int:
     if args.json:
         print_json(out)
         return 0
-    console.print(f"{out['n_slots']} slots rendered into {args.output}: contact sheet {out['contact_sheet']}, frames "
-                  f"{out['frames']}/frame_%04d.png")
+    console.print(f"{out['n_slots']} slots rendered into {Path(args.output)}: contact sheet {out['contact_sheet']}, "
+                  f"frames {Path(out['frames']) / 'frame_%04d.png'}")
     return 0
 
 
@@ -93,10 +95,18 @@ def _add_render_args(p) -> None:
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output directory")
     p.add_argument("--scene", default="mirror-ball", metavar="mirror-ball|FILE.xml",
                    help="the paper's mirror ball on a grey plate (default) or a Mitsuba scene file whose spectral "
-                        "parameters are CSV files (<spectrum name=\"reflectance\" filename=\"paint.csv\"/>)")
-    p.add_argument("--width", type=int, default=256)
-    p.add_argument("--height", type=int, default=256)
-    p.add_argument("--spp", type=int, default=64, help="samples per pixel")
+                        "parameters are CSV files (<spectrum name=\"reflectance\" filename=\"paint.csv\"/>); the "
+                        "file's film width/height and sampler sample_count are used unless --width, --height or "
+                        "--spp is given")
+    p.add_argument("--width", type=int, default=None, metavar="PX",
+                   help="image width (default: a --scene file's film width, else 256; this option wins over the "
+                        "scene file)")
+    p.add_argument("--height", type=int, default=None, metavar="PX",
+                   help="image height (default: a --scene file's film height, else 256; this option wins over the "
+                        "scene file)")
+    p.add_argument("--spp", type=int, default=None, metavar="N",
+                   help="samples per pixel (default: a --scene file's sampler sample_count, else 64; this option "
+                        "wins over the scene file)")
     p.add_argument("--level", type=int, default=None, help="pyramid level of the environment (default: the finest "
                                                             "at most --env-width wide)")
     p.add_argument("--env-width", type=int, default=1024, metavar="PX")

@@ -6,9 +6,16 @@ import time
 from pathlib import Path
 
 import numpy as np
+from rich.markup import escape
 
-from omnispectral.cli._common import console, print_json
-from omnispectral.imaging.bracket import auto_weight, load_bracket, merge_bracket, write_float_image
+from omnispectral.cli._common import console, err_console, print_json
+from omnispectral.imaging.bracket import (
+    auto_weight,
+    exposure_time_mismatches,
+    load_bracket,
+    merge_bracket,
+    write_float_image,
+)
 from omnispectral.imaging.response import CameraResponse
 from omnispectral.limits import refuse_overwriting_inputs
 
@@ -25,6 +32,9 @@ def cmd_hdr_merge(args) -> int:
     weight = auto_weight(bracket, args.response) if args.weight == "auto" else args.weight
     result, resp, depth = merge_bracket(bracket, bit_depth=args.bit_depth, weight=weight, response=response,
                                         deghost=args.deghost, reference=args.reference)
+    mismatches = [m.describe() for m in exposure_time_mismatches(bracket, resp, depth)]
+    if mismatches:
+        _warn_exposure_times(mismatches, bracket.time_sources)
     names = ["R", "G", "B"] if result.radiance.shape[2] == 3 else None
     image, channel_names = result.radiance, names
     if args.with_variance:
@@ -47,7 +57,8 @@ def cmd_hdr_merge(args) -> int:
         "fraction_dark": float(result.dark.any(axis=2).sum() / n),
         "fraction_ghost": None if result.ghost is None else float(result.ghost.mean()),
         "radiance_min": float(result.radiance.min()), "radiance_max": float(result.radiance.max()),
-        "response_file": args.save_response, "elapsed_s": round(time.perf_counter() - t0, 3),
+        "response_file": args.save_response, "exposure_time_warnings": mismatches,
+        "elapsed_s": round(time.perf_counter() - t0, 3),
     }
     if args.json:
         print_json(summary)
@@ -61,6 +72,16 @@ def cmd_hdr_merge(args) -> int:
                   + ("" if result.ghost is None else f", ghosts {100 * summary['fraction_ghost']:.2f} %") + ".")
     console.print(f"Wrote {out}" + (f" and {args.save_response}" if args.save_response else ""))
     return 0
+
+
+def _warn_exposure_times(mismatches: list[str], sources: tuple[str, ...]) -> None:
+    """One warning line on standard error: which frames disagree with their exposure times, and where the
+    times came from."""
+    where = {"given": "--times (in file order)", "list": "the --times-list file", "exif": "the EXIF ExposureTime"}
+    origin = " and ".join(where.get(s, s) for s in dict.fromkeys(sources))
+    err_console.print(f"[bold yellow]warning:[/bold yellow] exposure times inconsistent with the frames: "
+                      f"{escape('; '.join(mismatches))}; check {origin} (a wrong time shows as ghosts and a wrong "
+                      "radiance)")
 
 
 def add_commands(sub) -> None:

@@ -16,11 +16,8 @@ from omnispectral.spectral.noise import CMV2000
 from omnispectral.spectral.plots import plot_estimates
 from omnispectral.spectral.select import select_filters
 
+
 # --------------------------------------------------------------------------------- spectral
-#: Plot written by ``spectral evaluate`` without ``--json`` when ``--plot`` is not given.
-DEFAULT_PLOT = "spectral_evaluation.png"
-
-
 def _protocol_from_args(args):
     return Protocol(
         target=args.target, illuminant=args.illuminant, camera=args.camera, filters=tuple(args.filter),
@@ -60,10 +57,7 @@ def cmd_spectral_evaluate(args) -> int:
     if len(args.filter) != 2:
         raise ConfigurationError("--filter must be given twice (camera A's and camera B's filter) or not at all")
     result = evaluate(_protocol_from_args(args))
-    plot_path = None
-    plot = args.plot if args.plot is not None else (None if args.json else DEFAULT_PLOT)
-    if plot not in (None, "none"):
-        plot_path = plot_estimates(result, plot)
+    plot_path = None if args.plot in (None, "none") else plot_estimates(result, args.plot)  # only when asked
     out = public(result)
     out["plot"] = None if plot_path is None else str(plot_path)
     if args.json_out:
@@ -164,8 +158,8 @@ def add_commands(sub) -> None:
     ev.add_argument("--noise-aware", action="store_true",
                     help="give the estimator each patch's noise variance (signal-dependent sigma^2)")
     ev.add_argument("--plot", default=None, metavar="FILE.png|none",
-                    help=f"PNG of six estimated vs true spectra (paper Fig. 9 style); default {DEFAULT_PLOT} "
-                         f"without --json, none with --json; 'none' to skip")
+                    help="also write a PNG of six estimated vs true spectra (paper Fig. 9 style) to FILE.png "
+                         "(default: no plot; 'none' is accepted for no plot too)")
     ev.add_argument("--json", action="store_true", help="print results as JSON")
     ev.add_argument("--json-out", default=None, metavar="FILE.json", help="also write the JSON results to a file")
     ev.set_defaults(func=cmd_spectral_evaluate)

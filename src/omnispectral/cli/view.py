@@ -2,15 +2,20 @@
 
 from __future__ import annotations
 
+from rich.markup import escape
+
 from omnispectral.cli._common import console, err_console
-from omnispectral.view.server import LOCAL_HOSTS, serve
+from omnispectral.view.server import LOCAL_HOSTS, check_listen_address, check_port_number, serve
 
 
 def cmd_view(args) -> int:
+    check_port_number(args.port)  # a usage error before anything is printed or opened
     if args.host not in LOCAL_HOSTS:
-        err_console.print(f"[bold yellow]warning:[/bold yellow] serving on {args.host}: anyone who can reach this "
-                          f"machine on port {args.port} can look at the product (read-only). The default is 127.0.0.1.")
-    err_console.print(f"opening {args.product} (fitting its estimator takes a few seconds)…")
+        err_console.print(f"[bold yellow]warning:[/bold yellow] serving on {escape(args.host)}: anyone who can reach "
+                          f"this machine on port {args.port} can look at the product (read-only). The default is "
+                          "127.0.0.1.")
+    check_listen_address(args.host, args.port)  # a busy port: one error line, not the product opened first
+    err_console.print(f"opening {escape(str(args.product))} (fitting its estimator takes a few seconds)…")
 
     def ready(url: str) -> None:
         console.print(f"Viewer of {args.product} at [bold]{url}[/bold] (Ctrl-C to stop)")
@@ -28,7 +33,8 @@ def add_commands(sub) -> None:
                                    "compares a second one; CSV export) and, for a series from process-series, a "
                                    "time slider with the probed spectrum over the day.")
     v.add_argument("product", metavar="PRODUCT|SERIES", help="product directory or process-series output")
-    v.add_argument("--port", type=int, default=8000, help="TCP port (default 8000)")
+    v.add_argument("--port", type=int, default=8000,
+                   help="TCP port, 0..65535 (default 8000; 0: any free port, printed when ready)")
     v.add_argument("--host", default="127.0.0.1",
                    help="address to listen on (default 127.0.0.1, this machine only; others print a warning)")
     v.add_argument("--open", action="store_true", help="open the viewer in the default web browser")

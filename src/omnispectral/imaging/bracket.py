@@ -11,6 +11,7 @@ channel count), Radiance ``.hdr`` (3 channels), float TIFF or ``.npy``; ``read_e
 
 from __future__ import annotations
 
+import itertools
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -252,6 +253,74 @@ def auto_weight(bracket: Bracket, response: str | CameraResponse) -> str:
     inverse-variance weight (``noise``) for 8-bit frames that go through a recovered or given response."""
     linear = isinstance(response, str) and response == "linear"
     return "noise" if bracket.dtype.itemsize == 1 and not linear else "triangle"
+
+
+#: Consecutive frames (by exposure time) whose brightness ratio differs from the ratio of their stated times by
+#: more than this factor have a wrong time: noise and a response error move the median ratio by a few per cent,
+#: a time off by one bracket step (usually 2× or more) moves it by the step.
+EXPOSURE_RATIO_TOLERANCE = 1.5
+#: Values that measure a ratio, as fractions of full scale: the brighter frame's code above a quarter of full
+#: scale and below clipping (well above a dark floor of noise, black level and flare, which would pull the ratio
+#: towards 1: codes 13-19 of 255 in Debevec's memorial bracket), the darker's above ``RATIO_DARKER_FLOOR`` and
+#: below clipping.
+RATIO_BRIGHTER_RANGE, RATIO_DARKER_FLOOR, RATIO_CLIP = (0.25, 0.9), 0.02, 0.9
+#: Fewest values usable in both frames of a pair for its ratio to be measured; at most ``RATIO_MAX_SAMPLES``
+#: (a regular subsample) are used.
+RATIO_MIN_SAMPLES, RATIO_MAX_SAMPLES = 100, 1_000_000
+
+
+@dataclass(frozen=True)
+class ExposureMismatch:
+    """Two consecutive frames whose brightness ratio disagrees with their stated exposure times."""
+
+    shorter: Path
+    longer: Path
+    stated_ratio: float
+    measured_ratio: float
+
+    def describe(self) -> str:
+        return (f"{self.longer.name} is {self.measured_ratio:.3g}x as bright as {self.shorter.name} but their "
+                f"exposure times say {self.stated_ratio:.3g}x")
+
+
+def measured_exposure_ratio(shorter: np.ndarray, longer: np.ndarray, response: CameraResponse,
+                            bit_depth: int) -> float | None:
+    """Median of ``longer / shorter`` in the response's linear units over the values usable in both frames:
+    the frame that is brighter in fact (whatever the times say) in :data:`RATIO_BRIGHTER_RANGE`, the other above
+    :data:`RATIO_DARKER_FLOOR`, both below :data:`RATIO_CLIP`; ``None`` when fewer than :data:`RATIO_MIN_SAMPLES`
+    are usable."""
+    index = np.arange(0, shorter.size, max(1, shorter.size // RATIO_MAX_SAMPLES))
+    a, b = shorter.reshape(-1)[index].astype(np.intp), longer.reshape(-1)[index].astype(np.intp)
+    bright, dark = (b, a) if b.mean() >= a.mean() else (a, b)
+    top = (1 << bit_depth) - 1
+    usable = ((bright > RATIO_BRIGHTER_RANGE[0] * top) & (bright < RATIO_BRIGHTER_RANGE[1] * top)
+              & (dark > RATIO_DARKER_FLOOR * top) & (dark < RATIO_CLIP * top))
+    if int(usable.sum()) < RATIO_MIN_SAMPLES:
+        return None
+    channels = shorter.shape[2] if shorter.ndim == 3 else 1
+    lin = np.asarray(response.linear, np.float64)
+    col = (index % channels) % lin.shape[1]  # one curve for all channels, or one per channel
+    la, lb = lin[a[usable], col[usable]], lin[b[usable], col[usable]]
+    ok = (la > 0) & (lb > 0)
+    return float(np.median(lb[ok] / la[ok])) if int(ok.sum()) >= RATIO_MIN_SAMPLES else None
+
+
+def exposure_time_mismatches(bracket: Bracket, response: CameraResponse, bit_depth: int,
+                             tolerance: float = EXPOSURE_RATIO_TOLERANCE) -> list[ExposureMismatch]:
+    """Pairs of consecutive frames (by exposure time) whose measured brightness ratio
+    (:func:`measured_exposure_ratio`) differs from the ratio of their exposure times by more than ``tolerance``
+    either way: a wrong ``--times``, list file or EXIF time, which the merge would otherwise only show as
+    ghosts everywhere."""
+    if response.n_codes != 1 << bit_depth:
+        return []
+    order = np.argsort(bracket.exposure_s, kind="stable")
+    found = []
+    for i, j in itertools.pairwise(order):
+        stated = float(bracket.exposure_s[j] / bracket.exposure_s[i])
+        measured = measured_exposure_ratio(bracket.frames[i], bracket.frames[j], response, bit_depth)
+        if measured is not None and measured > 0 and max(measured / stated, stated / measured) > tolerance:
+            found.append(ExposureMismatch(bracket.paths[i], bracket.paths[j], stated, measured))
+    return found
 
 
 def merge_bracket(bracket: Bracket, bit_depth: int | None = None, weight: str = "triangle",

@@ -195,10 +195,38 @@ def write_rgb_exr(path: str | Path, rgb_linear: np.ndarray, attributes: Mapping[
     return _write_exr_channels(Path(path), header, {c: np.ascontiguousarray(rgb[..., i]) for i, c in enumerate("RGB")})
 
 
-def write_radiance_hdr(path: str | Path, rgb_linear: np.ndarray) -> Path:
-    """Radiance RGBE ``.hdr`` (values finite and ≥ 0: RGBE has no sign)."""
+#: The Radiance header line declaring Rec.709/sRGB primaries and D65 white (red, green, blue, white xy).
+RADIANCE_PRIMARIES = b"PRIMARIES= 0.640 0.330 0.300 0.600 0.150 0.060 0.3127 0.3290\n"
 
-    return write_float_image(path, light_values(rgb_linear), ["R", "G", "B"])
+
+def with_radiance_primaries(encoded: memoryview) -> tuple[memoryview, bytes, memoryview]:
+    """A Radiance file (OpenCV's encoding) in three pieces to write one after the other: its ``#?RADIANCE``
+    signature line, :data:`RADIANCE_PRIMARIES`, and the rest (no copy of the pixels).
+
+    The line goes right after the signature, before ``FORMAT=``: readers derived from Bruce Walter's ``rgbe.c``
+    (older OpenCV among them) expect the blank line that ends the header right after ``FORMAT=``.
+    """
+    first = bytes(encoded[:64]).find(b"\n") + 1
+    if bytes(encoded[:2]) != b"#?" or first == 0:
+        raise ValueError("not a Radiance file: no #? signature line")
+    return encoded[:first], RADIANCE_PRIMARIES, encoded[first:]
+
+
+def write_radiance_hdr(path: str | Path, rgb_linear: np.ndarray) -> Path:
+    """Radiance RGBE ``.hdr`` (values finite and ≥ 0: RGBE has no sign) declaring Rec.709/sRGB primaries and
+    D65 white in its header (:data:`RADIANCE_PRIMARIES`)."""
+
+    path = Path(path)
+    rgb = light_values(rgb_linear)
+    if rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ConfigurationError(f"{path}: Radiance .hdr holds an RGB image (H, W, 3), not {rgb.shape}")
+    ok, encoded = cv2.imencode(".hdr", np.ascontiguousarray(rgb[..., ::-1]))
+    if not ok:
+        raise ConfigurationError(f"{path}: OpenCV could not encode the Radiance file")
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        for piece in with_radiance_primaries(memoryview(encoded).cast("B")):
+            fh.write(piece)
+    return path
 
 
 FORMATS = ("spectral-exr", "envi", "rgb-exr", "hdr", "png", "jpg", "uncertainty")

@@ -47,7 +47,7 @@ from starlette.requests import Request
 from starlette.responses import JSONResponse, Response
 from starlette.routing import Route
 
-from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.errors import ConfigurationError, InputFileError, OmnispectralError
 from omnispectral.product.series import series_products
 from omnispectral.product.spectra import spectrum_in_store
 from omnispectral.view.tiles import MODES, Display, SlotRenderer, TileCache, encode_png, viewer_levels
@@ -61,6 +61,11 @@ _INT = re.compile(r"^[0-9]{1,6}$")
 
 class BadRequest(ConfigurationError):
     """A request parameter that is missing or malformed (HTTP 400)."""
+
+
+class CannotListenError(OmnispectralError):
+    """The server cannot listen on the address asked for (a port in use, an address not of this machine): the
+    work failed (exit 1), the command line was not wrong."""
 
 
 @dataclass(frozen=True)
@@ -347,16 +352,16 @@ def serve(path: str | Path, host: str = "127.0.0.1", port: int = 8000, open_brow
     """Serve the viewer with uvicorn until interrupted (``on_ready(url)`` is called once it listens)."""
     import uvicorn  # lazy: only the server needs it, the application (and its tests) do not
 
-    _check_port(host, port)
+    check_listen_address(host, port)
     app = create_app(path, host=host)
     config = uvicorn.Config(app, host=host, port=port, log_level="warning", access_log=False)
     server = uvicorn.Server(config)
-    url = f"http://{'127.0.0.1' if host in ('0.0.0.0', '::') else host}:{port}/"
 
     def announce():
         while not server.started and not server.should_exit:
             threading.Event().wait(0.05)
         if server.started:
+            url = f"http://{host_port('127.0.0.1' if host in ('0.0.0.0', '::') else host, bound_port(server, port))}/"
             if on_ready is not None:
                 on_ready(url)
             if open_browser:
@@ -367,8 +372,36 @@ def serve(path: str | Path, host: str = "127.0.0.1", port: int = 8000, open_brow
 
 
 
-def _check_port(host: str, port: int) -> None:
-    """A one-line error now rather than uvicorn's log line and exit when the port cannot be bound."""
+def bound_port(server, asked: int) -> int:
+    """The port a started uvicorn ``server`` listens on: ``asked``, or the one the system picked for 0."""
+    if asked:
+        return asked
+    for srv in getattr(server, "servers", []):
+        for sock in srv.sockets:
+            return int(sock.getsockname()[1])
+    return asked
+
+
+#: TCP port numbers (0: any free port the system picks).
+PORT_RANGE = (0, 65535)
+
+
+def check_port_number(port: int) -> None:
+    """A port outside :data:`PORT_RANGE` is a ``ConfigurationError`` (a usage error, before anything is opened)."""
+    if not PORT_RANGE[0] <= port <= PORT_RANGE[1]:
+        raise ConfigurationError(f"--port {port}: a TCP port is {PORT_RANGE[0]}..{PORT_RANGE[1]}")
+
+
+def host_port(host: str, port: int) -> str:
+    """``host:port`` as a URL writes it (an IPv6 address in brackets)."""
+    return f"[{host}]:{port}" if ":" in host and not host.startswith("[") else f"{host}:{port}"
+
+
+def check_listen_address(host: str, port: int) -> None:
+    """A one-line error now rather than uvicorn's log line and exit when the port cannot be bound: a port out of
+    range or a host that does not resolve is a ``ConfigurationError`` (exit 2), a port in use or an address
+    not of this machine a :class:`CannotListenError` (exit 1)."""
+    check_port_number(port)
     try:
         infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
     except socket.gaierror as exc:
@@ -379,5 +412,5 @@ def _check_port(host: str, port: int) -> None:
         try:
             sock.bind(address)
         except OSError as exc:
-            raise ConfigurationError(f"cannot listen on {host}:{port} ({exc.strerror}); choose another --port"
-                                     ) from None
+            raise CannotListenError(f"cannot listen on {host_port(host, port)}: {exc.strerror or exc}; choose "
+                                    "another --port") from None

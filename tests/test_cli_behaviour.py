@@ -129,7 +129,7 @@ def test_output_option_and_interpolation_are_consistent():
     assert {k: v for k, v in found.items() if not {"-o", "--output"} <= set(v)} == {}
     p = parser.parse_args(["process", "S", "-o", "P"]).interp
     m = parser.parse_args(["mosaic", "S", "-o", "M.zarr"]).interp
-    assert p == m == DEFAULT_INTERP == "linear"
+    assert p == m == DEFAULT_INTERP == "cubic-clamped"
 
 
 @pytest.fixture(scope="module")

@@ -161,6 +161,22 @@ def test_remap_reproduces_pixels_and_constants(method):
     np.testing.assert_allclose(remap(const, u, u.T.copy(), method), 7.25, rtol=1e-6)
 
 
+def test_clamped_cubic_stays_within_its_four_neighbours_beside_the_sun_and_is_cubic_elsewhere():
+    rng = np.random.default_rng(5)
+    src = rng.random((40, 50, 3)).astype(np.float32)
+    src[20, 25] = 1e5  # an HDR spike: the cubic's negative lobes ring around it
+    u = rng.uniform(1, 48, (40, 40)).astype(np.float32)
+    v = rng.uniform(1, 38, (40, 40)).astype(np.float32)
+    clamped, cubic = remap(src, u, v, "cubic-clamped"), remap(src, u, v, "cubic")
+    i, j = np.floor(u).astype(int), np.floor(v).astype(int)
+    quad = np.stack([src[j, i], src[j, i + 1], src[j + 1, i], src[j + 1, i + 1]])
+    assert (clamped >= quad.min(axis=0) - 1e-3).all() and (clamped <= quad.max(axis=0) + 1e-3).all()
+    assert cubic.min() < -100 and clamped.min() >= 0  # plain cubic goes negative beside the spike
+    inside = (cubic >= quad.min(axis=0)) & (cubic <= quad.max(axis=0))
+    np.testing.assert_array_equal(clamped[inside], cubic[inside])
+    assert inside.mean() > 0.5
+
+
 def test_remap_interpolates_at_the_exact_position():
     """No 1/32-px rounding (OpenCV 4, Lanczos-4, > 4 channels): a 1/100-px shift moves the result as the kernel
     says; linear and the B-spline reproduce a ramp exactly, so there it moves by exactly 1/100."""

@@ -36,9 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
-from omnispectral.capture.boardviews import simulate_board_views
 from omnispectral.capture.scenes import PanoramaScene, ProceduralOutdoorScene
-from omnispectral.capture.simulate import simulate_session
+from omnispectral.capture.simulate import simulate_board_views, simulate_session
 from omnispectral.imaging.geometry import CameraModel
 from omnispectral.mosaic.sources import MergedDirections
 from omnispectral.product.process import process
@@ -157,7 +156,8 @@ def run_one(work: Path, key: dict, paper: dict | None = None,
             calibrations: dict[str, Path | None] | None = None) -> list[dict]:
     """Simulate one session and process it with the paper's registration once and with the parallax
     registration once per calibration (``calibrations``: name → camera B's mounting file, or ``None`` for
-    the mounting fitted on the session; default ``{"session": None}``); ``paper``: that method's result of
+    the mounting fitted on the session (``"session"``) or from the chessboard views the simulation recorded
+    with the session (``"views"``, the default path); default ``{"session": None}``); ``paper``: that method's result of
     an earlier run on the same frames, reused instead of processing again.  One row per calibration."""
     calibrations = calibrations or {"session": None}
     rig = load_preset("small")
@@ -185,7 +185,8 @@ def run_one(work: Path, key: dict, paper: dict | None = None,
     for name, cal in calibrations.items():
         out = work / f"parallax-{name}"
         t1 = time.perf_counter()
-        process(session, out, progress=False, registration="parallax", rig_calibration=cal)
+        process(session, out, progress=False, registration="parallax", rig_calibration=cal,
+                calibration_views=name == "views")
         row = {**common, "rig_calibration": name,
                "parallax": {**accuracy(out), "process_s": time.perf_counter() - t1,
                             "infinity_error_px": infinity_error_px(out, truth)}}
@@ -268,10 +269,12 @@ def main(argv=None) -> int:
     ap.add_argument("--reuse-paper", nargs="*", default=[], metavar="RESULTS",
                     help="results.jsonl of earlier runs whose '--registration paper' results are reused for the "
                          "same runs (the simulator and that method unchanged since: same frames, same result)")
-    ap.add_argument("--calibration", nargs="+", choices=["session", "chessboard"], default=["session"],
+    ap.add_argument("--calibration", nargs="+", choices=["session", "chessboard", "views"], default=["session"],
                     help="camera B's mounting: fitted on each session (default), and/or from 12 simulated chessboard "
                          "pairs of the run's seed (calibrate rig --chessboard), made once per seed under "
-                         "OUT/chessboards; several: each session is simulated once and processed with each")
+                         "OUT/chessboards, and/or from the session's own calibration views (SESSION/calibration/, "
+                         "what a plain 'process' uses); several: each session is simulated once and processed with "
+                         "each")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -46,7 +46,8 @@ def main() -> None:
         rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
         print(f"{args.preset}: {out['n_written']} frames + ground truth in {wall:.1f} s "
               f"({wall / max(out['n_written'], 1) * 1e3:.0f} ms per frame), session {size / 2**30:.2f} GiB, "
-              f"peak RSS {rss:.2f} GiB; the capture would take {out['simulated_s']:.0f} s")
+              f"peak RSS {rss:.2f} GiB; the capture would take {out['simulated_s']:.0f} s; of the wall time, "
+              f"{out['calibration_views_s']:.1f} s rendered the calibration views ({out['calibration_views']})")
     finally:
         if not args.keep:
             shutil.rmtree(work, ignore_errors=True)

@@ -9,9 +9,8 @@ import tomllib
 import numpy as np
 import pytest
 
-from omnispectral.capture.boardviews import simulate_board_views
 from omnispectral.capture.scenes.chessboard import ChessboardScene
-from omnispectral.capture.simulate import true_mounting_error_deg
+from omnispectral.capture.simulate import simulate_board_views, true_mounting_error_deg
 from omnispectral.cli import main
 from omnispectral.imaging.geometry import CameraModel
 from omnispectral.imaging.lens import find_board, read_gray8

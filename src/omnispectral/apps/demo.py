@@ -49,11 +49,13 @@ def run_demo(out: str | Path, *, full: bool = False, time_hhmm: str = "12:00", s
     start = _dt.datetime.combine(DEFAULT_DATE, _dt.time.fromisoformat(time_hhmm), tzinfo=_dt.UTC)
     t0 = time.perf_counter()
     step(1, 4, f"simulate the {rig.name} rig ({rig.camera_a.width_px}×{rig.camera_a.height_px}, 36 directions × "
-               f"2 cameras × {len(rig.bracket.exposures_s)} exposures) on the procedural scene at {time_hhmm}")
+               f"2 cameras × {len(rig.bracket.exposures_s)} exposures) on the procedural scene at {time_hhmm}, and "
+               "the rig's chessboard calibration views")
     sim = simulate_session(out / "session", rig, build_scene("procedural", None, start, seed=seed), start=start,
                            seed=seed, progress=progress)
     step(2, 4, f"process into {out / 'product'}")
-    index = process(out / "session", out / "product", report=True, progress=progress)
+    # a product left by another version (or before the session had its calibration views) is rebuilt
+    index = process(out / "session", out / "product", report=True, progress=progress, overwrite=True)
     step(3, 4, "export")
     level = 0 if not full else 1
     exports = {fmt: export_product(out / "product", fmt, out / name, level=level)["output"]
@@ -67,13 +69,21 @@ def run_demo(out: str | Path, *, full: bool = False, time_hhmm: str = "12:00", s
                "total_s": time.perf_counter() - t0, "panorama": [index["width"], index["height"]],
                "session": str(out / "session"), "product": str(out / "product"),
                "report_html": str(report_dir / "report.html"), "exports": exports, "sun": index.get("sun"),
-               "irradiance": report.get("irradiance")}
+               "irradiance": report.get("irradiance"), "rig_calibration": calibration_summary(index)}
     accuracy = dict(report["accuracy"])
     if accuracy.get("colorchecker"):  # the summary keeps the numbers, the product's report keeps the spectra
         accuracy["colorchecker"] = {k: v for k, v in accuracy["colorchecker"].items()
                                     if k not in ("estimated", "true", "wavelength_nm")}
     atomic_write_json(out / "report.json", {**summary, "accuracy": accuracy})
     return summary
+
+
+def calibration_summary(index: dict) -> dict:
+    """Which calibration of camera B the product used and how far off its far content may be (px, worst direction)."""
+    reg = index["registration"]
+    far = reg.get("far_content") or {}
+    return {"source": (reg.get("rig_calibration_source") or {}).get("description"), "far_content_max_px":
+            far.get("max_px"), "warning": far.get("warning")}
 
 
 def demo_applications(product: str | Path, out: str | Path, session: str | Path | None = None,

@@ -1,37 +1,42 @@
-"""Simulated chessboard views for the stereo calibration of camera B (``omnispectral simulate-chessboard``).
+"""Simulated chessboard views for the stereo calibration of camera B: board poses and their rendering.
 
 What a user does with a real rig before a campaign: hold a chessboard in front of the two cameras
-at a dozen poses and trigger both at once (the head stays at pan = tilt = 0).  The simulator renders
-those pairs with the same unknown mounting error of camera B as :func:`~omnispectral.capture.
-simulate.simulate_session` draws for the same seed, so a calibration fitted on them
+at a few poses and trigger both at once (the head stays at pan = tilt = 0).  The simulated rig does
+the same through a :class:`~omnispectral.capture.simulate.RigRenderer` whose camera B carries the
+session's unknown mounting error (:func:`~omnispectral.capture.simulate.simulate_session` records the
+views into ``SESSION/calibration/``; ``omnispectral simulate-chessboard`` into any folder,
+:func:`~omnispectral.capture.simulate.simulate_board_views`), so a calibration fitted on them
 (:mod:`omnispectral.product.rigboard`) can be tested on the sessions of that seed.
 
-Layout written (each file atomically)::
+Layout written (each file atomically; the layout of :mod:`omnispectral.capture.calviews`)::
 
     DIR/rig.toml                 snapshot of the rig
     DIR/A/view_00.tif …          camera A, 16-bit RGB (DN), one exposure
     DIR/B/view_00.tif …          camera B, same names: a pair per name
     DIR/board.json               the board (inner corners, square size): what the user knows
-    DIR/ground_truth/views.json  the poses and B's true mounting (processing never reads it)
+    DIR/ground_truth/views.json  the poses and B's true mounting (processing never reads it), written last
+
+This module renders through any renderer with the :class:`~omnispectral.capture.simulate.RigRenderer`
+interface (``rig``, ``models``, ``band_matrix``, ``set_scene``, ``electrons_per_unit``, called for a
+frame), so the simulator can use it without a circular import.
 """
 
 from __future__ import annotations
 
+import json
 import math
-from dataclasses import replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 import tifffile
 
+from omnispectral.capture.calviews import clear_views, view_name, write_board_description
 from omnispectral.capture.scenes.chessboard import ChessboardScene
-from omnispectral.capture.simulate import DEFAULT_MOUNTING_ERROR_DEG, RigRenderer, raw_frame, true_mounting_error_deg
 from omnispectral.errors import ConfigurationError
 from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text
-from omnispectral.rig import Rig, rig_toml
+from omnispectral.rig import rig_toml
 
-BOARD_FORMAT = "omnispectral-chessboard-views"
 #: Inner corners and square side of the simulated board (an A2-size print: 0.72 × 0.54 m with its margin).
 DEFAULT_BOARD = (9, 6)
 DEFAULT_SQUARE_MM = 60.0
@@ -40,6 +45,11 @@ DEFAULT_SQUARE_MM = 60.0
 WIDTH_SHARE = (0.3, 0.6)
 #: Largest tilt (deg) of the board away from facing the rig, per axis, and in-plane turn.
 MAX_TILT_DEG, MAX_TURN_DEG = 35.0, 15.0
+#: Smallest square (px of camera A, the board at the middle of :data:`WIDTH_SHARE`) OpenCV finds reliably: a
+#: simulated rig with a smaller sensor (a test rig of 96 px) records no views.
+MIN_SQUARE_PX = 6.0
+#: The file a simulation's views are complete with (written last).
+VIEWS_TRUTH = Path("ground_truth") / "views.json"
 
 
 def random_board_pose(rng: np.random.Generator, model_a, board: tuple[int, int], square_m: float
@@ -80,58 +90,85 @@ def board_fully_seen(scene: ChessboardScene, models: dict, margin_squares: float
     return True
 
 
-def simulate_board_views(output: str | Path, rig: Rig, *, seed: int = 0, n_views: int = 12,
-                         board: tuple[int, int] = DEFAULT_BOARD, square_mm: float = DEFAULT_SQUARE_MM,
-                         noise: bool = True, mounting_error_deg: float = DEFAULT_MOUNTING_ERROR_DEG,
-                         supersample: int = 4, progress=None) -> dict:
-    """Render ``n_views`` chessboard pairs (module docstring); returns a summary of what was written.
+def square_px(model_a, board: tuple[int, int] = DEFAULT_BOARD) -> float:
+    """Side (px of camera A) of the board's squares at the middle of :data:`WIDTH_SHARE` of its field of view."""
+    return model_a.width * float(np.mean(WIDTH_SHARE)) / (board[0] + 3)
 
-    Camera B carries :func:`~omnispectral.capture.simulate.true_mounting_error_deg` of ``seed`` (the
-    same as a simulated session of that seed).  Each camera's exposure puts its brightest band on the
-    white squares at 70 % of its full well; ``supersample`` rays per pixel side integrate the board's edges.
-    """
-    if "B" not in rig.camera_names:
-        raise ConfigurationError(f"rig {rig.name!r} has one camera: there is no camera B to calibrate")
-    if n_views < 1:
-        raise ConfigurationError(f"n_views must be at least 1, got {n_views}")
-    out = Path(output)
-    rng = np.random.default_rng([int(seed), 0x43484553])
-    square_m = float(square_mm) / 1000.0
-    error = true_mounting_error_deg(seed, mounting_error_deg)
-    scene = ChessboardScene(board, square_m, (0.0, 0.0, 2.0), (1.0, 0.0, 0.0), (0.0, -1.0, 0.0))
-    renderer = RigRenderer(rig, scene, noise=noise, electrons_per_unit=1.0, b_mounting_error_deg=error,
-                           supersample=supersample)
-    # each camera exposed for its own brightest band on white (as a user sets each camera's exposure),
-    # camera A for the bracket's middle exposure
+
+def next_board_scene(rng: np.random.Generator, models: dict, board: tuple[int, int], square_m: float
+                     ) -> ChessboardScene:
+    """A random pose of the board that both cameras see whole (:func:`random_board_pose`, drawn again until
+    :func:`board_fully_seen`); a board that never fits is a :class:`ConfigurationError`."""
+    for _ in range(200):
+        centre, right, down = random_board_pose(rng, models["A"], board, square_m)
+        scene = ChessboardScene(board, square_m, centre, right, down)
+        if board_fully_seen(scene, models):
+            return scene
+    raise ConfigurationError(f"no pose of a {board[0]}x{board[1]} board with {square_m * 1000:g} mm squares fits "
+                             "both cameras of the rig")
+
+
+def board_rng(seed: int) -> np.random.Generator:
+    """The random stream of a seed's board poses and view noise."""
+    return np.random.default_rng([int(seed), 0x43484553])
+
+
+def expose_for_board(renderer, scene: ChessboardScene) -> dict[str, float]:
+    """Set ``renderer.electrons_per_unit`` and return each camera's exposure (s) so that its brightest band on
+    the white squares reaches 70 % of full well, camera A at the bracket's middle exposure (as a user sets
+    each camera's exposure)."""
+    rig = renderer.rig
     white = {c: float(np.max(renderer.band_matrix(c) @ scene.white_radiance())) for c in ("A", "B")}
     t_mid = float(np.exp(np.mean(np.log(rig.bracket.exposures_s))))
     renderer.electrons_per_unit = 0.7 * rig.cameras["A"].full_well_e / (white["A"] * t_mid)
-    exposure_s = {c: 0.7 * rig.cameras[c].full_well_e / (white[c] * renderer.electrons_per_unit) for c in ("A", "B")}
-    atomic_write_text(out / "rig.toml", rig_toml(rig))
-    atomic_write_json(out / "board.json", {"format": BOARD_FORMAT, "board": list(board), "square_mm": float(square_mm)})
+    return {c: 0.7 * rig.cameras[c].full_well_e / (white[c] * renderer.electrons_per_unit) for c in ("A", "B")}
+
+
+def render_board_views(output: str | Path, renderer, *, seed: int = 0, n_views: int = 8,
+                       board: tuple[int, int] = DEFAULT_BOARD, square_mm: float = DEFAULT_SQUARE_MM,
+                       progress=None) -> dict:
+    """Render ``n_views`` chessboard pairs through ``renderer`` into ``output`` (module docstring); returns a
+    summary of what was written.  Frames come from ``renderer(camera, 0, 0, exposure_s, rng)`` (its rig's
+    cameras must give RGB frames); poses and noise from ``seed``."""
+    if "B" not in renderer.rig.camera_names:
+        raise ConfigurationError(f"rig {renderer.rig.name!r} has one camera: there is no camera B to calibrate")
+    if n_views < 1:
+        raise ConfigurationError(f"n_views must be at least 1, got {n_views}")
+    out = Path(output)
+    rng = board_rng(seed)
+    square_m = float(square_mm) / 1000.0
+    scene = ChessboardScene(board, square_m, (0.0, 0.0, 2.0), (1.0, 0.0, 0.0), (0.0, -1.0, 0.0))
+    renderer.set_scene(scene)
+    exposure_s = expose_for_board(renderer, scene)
+    clear_views(out)
+    atomic_write_text(out / "rig.toml", rig_toml(renderer.rig))
+    write_board_description(out, board, square_mm)
     views = []
     for k in range(n_views):
-        for _ in range(200):
-            centre, right, down = random_board_pose(rng, renderer.models["A"], board, square_m)
-            scene = ChessboardScene(board, square_m, centre, right, down)
-            if board_fully_seen(scene, renderer.models):
-                break
-        else:
-            raise ConfigurationError(f"no pose of a {board[0]}x{board[1]} board with {square_mm:g} mm squares fits "
-                                     f"both cameras of rig {rig.name!r}")
+        scene = next_board_scene(rng, renderer.models, board, square_m)
         renderer.set_scene(scene)
-        name = f"view_{k:02d}.tif"
         for c in ("A", "B"):
-            cam = replace(rig.cameras[c], raw=None)
-            frame = raw_frame(cam, renderer.electrons_per_second(c, 0.0, 0.0), exposure_s[c], rng if noise else None)
-            with atomic_path(out / c / name) as tmp:
+            frame = renderer(c, 0.0, 0.0, exposure_s[c], rng)
+            with atomic_path(out / c / view_name(k)) as tmp:
                 tifffile.imwrite(tmp, frame, photometric="rgb")
-        views.append({"name": name, "centre_m": centre.tolist(), "right": right.tolist(), "down": down.tolist(),
-                      "distance_m": float(np.linalg.norm(centre))})
+        views.append({"name": view_name(k), "centre_m": scene.centre_m.tolist(), "right": scene.right.tolist(),
+                      "down": scene.down.tolist(), "distance_m": float(np.linalg.norm(scene.centre_m))})
         if progress is not None:
             progress(k + 1, n_views)
-    truth = {"seed": int(seed), "mounting_error_deg": list(error), "camera_b_true": renderer.models["B"].to_dict(),
-             "exposure_s": exposure_s, "views": views}
-    atomic_write_json(out / "ground_truth" / "views.json", truth)
+    truth = {"seed": int(seed), "mounting_error_deg": list(renderer.b_mounting_error_deg),
+             "camera_b_true": renderer.models["B"].to_dict(), "exposure_s": exposure_s, "views": views}
+    atomic_write_json(out / VIEWS_TRUTH, truth)
     return {"output": str(out), "n_views": n_views, "board": list(board), "square_mm": float(square_mm),
             "distance_m": [v["distance_m"] for v in views]}
+
+
+def board_views_complete(output: str | Path, seed: int, n_views: int, mounting_error_deg) -> bool:
+    """``output`` already holds ``n_views`` views of ``seed`` with camera B mounted ``mounting_error_deg`` off
+    the rig file (a resumed simulation, or the slots of a time-lapse, render them once)."""
+    path = Path(output) / VIEWS_TRUTH
+    try:
+        truth = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return (truth.get("seed") == int(seed) and len(truth.get("views", [])) == n_views
+            and [float(x) for x in truth.get("mounting_error_deg", [])] == [float(x) for x in mounting_error_deg])

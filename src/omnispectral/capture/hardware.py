@@ -14,12 +14,13 @@ import sys
 from pathlib import Path
 
 from omnispectral.capture import drivers
+from omnispectral.capture.calviews import DEFAULT_N_VIEWS, operator_next_view, record_calibration_views
 from omnispectral.capture.darks import record_darks
 from omnispectral.capture.devices import DeviceError, ManualFilterChanger, SimulatedHead, SystemClock
 from omnispectral.capture.plan import format_duration, make_plan
 from omnispectral.capture.run import RetryPolicy, run_capture
 from omnispectral.capture.session import Session
-from omnispectral.capture.simulate import simulated_dark_cameras
+from omnispectral.capture.simulate import simulated_board_cameras, simulated_dark_cameras
 from omnispectral.errors import ConfigurationError, OmnispectralError
 from omnispectral.rig import Rig
 
@@ -97,6 +98,32 @@ def capture_darks(session_path: str | Path, n_frames: int = 8, *, seed: int = 0,
         else:
             cams, system = drivers.open_cameras(rig)
         return record_darks(session, cams, n_frames, rig.head.timeout_s, progress)
+    finally:
+        if system is not None:
+            system.close()
+
+
+def capture_calibration_views(root: str | Path, rig: Rig, *, n_views: int = DEFAULT_N_VIEWS,
+                              board: tuple[int, int] = (9, 6), square_mm: float = 60.0,
+                              interval_s: float | None = None, ask=None, say=None, seed: int = 0, noise: bool = True,
+                              mounting_error_deg: float = 0.5, progress=None) -> dict:
+    """Chessboard pairs with the rig's cameras into ``ROOT/calibration/`` (:mod:`omnispectral.capture.calviews`;
+    ``ROOT`` a session or a time-lapse series): the rig's GenICam cameras with the operator moving the board
+    between shots (asked through ``ask(message)``, default a prompt on the terminal, or given ``interval_s``
+    seconds), or an all-simulated rig's cameras in front of a simulated board (``seed`` and
+    ``mounting_error_deg`` as for ``simulate``: the same unknown mounting of camera B)."""
+    system = None
+    try:
+        if drivers.rig_device_kind(rig) == "simulated":
+            cams, next_view = simulated_board_cameras(rig, seed=seed, noise=noise,
+                                                      mounting_error_deg=mounting_error_deg, board=board,
+                                                      square_mm=square_mm)
+        else:
+            cams, system = drivers.open_cameras(rig)
+            next_view = operator_next_view(None if interval_s is not None else (ask or _ask_on_terminal),
+                                           interval_s, SystemClock(), say)
+        return record_calibration_views(root, rig, cams, next_view, n_views=n_views, board=board,
+                                        square_mm=square_mm, timeout_s=rig.head.timeout_s, progress=progress)
     finally:
         if system is not None:
             system.close()

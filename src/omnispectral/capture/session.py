@@ -11,6 +11,8 @@ Layout of a session directory::
       frames/dNNNN/{A,B}_eKK.tif   16-bit raw frames (tifffile), metadata as JSON in the description
                         (camera B only in sessions of two-camera rigs)
       ground_truth/     simulated sessions only (see omnispectral.capture.simulate)
+      calibration/      chessboard views for camera B's mounting, once per mounting of the cameras
+                        (omnispectral.capture.calviews; not part of the plan: verify and repair leave it alone)
 
 A frame is first written to a temporary name, fsynced and renamed; only then is its journal line
 appended.  A process killed at any moment therefore leaves (a) complete frames with journal lines,
@@ -52,6 +54,8 @@ from omnispectral.rig import CAMERA_NAMES, SUN_EXPOSURE_BASE, Rig, rig_from_dict
 from omnispectral.threads import ordered_thread_map
 
 FORMAT_VERSION = 1
+#: The folder of a session's calibration views (:mod:`omnispectral.capture.calviews`).
+CALIBRATION_DIR = "calibration"
 #: Every camera a session may hold; a session's own are its rig's (:meth:`Session.cameras`: A, or A and B).
 CAMERAS = CAMERA_NAMES
 
@@ -68,11 +72,12 @@ FRAME_NAME = re.compile(r"^d(\d{4,})/([AB])_e(\d{2,3})\.tif$")
 def half_created_leftovers(path: Path) -> list[Path] | None:
     """The entries of a session directory a killed :meth:`Session.create` left (``None``: something else is there).
 
-    Only ``rig.toml``, ``plan.json``, an empty ``frames/``, the lock file and temporary files qualify.
+    Only ``rig.toml``, ``plan.json``, an empty ``frames/``, the lock file and temporary files qualify; calibration
+    views recorded before the capture (``calibration/``, :mod:`omnispectral.capture.calviews`) are kept.
     """
     out = []
     for p in path.iterdir():
-        if p.name == LOCK_NAME:
+        if p.name in (LOCK_NAME, CALIBRATION_DIR):
             continue
         if p.name in ("rig.toml", "plan.json") or is_temp_name(p.name):
             out.append(p)

@@ -20,17 +20,31 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
 
+from omnispectral.capture.boardviews import (
+    DEFAULT_BOARD,
+    DEFAULT_SQUARE_MM,
+    MIN_SQUARE_PX,
+    board_rng,
+    board_views_complete,
+    expose_for_board,
+    next_board_scene,
+    render_board_views,
+    square_px,
+)
+from omnispectral.capture.calviews import DEFAULT_N_VIEWS, calibration_folder
 from omnispectral.capture.devices import FakeClock, SimulatedCamera, SimulatedFilterChanger, SimulatedHead
 from omnispectral.capture.plan import make_plan
 from omnispectral.capture.resume import resume_simulated_devices
 from omnispectral.capture.run import RetryPolicy, run_capture
 from omnispectral.capture.scenes.base import SunDisk, scene_sun_disk
+from omnispectral.capture.scenes.chessboard import ChessboardScene
 from omnispectral.capture.session import Session
 from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.bayer import mosaic
@@ -195,6 +209,15 @@ class RigRenderer:
         self._last.clear()
         self._sun_samples.clear()
 
+    def reuse_rays(self, other: RigRenderer) -> bool:
+        """Take ``other``'s cached camera rays when its cameras' models and supersampling are this renderer's
+        (the rays depend on nothing else); returns whether they were taken."""
+        same = other.supersample == self.supersample and set(other.models) == set(self.models) and all(
+            other.models[c].to_dict() == self.models[c].to_dict() for c in self.models)
+        if same:
+            self._rays = other._rays
+        return same
+
     def filter_transmittance(self, filter_name: str) -> np.ndarray:
         """``(n,)`` transmittance of a filter (:func:`~omnispectral.spectral.library.load_filter`) on the scene's
         wavelength grid (linear interpolation; a filter that does not cover the grid is refused)."""
@@ -328,6 +351,102 @@ def simulated_dark_cameras(rig: Rig, seed: int = 0, noise: bool = True) -> dict[
             for i, c in enumerate(rig.camera_names)}
 
 
+def rgb_rig(rig: Rig) -> Rig:
+    """``rig`` with its raw Bayer cameras made RGB ones: the chessboard views serve the geometry only (a real raw
+    camera's views are demosaiced as they are recorded, :func:`~omnispectral.capture.calviews.rgb_frame`)."""
+    if all(cam.raw is None for cam in rig.cameras.values()):
+        return rig
+    return replace(rig, cameras={c: replace(cam, raw=None) for c, cam in rig.cameras.items()})
+
+
+def board_renderer(rig: Rig, mounting_error_deg, *, noise: bool = True, supersample: int = 2,
+                   share_rays_with: RigRenderer | None = None) -> RigRenderer:
+    """A renderer of a chessboard (:mod:`~omnispectral.capture.boardviews`) through the rig's cameras, camera B
+    ``mounting_error_deg`` (yaw, pitch, roll) off the rig file, RGB frames.
+
+    ``share_rays_with``: a session's renderer of the same cameras; its rays are reused instead of computed again
+    (they are most of the cost at full scale: about 14 s per camera for 2 × 2 rays per pixel of a 2048 × 1088
+    sensor, against about 1 s per rendered pair).
+    """
+    scene = ChessboardScene(DEFAULT_BOARD, DEFAULT_SQUARE_MM / 1000.0, (0.0, 0.0, 2.0), (1.0, 0.0, 0.0),
+                            (0.0, -1.0, 0.0))
+    renderer = RigRenderer(rgb_rig(rig), scene, noise=noise, electrons_per_unit=1.0,
+                           b_mounting_error_deg=tuple(float(x) for x in mounting_error_deg), supersample=supersample)
+    if share_rays_with is not None:
+        renderer.reuse_rays(share_rays_with)
+    return renderer
+
+
+def simulate_board_views(output: str | Path, rig: Rig, *, seed: int = 0, n_views: int = 12,
+                         board: tuple[int, int] = DEFAULT_BOARD, square_mm: float = DEFAULT_SQUARE_MM,
+                         noise: bool = True, mounting_error_deg: float = DEFAULT_MOUNTING_ERROR_DEG,
+                         supersample: int = 4, progress=None) -> dict:
+    """``omnispectral simulate-chessboard``: ``n_views`` chessboard pairs in ``output``
+    (:func:`~omnispectral.capture.boardviews.render_board_views`; returns its summary).
+
+    Camera B carries :func:`true_mounting_error_deg` of ``seed`` (the same as a simulated session of that
+    seed); ``supersample`` rays per pixel side integrate the board's edges.
+    """
+    renderer = board_renderer(rig, true_mounting_error_deg(seed, mounting_error_deg), noise=noise,
+                              supersample=supersample)
+    return render_board_views(output, renderer, seed=seed, n_views=n_views, board=board, square_mm=square_mm,
+                              progress=progress)
+
+
+def record_simulated_calibration_views(folder: str | Path, renderer: RigRenderer, *, seed: int = 0,
+                                       n_views: int = DEFAULT_N_VIEWS, progress=None) -> bool:
+    """The chessboard pairs a simulated rig records once per mounting of its cameras, into ``folder``
+    (``SESSION/calibration/`` or a time-lapse's ``SERIES/calibration/``), through the cameras of a session's
+    ``renderer`` (the same unknown mounting of camera B, its rays reused).  Returns ``False`` when ``folder``
+    already holds them (a resumed simulation, the later slots of a time-lapse)."""
+    if board_views_complete(folder, seed, n_views, renderer.b_mounting_error_deg):
+        return False
+    views = board_renderer(renderer.rig, renderer.b_mounting_error_deg, noise=renderer.noise,
+                           supersample=renderer.supersample, share_rays_with=renderer)
+    with directory_lock(folder, "simulate calibration views"):
+        render_board_views(folder, views, seed=seed, n_views=n_views, progress=progress)
+    return True
+
+
+@dataclass
+class SimulatedBoard:
+    """A chessboard the simulated operator moves in front of the simulated rig: each call puts it at the next
+    random pose both cameras see whole (the ``next_view`` of
+    :func:`~omnispectral.capture.calviews.record_calibration_views`)."""
+
+    renderer: RigRenderer
+    cameras: dict
+    rng: np.random.Generator
+    board: tuple[int, int] = DEFAULT_BOARD
+    square_mm: float = DEFAULT_SQUARE_MM
+    moves: int = 0
+
+    def __call__(self, k: int, n: int, problem: str | None = None) -> None:
+        self.renderer.set_scene(next_board_scene(self.rng, self.renderer.models, self.board, self.square_mm / 1000.0))
+        self.moves += 1
+        for cam in self.cameras.values():  # a simulated frame's noise follows its camera's seed: new noise per pose
+            cam.seed += 1000
+
+
+def simulated_board_cameras(rig: Rig, *, seed: int = 0, noise: bool = True,
+                            mounting_error_deg: float = DEFAULT_MOUNTING_ERROR_DEG,
+                            board: tuple[int, int] = DEFAULT_BOARD, square_mm: float = DEFAULT_SQUARE_MM
+                            ) -> tuple[dict[str, SimulatedCamera], SimulatedBoard]:
+    """The simulated rig's cameras in front of a chessboard, camera B :func:`true_mounting_error_deg` of ``seed``
+    off the rig file (as in a session of that seed), and the board's mover: ``capture calibration-views`` on
+    simulated devices.  The board's light puts its white squares at 70 % of camera A's full well at the
+    bracket's middle exposure; the capture finds each camera's exposure itself."""
+    renderer = board_renderer(rig, true_mounting_error_deg(seed, mounting_error_deg), noise=noise)
+    mover_rng = board_rng(seed)
+    renderer.set_scene(next_board_scene(mover_rng, renderer.models, board, square_mm / 1000.0))
+    expose_for_board(renderer, renderer.scene)
+    clock = FakeClock(_dt.datetime(2000, 1, 1, tzinfo=_dt.UTC))
+    head = SimulatedHead(clock)
+    cams = {c: SimulatedCamera(c, head, renderer, clock, rig.cameras[c].bit_depth, rig.cameras[c].readout_s,
+                               seed=seed * 2 + i + 104729) for i, c in enumerate(rig.camera_names)}
+    return cams, SimulatedBoard(renderer, cams, mover_rng, board, square_mm)
+
+
 def bayer_rig(rig: Rig, pattern: str = "RGGB") -> Rig:
     """``rig`` with every camera that has no ``[cameras.X.raw]`` table made a raw Bayer camera of ``pattern``."""
     settings = {c: {"raw": {"cfa_pattern": pattern}} for c, cam in rig.cameras.items() if cam.raw is None}
@@ -377,6 +496,12 @@ def write_ground_truth(directory: str | Path, renderer: RigRenderer, width: int,
     ``wavelength_nm.npy``, ``system_matrix.npy`` ``(m, n)``; for scenes with a chart
     ``colorchecker_radiance.npy`` ``(24, n)`` (spectral radiance at each patch centre, same units) and
     ``colorchecker_white.npy`` ``(n,)`` (a perfect white diffuser there); ``ground_truth.json`` describes it all.
+    ``depth_m.npy`` ``(H, W)`` on the bands' grid: distance (m) from the viewpoint to the nearest surface that any
+    of the pixel's 2 × 2 rays meets, inf where all four reach the sky; from the same ray casts as ``bands.npy``
+    (:meth:`~omnispectral.capture.scenes.base.Scene.band_radiance_and_depth`).  The nearest, not a mean: a pixel
+    across a depth edge takes the front surface's distance, so the edge stays a one-pixel step for the report's
+    discontinuity test (:mod:`omnispectral.product.report_edges`).  Scenes without geometry (an environment map)
+    have none: ``ground_truth.json``'s ``depth`` is then null and ``depth_note`` says why.
     """
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
@@ -386,10 +511,15 @@ def write_ground_truth(directory: str | Path, renderer: RigRenderer, width: int,
     scene = renderer.scene
     sun = scene_sun_disk(scene)
     no_disk = {"sun_disk": False} if sun is not None else {}
+    depth_m = np.full((height, width), np.nan, np.float32)
+
+    def bands_and_depth(rays):
+        values, distance_m = _band_radiance_and_depth(scene, rays, matrix, **no_disk)
+        return values * np.float32(scale), distance_m
+
     with atomic_path(out / "bands.npy") as tmp:
         arr = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float32, shape=(height, width, matrix.shape[0]))
-        _fill_equirect(arr, lambda rays: scene.band_radiance(rays, matrix, **no_disk) * np.float32(scale),
-                       rows_per_chunk)
+        _fill_equirect(arr, bands_and_depth, rows_per_chunk, nearest_depth_m=depth_m)
         if sun is not None:
             add_sun_disk_equirect(arr, sun, sun.band_radiance(matrix) * scale)
         arr.flush()
@@ -402,6 +532,9 @@ def write_ground_truth(directory: str | Path, renderer: RigRenderer, width: int,
     if sun is not None:
         add_sun_disk_equirect(spectral, sun, sun.spectral_radiance * scale)
     _save_npy(out / "spectral.npy", spectral)
+    has_depth = not np.isnan(depth_m).any()
+    if has_depth:
+        _save_npy(out / "depth_m.npy", depth_m)
     _save_npy(out / "wavelength_nm.npy", np.asarray(renderer.system.wavelength_nm, np.float32))
     _save_npy(out / "system_matrix.npy", matrix.astype(np.float32))
     patches = renderer.scene.colorchecker_patches() if hasattr(renderer.scene, "colorchecker_patches") else []
@@ -423,6 +556,12 @@ def write_ground_truth(directory: str | Path, renderer: RigRenderer, width: int,
             "spectral": {"file": "spectral.npy", "shape": [sh, sw, int(matrix.shape[1])],
                          "units": "DN/s per unit of system_matrix: bands = spectral @ system_matrix.T"},
             "wavelength_nm": "wavelength_nm.npy", "system_matrix": "system_matrix.npy",
+            "depth": ({"file": "depth_m.npy", "shape": [height, width], "units": "m",
+                       "definition": "distance from the viewpoint to the nearest surface any of the pixel's 2 x 2 "
+                                     "rays meets (the rays of bands.npy); inf where all four reach the sky"}
+                      if has_depth else None),
+            **({} if has_depth else {"depth_note": f"the scene ({type(scene).__name__}) has no geometry to "
+                                                   "ray-trace: no depth, no depth edges in the report"}),
             "grid": "equirectangular: row 0 at latitude +90, column 0 at longitude -180, pixel centres at +0.5; "
                     "world +Y up, longitude 0 = +Z, longitude +90 = -X (omnispectral.imaging.geometry)",
             "viewpoint": "the head's rotation centre (camera A's optical centre)",
@@ -493,12 +632,23 @@ def add_sun_disk_equirect(arr: np.ndarray, sun: SunDisk, values: np.ndarray, row
     arr[rows[sel] - row_offset, cols[sel]] += add.astype(arr.dtype)
 
 
+def _band_radiance_and_depth(scene, rays: np.ndarray, matrix: np.ndarray, **kwargs):
+    """``(bands, hit distance (m) or None)`` of any renderable scene (those without the method have no depth)."""
+    method = getattr(scene, "band_radiance_and_depth", None)
+    if method is None:
+        return scene.band_radiance(rays, matrix, **kwargs), None
+    return method(rays, matrix, **kwargs)
+
+
 def _fill_equirect(arr: np.ndarray, fn, rows_per_chunk: int, supersample: int = 2, row_offset: int = 0,
-                   height: int | None = None) -> None:
+                   height: int | None = None, nearest_depth_m: np.ndarray | None = None) -> None:
     """Fill an equirect array with ``fn(rays)`` averaged over ``supersample²`` points spread over each pixel's
     area: the truth is the mean radiance of the pixel's solid angle, as the simulated sensor's pixels
     integrate over their area (:attr:`RigRenderer.supersample`), so that edges compare like with like.
-    ``arr`` holds rows ``row_offset:`` of a grid ``height`` rows high (default: all of it)."""
+    ``arr`` holds rows ``row_offset:`` of a grid ``height`` rows high (default: all of it).
+
+    With ``nearest_depth_m`` (``(rows, W)``), ``fn`` returns ``(values, distance_m or None)`` and the array gets the
+    smallest of each pixel's ray distances (left as it is where ``fn`` gives None)."""
 
     n_rows, w = arr.shape[:2]
     h = n_rows if height is None else int(height)
@@ -508,8 +658,12 @@ def _fill_equirect(arr: np.ndarray, fn, rows_per_chunk: int, supersample: int = 
         r1 = min(n_rows, r0 + rows_per_chunk)
         row, col, dr, dc = np.meshgrid(np.arange(r0, r1) + row_offset, np.arange(w), sub, sub, indexing="ij")
         rays = lonlat_to_ray(*equirect_pixel_to_lonlat((col + dc).ravel(), (row + dr).ravel(), w, h))
-        values = np.asarray(fn(rays), np.float32)
-        arr[r0:r1] = values.reshape(r1 - r0, w, s * s, -1).mean(axis=2)
+        values = fn(rays)
+        if nearest_depth_m is not None:
+            values, distance_m = values
+            if distance_m is not None:
+                nearest_depth_m[r0:r1] = np.asarray(distance_m, np.float32).reshape(r1 - r0, w, s * s).min(axis=2)
+        arr[r0:r1] = np.asarray(values, np.float32).reshape(r1 - r0, w, s * s, -1).mean(axis=2)
 
 
 def _save_npy(path: Path, array: np.ndarray) -> None:
@@ -524,7 +678,8 @@ def _jsonable(x):
 def simulate_session(output: str | Path, rig: Rig, scene, *, start: _dt.datetime, noise: bool = True,
                      seed: int = 0, ground_truth_width: int | None = None, progress=None,
                      overlap: float | None = None, mounting_error_deg: float = DEFAULT_MOUNTING_ERROR_DEG,
-                     raw: str | None = None) -> dict:
+                     raw: str | None = None, calibration_views: bool | str | Path = True,
+                     n_calibration_views: int = DEFAULT_N_VIEWS) -> dict:
     """``capture`` with the simulated rig plus the ground truth; resumable like any capture.
 
     ``raw="bayer"`` makes every camera raw Bayer cameras (:func:`bayer_rig`): frames are the mosaics the
@@ -534,6 +689,11 @@ def simulate_session(output: str | Path, rig: Rig, scene, *, start: _dt.datetime
     Camera B is rendered with an unknown mounting error of up to ``mounting_error_deg`` per axis drawn
     from ``seed`` (:func:`true_mounting_error_deg`; 0 renders the rig file's mounting exactly).
     ``progress(stage, done, total)`` follows the frames (:func:`~omnispectral.capture.run.run_capture`).
+
+    ``calibration_views``: the rig records ``n_calibration_views`` chessboard pairs once per mounting of its
+    cameras (:func:`record_simulated_calibration_views`; ``process`` fits camera B's mounting from them):
+    ``True`` into ``SESSION/calibration/``, a folder (a time-lapse's ``SERIES/calibration/``, which its slots
+    share: rendered by the first, found by the others) or ``False`` for none.
     """
 
     if raw not in (None, "rgb", "bayer"):
@@ -565,4 +725,26 @@ def simulate_session(output: str | Path, rig: Rig, scene, *, start: _dt.datetime
         gt_dir = session.path / "ground_truth"
         if not (gt_dir / "ground_truth.json").exists():
             write_ground_truth(gt_dir, renderer, ground_truth_width or default_ground_truth_width(rig))
-    return {**result.to_dict(), "ground_truth": str(gt_dir), "electrons_per_unit": renderer.electrons_per_unit}
+        views, note = calibration_views_folder(session.path, calibration_views, renderer)
+        if views is not None and not result.complete:
+            views, note = None, "recorded once the capture is complete (run the same command again)"
+        t_views = time.perf_counter()
+        rendered = views is not None and record_simulated_calibration_views(views, renderer, seed=seed,
+                                                                            n_views=n_calibration_views)
+    return {**result.to_dict(), "ground_truth": str(gt_dir), "electrons_per_unit": renderer.electrons_per_unit,
+            "calibration_views": str(views) if views is not None else None, "calibration_views_note": note,
+            "calibration_views_s": time.perf_counter() - t_views if rendered else 0.0}
+
+
+def calibration_views_folder(session: Path, calibration_views: bool | str | Path, renderer: RigRenderer
+                             ) -> tuple[Path | None, str | None]:
+    """Where :func:`simulate_session` records the calibration views (its ``calibration_views`` argument), or
+    ``None`` and why not."""
+    if not calibration_views:
+        return None, "--no-calibration-views given"
+    if "B" not in renderer.models:
+        return None, "a one-camera rig: no camera B to calibrate"
+    if square_px(renderer.models["A"]) < MIN_SQUARE_PX:
+        return None, (f"camera A's {renderer.models['A'].width} px are too few to find a chessboard's corners "
+                      f"(squares of {square_px(renderer.models['A']):.1f} px)")
+    return (calibration_folder(session) if calibration_views is True else Path(calibration_views)), None

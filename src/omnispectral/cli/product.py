@@ -34,7 +34,7 @@ def cmd_process(args) -> int:
                         scheduler=args.scheduler, skip_bad=args.skip_bad, min_confidence=args.min_confidence,
                         hdr_weight=args.hdr_weight, progress=bars, verify_checksums=not args.sizes_only,
                         registration=args.registration, rig_calibration=args.rig_calibration,
-                        overwrite=args.overwrite, sun=args.sun,
+                        overwrite=args.overwrite, sun=args.sun, calibration_views=not args.no_calibration_views,
                         sun_reference=parse_sun_reference(args.sun_reference) if args.sun_reference else None)
     if args.json:
         print_json(index)
@@ -47,17 +47,21 @@ def _print_summary(index: dict) -> None:
     registration = index["registration"]
     reg = registration["directions"]
     if registration.get("method") == "parallax":
-        cal = registration["rig_calibration"]
-        d = cal["delta_from_rig_file_deg"]
-        how = (f"camera B's mounting fitted from {cal['n_inliers']} blocks (yaw {d['yaw']:+.3f}°, pitch "
-               f"{d['pitch']:+.3f}°, roll {d['roll']:+.3f}° from the rig file), per-pixel parallax")
+        d = registration["rig_calibration"]["delta_from_rig_file_deg"]
+        how = (f"camera B {d['yaw']:+.3f}° yaw, {d['pitch']:+.3f}° pitch, {d['roll']:+.3f}° roll from the rig "
+               "file, per-pixel parallax")
     else:
         n_fb = sum(a["used_fallback"] for a in reg)
         how = f"camera B registered by POC in {len(reg) - n_fb}, calibrated offset in {n_fb}"
     console.print(f"[bold]{index['width']}×{index['height']}[/bold] six-band panorama of {index['rig']} "
                   f"({len(reg)} directions; {how}; {len(index['skipped_directions'])} directions skipped as bad).")
+    source = registration.get("rig_calibration_source")
+    if source:
+        console.print(f"Calibration: {escape(source['description'])}.")
+    far_warning = (registration.get("far_content") or {}).get("warning")
     for w in registration.get("warnings", []):
-        console.print(f"[yellow]warning:[/yellow] {escape(w)}")
+        if w != far_warning:  # said last, below
+            console.print(f"[yellow]warning:[/yellow] {escape(w)}")
     _print_sun(index.get("sun") or {})
     t = Table(title="Timings")
     for k in index["timings_s"]:
@@ -66,6 +70,8 @@ def _print_summary(index: dict) -> None:
     console.print(t)
     for d in index["skipped_directions"]:
         console.print(f"[yellow]skipped direction {d['direction']}:[/yellow] {'; '.join(d['problems'][:3])}")
+    if far_warning:
+        console.print(f"[bold yellow]warning:[/bold yellow] {escape(far_warning)}")
 
 
 def _print_sun(sun: dict) -> None:
@@ -190,6 +196,14 @@ def cmd_demo(args) -> int:
     with ProgressBars() as bars:
         summary = run_demo(out, full=args.full, time_hhmm=args.time, seed=args.seed, on_step=step, progress=bars)
     _print_accuracy(summary["accuracy"])
+    cal = summary.get("rig_calibration") or {}
+    if cal.get("source"):
+        console.print(f"Calibration: {escape(cal['source'])}; far content may be off by up to "
+                      f"{cal['far_content_max_px']:.2f} px (worst direction)." if cal.get("far_content_max_px")
+                      is not None else
+                      f"Calibration: {escape(cal['source'])}.")
+    if cal.get("warning"):
+        console.print(f"[bold yellow]warning:[/bold yellow] {escape(cal['warning'])}")
     _print_sun(summary.get("sun") or {})
     _print_irradiance(summary.get("irradiance") or {})
     console.print(f"Done in {summary['total_s']:.0f} s. Everything is in {out}/:")
@@ -211,6 +225,11 @@ def cmd_process_series(args) -> int:
         console.print(f"{out['n_slots']} time slots processed into {out['output']}; time stack {out['timestack']} "
                       f"{tuple(out['stack_shape'])}; region spectra (Fig. 13) {out['region_spectra']} and "
                       f"{out['plot']}")
+        source = out.get("rig_calibration_source")
+        if source:
+            console.print(f"Calibration (first slot): {escape(source['description'])}.")
+        for slot, line in out.get("far_content_warnings", {}).items():
+            console.print(f"[bold yellow]warning:[/bold yellow] {escape(slot)}: {escape(line)}")
     return 0
 
 
@@ -283,8 +302,10 @@ def add_commands(sub) -> None:
     c.set_defaults(func=cmd_calibrate_rig)
 
     p = sub.add_parser("process", help="a capture session into an HDR six-band panorama with its estimator",
-                       description="HDR merge per direction and camera; camera B's mounting fitted from the "
-                                   "session (or --rig-calibration) and per-pixel parallax (or the paper's one POC "
+                       description="HDR merge per direction and camera; camera B's mounting from --rig-calibration, "
+                                   "else the chessboard views recorded with the session (SESSION/calibration/), else "
+                                   "fitted from the session's own images (then a warning says, per direction, how "
+                                   "far off far content may be), and per-pixel parallax (or the paper's one POC "
                                    "offset per direction); mosaic into a six-band Zarr panorama with a "
                                    "registration-quality layer; Wiener estimator attached; report. Resumable.")
     p.add_argument("session", metavar="SESSION")
@@ -300,7 +321,11 @@ def add_commands(sub) -> None:
                    help="camera B to A: rig calibration + per-pixel parallax (default), or the paper's one POC "
                         "offset per direction")
     p.add_argument("--rig-calibration", default=None, metavar="FILE.json",
-                   help="camera B's mounting from 'omnispectral calibrate rig' (default: fitted from this session)")
+                   help="camera B's mounting from 'omnispectral calibrate rig' (default: from the chessboard views "
+                        "in SESSION/calibration/, or the series' for a time-lapse slot, fitted once and cached there; "
+                        "without views, fitted from this session's own images)")
+    p.add_argument("--no-calibration-views", action="store_true",
+                   help="fit camera B's mounting from this session's own images even where chessboard views are")
     p.add_argument("--sun", default="auto", choices=list(SUN_METHODS),
                    help="how the saturated sun is recovered: auto (the attenuated bracket when the session has "
                         "one, else the diffuse reference if given, else the clear-sky model), nd-bracket, "
@@ -330,7 +355,8 @@ def add_commands(sub) -> None:
     ps.add_argument("series", metavar="SERIES")
     ps.add_argument("-o", "--output", required=True, metavar="OUT")
     ps.add_argument("--rig-calibration", default=None, metavar="FILE.json",
-                    help="camera B's mounting for every slot (default: fitted on the first slot, reused)")
+                    help="camera B's mounting for every slot (default: the series' chessboard views in "
+                         "SERIES/calibration/, else fitted on the first slot and reused)")
     ps.add_argument("--region", action="append", default=None, metavar="NAME:LON0,LON1,LAT0,LAT1",
                     help="region to analyse (repeat; default: sky 45-75° and ground -75 to -45° all around)")
     ps.add_argument("--json", action="store_true")

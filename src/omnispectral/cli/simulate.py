@@ -7,12 +7,13 @@ from pathlib import Path
 
 from rich.markup import escape
 
-from omnispectral.capture.boardviews import DEFAULT_BOARD, DEFAULT_SQUARE_MM, simulate_board_views
+from omnispectral.capture.boardviews import DEFAULT_BOARD, DEFAULT_SQUARE_MM
+from omnispectral.capture.calviews import DEFAULT_N_VIEWS, calibration_folder
 from omnispectral.capture.devices import FakeClock
 from omnispectral.capture.drivers import rig_device_kind
-from omnispectral.capture.hardware import capture_darks, capture_with_devices, dry_run
+from omnispectral.capture.hardware import capture_calibration_views, capture_darks, capture_with_devices, dry_run
 from omnispectral.capture.scenes import DEFAULT_DATE, build_scene
-from omnispectral.capture.simulate import simulate_session
+from omnispectral.capture.simulate import simulate_board_views, simulate_session
 from omnispectral.capture.timelapse import parse_hhmm, parse_interval_s, run_timelapse, slot_times
 from omnispectral.cli._common import ProgressBars, console, print_json
 from omnispectral.cli.capture import add_rig_args, rig_from_args
@@ -32,7 +33,7 @@ def cmd_simulate(args) -> int:
     with ProgressBars(enabled=not args.json, transient=True) as bars:
         out = simulate_session(args.output, rig, scene, start=start, noise=args.noise == "on", seed=args.seed,
                                ground_truth_width=args.gt_width, progress=bars, mounting_error_deg=args.mounting_error,
-                               raw=args.raw)
+                               raw=args.raw, calibration_views=not args.no_calibration_views)
     out["rig"] = rig.name
     if args.json:
         print_json(out)
@@ -41,7 +42,20 @@ def cmd_simulate(args) -> int:
                       f"in {out['wall_s']:.1f} s; the capture itself would take {out['simulated_s']:.0f} s.")
         console.print(f"Session: {args.output}  (verify: omnispectral session verify {args.output})")
         console.print(f"Ground truth: {out['ground_truth']} (bands.npy in DN/s, spectral.npy, ground_truth.json)")
+        _print_calibration_views(out)
     return 0 if out["complete"] else 1
+
+
+def _print_calibration_views(out: dict) -> None:
+    """Where the session's chessboard views are (process fits camera B's mounting from them), or that there are none."""
+    if out.get("calibration_views"):
+        took = f" in {out['calibration_views_s']:.1f} s" if out.get("calibration_views_s") else ""
+        console.print(f"Calibration views: {out['calibration_views']} (chessboard pairs{took}; 'omnispectral "
+                      "process' fits camera B's mounting from them)")
+    elif out.get("complete") and out.get("calibration_views_note"):
+        console.print(f"[yellow]No calibration views[/yellow] ({escape(out['calibration_views_note'])}): process "
+                      "will fit camera B's mounting from the session's own images and warn how far off far content "
+                      "may be")
 
 
 def cmd_simulate_chessboard(args) -> int:
@@ -54,10 +68,10 @@ def cmd_simulate_chessboard(args) -> int:
     if args.json:
         print_json(out)
     else:
-        dist = out["distance_m"]
+        dist, folder = out["distance_m"], Path(args.output)
         console.print(f"Simulated {out['n_views']} chessboard pairs ({out['board'][0]}x{out['board'][1]} inner "
                       f"corners, {out['square_mm']:g} mm squares, {min(dist):.2f}-{max(dist):.2f} m) of {rig.name} "
-                      f"into {args.output}/A and {args.output}/B (truth: {args.output}/ground_truth/views.json).")
+                      f"into {folder / 'A'} and {folder / 'B'} (truth: {folder / 'ground_truth' / 'views.json'}).")
         console.print(f"Calibrate: omnispectral calibrate rig --chessboard {args.output} -o rig-calibration.json")
     return 0
 
@@ -75,9 +89,35 @@ def cmd_capture_darks(args) -> int:
     return 0
 
 
+def cmd_capture_calibration_views(args) -> int:
+    rig = _calibration_rig(args)
+    with ProgressBars(enabled=not args.json, transient=True) as bars:
+        out = capture_calibration_views(args.output, rig, n_views=args.views, board=args.board,
+                                        square_mm=args.square_mm, interval_s=args.interval, seed=args.seed,
+                                        noise=args.noise == "on", mounting_error_deg=args.mounting_error,
+                                        say=lambda m: console.print(escape(m)), progress=bars)
+    if args.json:
+        print_json(out)
+    else:
+        console.print(f"Recorded {out['n_views']} chessboard pairs ({out['board'][0]}x{out['board'][1]}, "
+                      f"{out['square_mm']:g} mm squares; {len(out['rejected'])} shots not kept) into "
+                      f"{out['folder']}: 'omnispectral process' fits camera B's mounting from them.")
+    return 0
+
+
+def _calibration_rig(args):
+    """The rig of ``capture calibration-views``: --preset/--rig, else the session's snapshot at -o."""
+    snapshot = Path(args.output) / "rig.toml"
+    if args.preset is None and args.rig is None and snapshot.is_file():
+        args.rig = str(snapshot)
+    return rig_from_args(args)
+
+
 def cmd_capture(args) -> int:
     if args.what == "darks":
         return cmd_capture_darks(args)
+    if args.what == "calibration-views":
+        return cmd_capture_calibration_views(args)
     rig = rig_from_args(args)
     kind = rig_device_kind(rig)
     if args.dry_run:
@@ -119,13 +159,15 @@ def cmd_timelapse(args) -> int:
     end = _start_time(args.end, args.date)
     slots = slot_times(start, end, parse_interval_s(args.every))
     clock = FakeClock(start)  # simulated devices: simulated time
+    # one mounting of the cameras for the whole series: its views once, in SERIES/calibration/ (the first slot)
+    views = False if args.no_calibration_views else calibration_folder(args.output)
 
     def capture(session_dir: Path, t: _dt.datetime) -> dict:
         scene = build_scene(args.scene, args.cube, t, seed=args.seed, chart_distance_m=args.chart_distance,
                             chart_patch_m=args.chart_patch, light=args.light)
         res = simulate_session(session_dir, rig, scene, start=clock.now(), noise=args.noise == "on",
                                seed=args.seed, ground_truth_width=args.gt_width, progress=False,
-                               mounting_error_deg=args.mounting_error, raw=args.raw)
+                               mounting_error_deg=args.mounting_error, raw=args.raw, calibration_views=views)
         clock.sleep(res["simulated_s"])
         return res
 
@@ -140,7 +182,8 @@ def cmd_timelapse(args) -> int:
         print_json(index)
     else:
         console.print(f"Series {args.output}: {index['n_complete']} sessions, {index['n_skipped']} slots skipped "
-                      f"(index: {Path(args.output) / 'series.json'})")
+                      f"(index: {Path(args.output) / 'series.json'})"
+                      + (f"; calibration views for every slot: {views}" if views else ""))
     return 0
 
 
@@ -170,6 +213,11 @@ def _add_scene_args(p) -> None:
     p.add_argument("--gt-width", type=int, default=None, metavar="W",
                    help="width of the ground-truth panorama (default: the width process gives the panorama, "
                         "camera A's native width)")
+    p.add_argument("--no-calibration-views", action="store_true",
+                   help=f"do not record the rig's calibration views (by default {DEFAULT_N_VIEWS} chessboard pairs "
+                        "into SESSION/calibration/, or SERIES/calibration/ once for a time-lapse; process fits camera "
+                        "B's mounting from them to ~0.03 px at infinity). Without them process fits it from the "
+                        "session's own images and warns, per direction, how far off far content may be")
 
 
 def _add_session_args(p) -> None:
@@ -186,7 +234,9 @@ def add_commands(sub) -> None:
     s = sub.add_parser("simulate", help="capture a simulated scene with the simulated rig (plus ground truth)",
                        description="Run the capture loop on the simulated rig: every sensor pixel through the rig's "
                                    "camera model, CMV2000 noise, frames and journal as from real hardware, and the "
-                                   "ground truth (the rig's bands in DN/s and spectral radiance, equirectangular). "
+                                   "ground truth (the rig's bands in DN/s and spectral radiance, equirectangular), "
+                                   "then the rig's calibration views (chessboard pairs in SESSION/calibration/, from "
+                                   "which process fits camera B's mounting; --no-calibration-views opts out). "
                                    "Resumable.")
     _add_session_args(s)
     s.set_defaults(func=cmd_simulate)
@@ -215,13 +265,25 @@ def add_commands(sub) -> None:
                        description="Run the capture loop on the devices named in the rig file (GenICam cameras, "
                                    "RODEON or Merlin head; an all-simulated rig runs the simulator); resumes an "
                                    "incomplete session in the same directory.")
-    c.add_argument("what", nargs="?", choices=["frames", "darks"], default="frames",
+    c.add_argument("what", nargs="?", choices=["frames", "darks", "calibration-views"], default="frames",
                    help="frames (default): the capture; darks: dark frames (lenses capped) for every exposure of "
-                        "the bracket of the existing session -o SESSION, subtracted by process")
+                        "the bracket of the existing session -o SESSION, subtracted by process; calibration-views: "
+                        "chessboard pairs both cameras take at once, once per mounting of the cameras, into "
+                        "-o SESSION/calibration/ (or a time-lapse's SERIES/calibration/), from which process fits "
+                        "camera B's mounting; the operator is asked to move the board between shots (or --interval); "
+                        "an all-simulated rig shoots a simulated board")
     _add_session_args(c)
     c.add_argument("--dry-run", action="store_true", help="print the plan and the devices named; move nothing")
     c.add_argument("--dark-frames", type=int, default=8, metavar="N",
                    help="capture darks: frames averaged per camera and exposure (default 8)")
+    c.add_argument("--views", type=int, default=DEFAULT_N_VIEWS, metavar="N",
+                   help=f"capture calibration-views: chessboard pairs (default {DEFAULT_N_VIEWS})")
+    c.add_argument("--board", type=board_arg, default=DEFAULT_BOARD, metavar="COLSxROWS",
+                   help="capture calibration-views: inner corners of the chessboard (default 9x6)")
+    c.add_argument("--square-mm", type=positive_mm_arg, default=DEFAULT_SQUARE_MM, metavar="S",
+                   help=f"capture calibration-views: square side in mm (default {DEFAULT_SQUARE_MM:g})")
+    c.add_argument("--interval", type=float, default=None, metavar="S",
+                   help="capture calibration-views: shoot every S seconds instead of asking for Enter")
     c.set_defaults(func=cmd_capture)
 
     t = sub.add_parser("timelapse", help="one capture every N minutes into a series directory",

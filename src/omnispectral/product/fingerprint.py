@@ -27,8 +27,12 @@ def session_identity(session_path: str | Path) -> dict:
 
 def product_fingerprint(session_path: str | Path, *, hdr_weight: str, registration: str,
                         min_confidence: float | None = None, rig_calibration: str | Path | None = None,
-                        skipped_directions=(), merged_format_version: int | None = None) -> dict:
-    """Everything that determines a product's ``merged/`` directory (module docstring)."""
+                        skipped_directions=(), merged_format_version: int | None = None,
+                        calibration_views_sha256: str | None = None) -> dict:
+    """Everything that determines a product's ``merged/`` directory (module docstring).
+
+    ``calibration_views_sha256``: the chessboard views camera B's mounting was fitted from
+    (:func:`omnispectral.product.rigsource.views_sha256`), when it was: other views make another product."""
     session = Path(session_path)
     rig_file = session / "rig.toml"
     plan = json.loads((session / "plan.json").read_text(encoding="utf-8"))
@@ -37,6 +41,8 @@ def product_fingerprint(session_path: str | Path, *, hdr_weight: str, registrati
         reg["min_confidence"] = None if min_confidence is None else float(min_confidence)
     else:
         reg["rig_calibration_sha256"] = None if rig_calibration is None else file_sha256(rig_calibration)
+        if calibration_views_sha256 is not None:  # absent otherwise: products made without views keep their key
+            reg["calibration_views_sha256"] = calibration_views_sha256
     return {"fingerprint_version": FINGERPRINT_VERSION,
             "merged_format_version": merged_format_version if merged_format_version is not None else FORMAT_VERSION,
             "session": session_identity(session), "rig_sha256": file_sha256(rig_file),

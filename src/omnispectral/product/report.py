@@ -43,6 +43,21 @@ from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text
 from omnispectral.product.exports import write_preview
 from omnispectral.product.irradiance import HORIZONTAL_NORMAL, IRRADIANCE_UNITS, irradiance, sun_sky_irradiance
 from omnispectral.product.layout import open_product, product_paths
+from omnispectral.product.report_edges import (
+    PixelErrors,
+    camera_a_covered,
+    depth_edge_figures,
+    hole_figures,
+    hole_mask,
+    pixel_errors,
+    reference_white,
+    region_figures,
+    truth_edge_band,
+    worst_pixel_indices,
+    worst_pixel_summary,
+    worst_pixels,
+)
+from omnispectral.product.report_maps import mark_worst_pixels, plot_error_maps, plot_quality
 from omnispectral.product.rigcal import DIRECTION_WARNING_PX
 from omnispectral.product.spectra import bands_to_linear_srgb
 from omnispectral.spectral.metrics import colour_differences, nrmse
@@ -104,6 +119,12 @@ def accuracy(bands: np.ndarray, estimator, gt_dir: Path, shortest_s: float, max_
 
     ``band_names``: the panorama's bands; when the truth holds more (a one-camera product compared with the
     truth of a two-camera simulation), the truth's bands of those names are compared."""
+    return accuracy_and_pixel_errors(bands, estimator, gt_dir, shortest_s, max_dn, band_names)[0]
+
+
+def accuracy_and_pixel_errors(bands: np.ndarray, estimator, gt_dir: Path, shortest_s: float, max_dn: int,
+                              band_names: list[str] | None = None) -> tuple[dict, PixelErrors]:
+    """:func:`accuracy` and the per-pixel errors behind its ``pixel_errors`` section (for the report's maps)."""
 
     meta = json.loads((gt_dir / "ground_truth.json").read_text())
     h, w = bands.shape[:2]
@@ -125,6 +146,11 @@ def accuracy(bands: np.ndarray, estimator, gt_dir: Path, shortest_s: float, max_
                  "pixels_compared_fraction": float(valid.mean()), "uncovered_fraction": float(1 - covered.mean())}
     if bands.shape[2] == 6:
         out["six_band_psnr_db"] = out["band_psnr_db"]
+    edge, edge_note = truth_edge_band(gt_dir, h, w)
+    white, white_name = reference_white(gt_dir)
+    errors = pixel_errors(bands, truth, valid, estimator, white, edge, band_names)
+    del truth
+    out["pixel_errors"] = pixel_error_report(errors, white_name, edge_note)
     spectral = np.load(gt_dir / "spectral.npy")
     sh, sw = spectral.shape[:2]
     small = _resize_to(np.where(covered[..., None], bands, np.nan).astype(np.float32), sh, sw)
@@ -142,7 +168,7 @@ def accuracy(bands: np.ndarray, estimator, gt_dir: Path, shortest_s: float, max_
         if not seen.any():
             out["colorchecker"] = None
             out["colorchecker_note"] = "the chart is not covered by the panorama"
-            return out
+            return out, errors
         est = np.full(true.shape, np.nan)
         est[seen] = estimator.estimate(measured[seen])
         wl = np.asarray(estimator.wavelength_nm)
@@ -152,6 +178,24 @@ def accuracy(bands: np.ndarray, estimator, gt_dir: Path, shortest_s: float, max_
         de[seen] = colour_differences(est[seen], true[seen], white, wl)["delta_e_ab"]
         out["colorchecker"] = {**chart_scores(patches, errs, de, seen),
                                "estimated": est.tolist(), "true": true.tolist(), "wavelength_nm": wl.tolist()}
+    return out, errors
+
+
+def pixel_error_report(errors: PixelErrors, white_name: str, edge_note: str | None) -> dict:
+    """The ``accuracy.pixel_errors`` section (:mod:`omnispectral.product.report_edges`): the per-pixel errors over
+    all scored pixels, at depth edges against smooth regions (None and ``depth_edges_note`` without a depth map)
+    and the worst pixels."""
+    out = {"band_nrmse_definition": "sqrt(sum ||b - t||^2 / sum ||t||^2) over a region's pixels (b: panorama, "
+                                    "t: truth on the panorama's grid, DN/s); per pixel (map, median, worst "
+                                    "pixels): ||b - t|| / ||t||",
+           "delta_e_ab_definition": "CIE 1976 Delta E*ab between the spectra the product's estimator gives from the "
+                                    "panorama's bands and from the truth's bands (same estimator: the pipeline's "
+                                    f"error, not the estimator's), white: {white_name}; mean over a region's pixels",
+           "all": region_figures(errors, errors.scored),
+           "depth_edges": depth_edge_figures(errors) if errors.edge is not None else None}
+    if errors.edge is None:
+        out["depth_edges_note"] = edge_note
+    out["worst_pixels"] = worst_pixel_summary(worst_pixels(errors), int(errors.scored.sum()))
     return out
 
 
@@ -311,24 +355,60 @@ def write_report(product: str | Path, preview_width: int = 2048) -> dict:
               "rig_calibration": reg.get("rig_calibration"), "registration_warnings": reg.get("warnings", []),
               "skipped_directions": index["skipped_directions"], "accuracy": None}
     gt_dir = Path(index["session"]) / "ground_truth"
-    bands = None
+    bands = errors = None
     simulated = (gt_dir / "ground_truth.json").exists()
     if simulated:
         s = Session.open(index["session"])
         rig = s.rig()
         bands = store.read(0)
-        report["accuracy"] = accuracy(bands, estimator, gt_dir, min(s.plan().exposures_s), rig.camera_a.max_dn,
-                                      index["bands"])
+        report["accuracy"], errors = accuracy_and_pixel_errors(bands, estimator, gt_dir, min(s.plan().exposures_s),
+                                                               rig.camera_a.max_dn, index["bands"])
         if report["accuracy"].get("colorchecker"):
             _plot_chart(report["accuracy"]["colorchecker"], out_dir / "colorchecker.png")
             files["colorchecker_plot"] = str(out_dir / "colorchecker.png")
     report["irradiance"] = irradiance_report(store, estimator, index["bands"], bands, gt_dir if simulated else None)
+    report["holes"], holes_px = store_holes(store, index["bands"], bands)
+    files.update(_write_maps(store, out_dir, level, errors, holes_px))
     report["files"] = files
     atomic_write_json(out_dir / "report.json", report)
     atomic_write_text(out_dir / "report.html", _html(report))
     files["json"] = str(out_dir / "report.json")
     files["html"] = str(out_dir / "report.html")
     return {"report": report, "files": files}
+
+
+def store_holes(store, band_names: list[str], bands: np.ndarray | None = None,
+                rows_per_block: int = 1024) -> tuple[dict, np.ndarray]:
+    """The ``holes`` section (:func:`~omnispectral.product.report_edges.hole_figures`) and the level-0 hole mask,
+    from ``bands`` (level 0) when in memory, else streamed from the store ``rows_per_block`` rows at a time."""
+    h, w = store.shapes[0]
+    mask = np.zeros((h, w), bool)
+    n_a_covered = 0
+    for r0 in range(0, h, rows_per_block):
+        r1 = min(h, r0 + rows_per_block)
+        block = bands[r0:r1] if bands is not None else store.read(0, rows=slice(r0, r1))
+        mask[r0:r1] = hole_mask(block, band_names)
+        n_a_covered += int(camera_a_covered(block, band_names).sum())
+    return hole_figures(int(mask.sum()), n_a_covered), mask
+
+
+def _write_maps(store, out_dir: Path, level: int, errors: PixelErrors | None, holes_px: np.ndarray) -> dict:
+    """The report's maps (:mod:`omnispectral.product.report_maps`) at pyramid level ``level``: the quality layer
+    (every product that has one) and, for simulations, the error maps and the worst pixels on the preview."""
+    height, width = store.shapes[level]
+    files = {}
+    if store.has_quality():
+        layers = (store.attrs()["omnispectral"].get("quality") or {}).get("layers") or []
+        if layers:
+            files["quality_map"] = str(plot_quality(store.read_quality(), layers, height, width,
+                                                    out_dir / "quality.png"))
+    if errors is not None:
+        files["error_map"] = str(plot_error_maps(errors, height, width, out_dir / "error_map.png"))
+    rows, cols = worst_pixel_indices(errors) if errors is not None else (np.zeros(0, int), np.zeros(0, int))
+    if rows.size or holes_px.any():
+        files["worst_pixels_map"] = str(mark_worst_pixels(out_dir / "preview.png", rows, cols, holes_px,
+                                                          store.shapes[0], out_dir / "worst_pixels.png"))
+    return files
 
 
 def _html(report: dict) -> str:
@@ -370,11 +450,70 @@ def _html(report: dict) -> str:
 <h2>Preview</h2><img src="preview.png" width="960">
 <p>sRGB rendering of the Wiener estimate, global Reinhard tone map.</p>
 <h2>Accuracy against ground truth</h2>{acc_html}
+<h2>Where the error is</h2>{_pixel_errors_html(acc, report.get("holes"), report.get("files", {}))}
 <h2>Horizontal irradiance</h2>{_irradiance_html(report.get("irradiance"))}
 <h2>Registration of camera B to A</h2>{reg_html}
 <h2>Timings</h2><table>{rows}</table>
 <p>Skipped directions: {len(report['skipped_directions'])}.</p></body></html>
 """
+
+
+def _pixel_errors_html(acc: dict | None, holes: dict | None, files: dict) -> str:
+    """The per-pixel section: holes, the edge / smooth table, the error map, the worst pixels, the quality layer."""
+    parts = []
+    if holes is not None:
+        parts.append(f"<p>Holes (camera A covers the pixel, some band is missing): <b>{holes['n_pixels']}</b> "
+                     f"pixels of {holes['a_covered_pixels']} ({holes['fraction_of_a_covered']:.4%})"
+                     + (", cyan dots on the image below" if holes["n_pixels"] else "") + ".</p>")
+    pe = (acc or {}).get("pixel_errors")
+    if pe:
+        parts.append(_edge_table_html(pe))
+        if "error_map" in files:
+            parts.append('<img src="error_map.png" width="960">')
+        worst = pe["worst_pixels"]
+        share = worst["at_depth_edge_fraction"]
+        parts.append(f"<p>Worst {worst['fraction']:.1%} of the scored pixels by band NRMSE ({worst['n']}, band NRMSE "
+                     f"≥ {worst['band_nrmse_min'] or 0:.3g})"
+                     + (f", {share:.0%} of them at depth edges" if share is not None else "")
+                     + ": red rings (listed with longitude, latitude and errors in report.json).</p>")
+    elif acc:
+        parts.append("<p>Per-pixel errors not measured.</p>")
+    if "worst_pixels_map" in files:
+        parts.append('<img src="worst_pixels.png" width="960">')
+    if "quality_map" in files:
+        parts.append("<h3>Quality layer</h3><p>Every layer of the panorama's quality array (level 0).</p>"
+                     '<img src="quality.png" width="960">')
+    return "".join(parts) or "<p>Nothing to show.</p>"
+
+
+def _edge_table_html(pe: dict) -> str:
+    """All scored pixels, depth edges, smooth regions and edge / smooth, or why the edges are not measured."""
+    def num(v, fmt: str) -> str:
+        return "–" if v is None else format(v, fmt)
+
+    regions = [("all scored pixels", pe["all"])]
+    de = pe.get("depth_edges")
+    if de:
+        regions += [(f"depth edges (≤ {de['radius_px']:g} px, {de['edge_fraction']:.1%})", de["edge"]),
+                    ("smooth regions", de["smooth"])]
+    rows = "".join(f"<tr><td>{html.escape(name)}</td><td>{r['n_pixels']}</td><td>{num(r['band_nrmse'], '.4f')}</td>"
+                   f"<td>{num(r['band_nrmse_median'], '.4f')}</td><td>{num(r['delta_e_ab'], '.2f')}</td>"
+                   f"<td>{num(r['delta_e_ab_median'], '.2f')}</td></tr>" for name, r in regions)
+    if de:
+        q = de["ratio"]
+        rows += (f"<tr><td><b>edge / smooth</b></td><td></td><td><b>{num(q['band_nrmse'], '.2f')}</b></td>"
+                 f"<td>{num(q['band_nrmse_median'], '.2f')}</td><td><b>{num(q['delta_e_ab'], '.2f')}</b></td>"
+                 f"<td>{num(q['delta_e_ab_median'], '.2f')}</td></tr>")
+    note = "" if de else f"<p>Depth edges not measured: {html.escape(pe.get('depth_edges_note') or '')}.</p>"
+    if de and "band_nrmse_by_camera" in de["edge"]:
+        note += ("<p>Band NRMSE per camera, depth edges / smooth regions (camera A is not registered: what B adds at "
+                 "the edges is its registration): " + "; ".join(
+                     f"{html.escape(c)} {num(v, '.4f')} / {num(de['smooth']['band_nrmse_by_camera'][c], '.4f')} "
+                     f"({num(de['ratio']['band_nrmse_by_camera'][c], '.1f')}×)"
+                     for c, v in de["edge"]["band_nrmse_by_camera"].items()) + ".</p>")
+    return ("<table><tr><th>pixels</th><th>n</th><th>band NRMSE</th><th>median</th><th>ΔE*ab mean</th>"
+            f"<th>median</th></tr>{rows}</table>{note}<p>Band NRMSE: {html.escape(pe['band_nrmse_definition'])}. "
+            f"ΔE*ab: {html.escape(pe['delta_e_ab_definition'])}.</p>")
 
 
 def _irradiance_html(irr: dict | None) -> str:

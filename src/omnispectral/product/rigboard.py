@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
+from omnispectral.capture.calviews import IMAGE_SUFFIXES
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.imaging.geometry import CameraModel, head_rotation
 from omnispectral.imaging.lens import CalibrationError, board_object_points, check_board, find_board, read_gray8
@@ -46,7 +47,6 @@ CORNER_SCALE_PX = 0.5
 MAX_ORDER_MISMATCH = 0.25
 #: Fewest pairs a calibration accepts.
 MIN_PAIRS = 1
-IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".jpg", ".jpeg", ".bmp", ".pgm", ".ppm", ".exr")
 
 
 @dataclass(frozen=True)

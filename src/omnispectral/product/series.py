@@ -19,10 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
+from omnispectral.capture.calviews import calibration_folder, has_views
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.io import atomic_path, atomic_write_json
 from omnispectral.product.irradiance import HORIZONTAL_NORMAL, IRRADIANCE_UNITS, sun_sky_irradiance
-from omnispectral.product.layout import open_product, product_paths
+from omnispectral.product.layout import open_product, product_paths, read_index
 from omnispectral.product.process import process
 
 #: Default regions: the sky high above the horizon and the ground near the rig.
@@ -39,6 +40,15 @@ def parse_region(text: str) -> tuple[str, tuple[float, float, float, float]]:
     if not (-180 <= lon0 < lon1 <= 180 and -90 <= lat0 < lat1 <= 90):
         raise ConfigurationError(f"region {text!r}: need -180 <= LON0 < LON1 <= 180 and -90 <= LAT0 < LAT1 <= 90")
     return name, (lon0, lon1, lat0, lat1)
+
+
+def slot_calibrations(products: list[Path]) -> dict:
+    """Which calibration of camera B the slots used (the first slot's ``rig_calibration_source``) and each
+    slot's warning on how far off its far content may be (``{slot: line}``, only the slots that have one)."""
+    registrations = {p.name: read_index(p)["registration"] for p in products}
+    first = registrations[products[0].name].get("rig_calibration_source") if products else None
+    far = {name: (reg.get("far_content") or {}).get("warning") for name, reg in registrations.items()}
+    return {"rig_calibration_source": first, "far_content_warnings": {k: v for k, v in far.items() if v}}
 
 
 def region_pixels(box, height: int, width: int) -> tuple[slice, slice]:
@@ -58,8 +68,10 @@ def process_series(series: str | Path, output: str | Path, regions: dict | None 
     """Process every complete slot of a series, stack the panoramas and analyse region spectra over time.
 
     Camera B's mounting comes from ``rig_calibration`` (e.g. ``calibrate rig --chessboard``) for every slot,
-    else it is fitted on the first slot and reused for the others.  ``progress(stage, done, total)`` follows
-    the slots (stage ``slots``) and each slot's processing.
+    else from the series' chessboard views (``SERIES/calibration/``, one mounting for the whole series: every
+    slot finds them, fitted once and cached there), else it is fitted on the first slot and reused for the
+    others.  ``progress(stage, done, total)`` follows the slots (stage ``slots``) and each slot's processing.
+    The summary names the calibration (``rig_calibration_source``) and each slot's far-content warning.
     """
     import zarr  # lazy: zarr costs ~0.25 s to import; only the time stack needs it here
 
@@ -74,14 +86,15 @@ def process_series(series: str | Path, output: str | Path, regions: dict | None 
     regions = regions or DEFAULT_REGIONS
     out.mkdir(parents=True, exist_ok=True)
     products, times = [], []
-    calibration = rig_calibration  # else fitted on the first slot and reused for the others
+    calibration = rig_calibration  # else the series' views, else fitted on the first slot and reused
+    series_views = rig_calibration is None and has_views(calibration_folder(series))
     for i, e in enumerate(slots):
         prod = out / e["session"]
         if not (prod / "product.json").exists():
             process(series / e["session"], prod, progress=progress, report=True, rig_calibration=calibration)
         if progress:
             progress("slots", i + 1, len(slots))
-        if calibration is None and product_paths(prod)["rig_calibration"].is_file():
+        if calibration is None and not series_views and product_paths(prod)["rig_calibration"].is_file():
             calibration = product_paths(prod)["rig_calibration"]
         products.append(prod)
         times.append(e["time"])
@@ -121,7 +134,7 @@ def process_series(series: str | Path, output: str | Path, regions: dict | None 
     summary = {"output": str(out), "n_slots": len(products), "timestack": str(stack_path),
                "stack_shape": [len(products), h, w, 6], "region_spectra": str(out / "region_spectra.json"),
                "plot": str(out / "region_spectra.png"), "irradiance_plot": str(out / "irradiance.png"),
-               "regions": list(regions)}
+               "regions": list(regions), **slot_calibrations(products)}
     atomic_write_json(out / "series_product.json", summary)
     return summary
 

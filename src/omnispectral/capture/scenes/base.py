@@ -240,6 +240,16 @@ class Scene(ABC):
     def describe(self) -> dict:
         """JSON-able description: kind, parameters and the quantities a report needs."""
 
+    def band_radiance_and_depth(self, directions, sensitivity, origin_m=(0.0, 0.0, 0.0),
+                                **kwargs) -> tuple[np.ndarray, np.ndarray | None]:
+        """:meth:`band_radiance` and each ray's hit distance ``(N,)`` float32 (m from ``origin_m``; inf where
+        the ray reaches the sky), from the same ray casts.
+
+        This default has no geometry to give (an environment map is light at infinity whose depth is not
+        known): the distances are None.  Ray-traced scenes override it.
+        """
+        return self.band_radiance(directions, sensitivity, origin_m, **kwargs), None
+
     def colorchecker_patches(self, origin_m=(0.0, 0.0, 0.0)) -> list[dict]:
         """ColorChecker patches visible in the scene (none unless the scene has a chart)."""
         return []

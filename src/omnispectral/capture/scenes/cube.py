@@ -234,6 +234,15 @@ class CubeOnWallScene(Scene):
 
     def band_radiance(self, directions, sensitivity, origin_m=(0.0, 0.0, 0.0), sun_disk: bool = True) -> np.ndarray:
         """``spectral_radiance @ sensitivity.T`` via band projections of the materials and of every texel."""
+        return self._band_render(directions, sensitivity, origin_m, sun_disk)
+
+    def band_radiance_and_depth(self, directions, sensitivity, origin_m=(0.0, 0.0, 0.0),
+                                sun_disk: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`band_radiance` and each ray's hit distance (m; inf for the sky) from the same ray casts (the
+        panel is flush with its wall: it adds no depth edge)."""
+        return self._band_render(directions, sensitivity, origin_m, sun_disk, with_depth=True)
+
+    def _band_render(self, directions, sensitivity, origin_m, sun_disk: bool, with_depth: bool = False):
         s = self.check_sensitivity(sensitivity)
         base_table = self.base.band_table(s)
         tex_sun, tex_sky = self._bands.get(s, self._project_texels)
@@ -243,7 +252,7 @@ class CubeOnWallScene(Scene):
             b = np.einsum("pk,pkm->pm", w, tex_sky[idx])
             return a * sun[:, None] + b * sky[:, None]
 
-        return self._render(directions, origin_m, base_table, panel, sun_disk)
+        return self._render(directions, origin_m, base_table, panel, sun_disk, with_depth)
 
     def sun_disk(self):
         """The base scene's sun (the panel hangs on a wall and hides none of the sky)."""
@@ -257,10 +266,12 @@ class CubeOnWallScene(Scene):
         t = self._texels.astype(np.float64)
         return (t @ sun).astype(np.float32), (t @ sky).astype(np.float32)
 
-    def _render(self, directions, origin_m, table, panel, sun_disk: bool = True) -> np.ndarray:
+    def _render(self, directions, origin_m, table, panel, sun_disk: bool = True, with_depth: bool = False):
+        """Radiance ``(..., c)``; ``with_depth``: also the rays' hit distances ``(...)`` (m, inf for the sky)."""
         d, lead = as_directions(directions)
         o = as_origin(origin_m)
         out = np.empty((d.shape[0], table.shape[1] // 2), dtype=np.float32)
+        depth = np.empty(d.shape[0], dtype=np.float32) if with_depth else None
         for b0 in range(0, d.shape[0], RAY_BLOCK):
             b1 = min(d.shape[0], b0 + RAY_BLOCK)
             rec = self.base.shade(d[b0:b1], o, sun_disk)
@@ -269,7 +280,10 @@ class CubeOnWallScene(Scene):
             if sel.size:
                 block[sel] = panel(w, idx, rec.sun[sel], rec.sky[sel])
             out[b0:b1] = block
-        return out.reshape(*lead, out.shape[1])
+            if depth is not None:
+                depth[b0:b1] = rec.t_m
+        out = out.reshape(*lead, out.shape[1])
+        return (out, depth.reshape(lead)) if with_depth else out
 
     def _panel_hits(self, rec, d: np.ndarray, o: np.ndarray):
         """Rays on the panel, their bilinear weights ``(P, 4)`` and texel indices ``(P, 4)``."""

@@ -183,12 +183,31 @@ class IndoorScene(Scene):
         table = self._bands.get(s, lambda m: (self._table64 @ m.T).astype(np.float32))
         return self._render(directions, origin_m, table)
 
+    def band_radiance_and_depth(self, directions, sensitivity,
+                                origin_m=(0.0, 0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`band_radiance` and each ray's distance to the room's surface (m) from the same ray casts."""
+        s = self.check_sensitivity(sensitivity)
+        table = self._bands.get(s, lambda m: (self._table64 @ m.T).astype(np.float32))
+        hits: list[np.ndarray] = []
+
+        def shade(d, o):
+            row, weight, t = self.shade_with_distance(d, o)
+            hits.append(t)
+            return row, weight
+
+        bands = render_rows(directions, origin_m, table, shade)
+        return bands, np.concatenate(hits).astype(np.float32).reshape(bands.shape[:-1])
+
     def _render(self, directions, origin_m, table: np.ndarray) -> np.ndarray:
         return render_rows(directions, origin_m, table, self.shade)
 
     # -- tracing ----------------------------------------------------------------------------------
     def shade(self, d: np.ndarray, o: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Material row and radiance weight (lx for surfaces, cd/m² for lamps) of unit rays from ``o``."""
+        return self.shade_with_distance(d, o)[:2]
+
+    def shade_with_distance(self, d: np.ndarray, o: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`shade` and each ray's distance (m) to the surface it meets."""
         if np.any(o <= self.lo) or np.any(o >= self.hi):
             raise ConfigurationError(f"the viewpoint {o.tolist()} is outside the room")
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -221,7 +240,7 @@ class IndoorScene(Scene):
             lamp = ceiling & (np.abs(p[:, 0] - cx) <= LAMP_SIZE_M[0] / 2) & (np.abs(p[:, 2] - cz) <= LAMP_SIZE_M[1] / 2)
             row[lamp] = 0
             weight[lamp] = self.lamp_cd_m2
-        return row, weight
+        return row, weight, t
 
     def irradiance_lx(self, points_m: np.ndarray, normals: np.ndarray) -> np.ndarray:
         """Illuminance (lx) on surfaces: the two panels as small sources plus the ambient term."""

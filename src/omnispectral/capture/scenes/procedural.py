@@ -457,6 +457,12 @@ class ProceduralOutdoorScene(Scene):
         """``spectral_radiance @ sensitivity.T`` ``(N, m)`` float32 via per-material band projections."""
         return self._render(directions, origin_m, self.band_table(sensitivity), sun_disk)
 
+    def band_radiance_and_depth(self, directions, sensitivity, origin_m=(0.0, 0.0, 0.0),
+                                sun_disk: bool = True) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`band_radiance` and each ray's hit distance (m; inf for the sky, the hills at
+        ``SKYLINE_DISTANCE_M``) from the same ray casts."""
+        return self._render(directions, origin_m, self.band_table(sensitivity), sun_disk, with_depth=True)
+
     def sun_disk(self) -> SunDisk | None:
         """The sun as a uniform disk (:class:`~omnispectral.capture.scenes.base.SunDisk`): direction, radius
         ``SUN_DIAMETER_DEG / 2``, spectral radiance ``L_sun · S_sun(λ)`` (disk luminance × unit-luminance
@@ -492,14 +498,20 @@ class ProceduralOutdoorScene(Scene):
         return np.hstack([self._table64[:, :n] @ sensitivity.T, self._table64[:, n:] @ sensitivity.T]).astype(
             np.float32)
 
-    def _render(self, directions, origin_m, table: np.ndarray, sun_disk: bool = True) -> np.ndarray:
+    def _render(self, directions, origin_m, table: np.ndarray, sun_disk: bool = True, with_depth: bool = False):
+        """Radiance ``(..., c)`` of ``table``'s rows; ``with_depth``: also the rays' hit distances ``(...)`` (m)."""
         d, lead = as_directions(directions)
         o = as_origin(origin_m)
         out = np.empty((d.shape[0], table.shape[1] // 2), dtype=np.float32)
+        depth = np.empty(d.shape[0], dtype=np.float32) if with_depth else None
         for b0 in range(0, d.shape[0], RAY_BLOCK):
             b1 = min(d.shape[0], b0 + RAY_BLOCK)
-            out[b0:b1] = combine(self.shade(d[b0:b1], o, sun_disk), table)
-        return out.reshape(*lead, out.shape[1])
+            rec = self.shade(d[b0:b1], o, sun_disk)
+            out[b0:b1] = combine(rec, table)
+            if depth is not None:
+                depth[b0:b1] = rec.t_m
+        out = out.reshape(*lead, out.shape[1])
+        return (out, depth.reshape(lead)) if with_depth else out
 
     # -- tracing ----------------------------------------------------------------------------------
     def shade(self, d: np.ndarray, o: np.ndarray, sun_disk: bool = True) -> Shading:

@@ -1,0 +1,163 @@
+"""Fine texture: a hyperspectral reflectance cube on a wall, camera A's and B's band errors and the spectral
+error the pipeline adds, against the simulator's truth on the product's grid.
+
+For each cube and distance the script simulates the ``small`` preset at noon with the cube hung on a wall
+of the procedural scene, processes it the default way and compares, over the panel's pixels (2 px in from
+its border):
+
+- per camera, the median relative band error ``|P − T| / T`` (P the product, T the truth's bands);
+- the spectral error the pipeline adds: unit-norm NRMSE between the spectra the product's estimator gives
+  from P and from T, next to the estimator's own floor, the NRMSE between its spectra from T and the true
+  spectra (the scene's radiance on the truth's 2 × 2 rays per pixel).
+
+Cubes: ``--cube FILE`` (``.npz`` or ENVI, see ``omnispectral.capture.scenes.cube``; repeatable) or, by
+default, one made here from a photograph (scikit-image's ``coffee``, a real scene's texture) whose linear
+sRGB is lifted per pixel onto the first three principal components of the Vrhel et al. (1994) object
+reflectances shipped with the package (mean plus three components fitted to the pixel's colour under
+D65, clipped to 0..1): measured spectral shapes, a real scene's texture.
+
+    python benchmarks/bench_texture.py [--cube FILE ...] [--placement near-25 ...] [--noise on off] [--out DIR]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from omnispectral.capture.scenes import ProceduralOutdoorScene
+from omnispectral.capture.scenes.cube import CubeOnWallScene
+from omnispectral.capture.simulate import simulate_session
+from omnispectral.imaging.geometry import lonlat_to_ray
+from omnispectral.product.layout import open_product
+from omnispectral.product.process import process
+from omnispectral.rig import load_preset
+from omnispectral.spectral.colour import spectra_to_linear_srgb
+from omnispectral.spectral.library import load_reflectances
+
+NOON = dt.datetime(2017, 6, 21, 12, 0, tzinfo=dt.UTC)
+#: Where the panel hangs: wall, longitude, latitude of its centre (deg) and width (m); the near wall's face is
+#: 4.0 m south of the rig, so these put the panel 4.4-7.0 m away, each at another sampling phase of the cameras.
+PLACEMENTS = {"near-25": ("near wall", -25.0, 5.0, 1.2), "near-33": ("near wall", -33.0, 4.0, 1.2),
+              "near-41": ("near wall", -41.0, 6.0, 1.2), "near-55": ("near wall", -55.0, 5.0, 1.2)}
+
+
+def photo_cube(size_px: int = 96) -> tuple[np.ndarray, np.ndarray]:
+    """A ``(size, size, 31)`` reflectance cube (400–700 nm, 10 nm) from a photograph's texture (module docstring)."""
+    import cv2
+    from skimage.data import coffee
+
+    refl = load_reflectances("vrhel-objects").resample(np.arange(400, 701, 10.0))
+    r = np.asarray(refl.values, np.float64)
+    mean = r.mean(axis=0)
+    _, _, vt = np.linalg.svd(r - mean, full_matrices=False)
+    basis = vt[:3]  # (3, 31)
+    wl = np.arange(400, 701, 10.0)
+    import colour
+
+    d65 = np.asarray(colour.SDS_ILLUMINANTS["D65"].copy().align(colour.SpectralShape(400, 700, 10)).values)
+    white = spectra_to_linear_srgb((d65)[None], wl)[0]
+    to_rgb = spectra_to_linear_srgb(basis * d65, wl) / white  # (3, 3): rgb of each component
+    rgb_mean = spectra_to_linear_srgb((mean * d65)[None], wl)[0] / white
+    img = coffee()[:, 100:500]
+    img = cv2.resize(img, (size_px, size_px), interpolation=cv2.INTER_AREA).astype(np.float64) / 255.0
+    lin = np.where(img <= 0.04045, img / 12.92, ((img + 0.055) / 1.055) ** 2.4)
+    weights = (lin.reshape(-1, 3) - rgb_mean) @ np.linalg.inv(to_rgb)
+    cube = np.clip(mean + weights @ basis, 0.0, 1.0).reshape(size_px, size_px, -1)
+    return cube.astype(np.float32), wl
+
+
+def panel_mask(scene: CubeOnWallScene, base: ProceduralOutdoorScene, height: int, width: int,
+               inset_px: int = 2) -> np.ndarray:
+    """Pixels of the product's grid whose centre ray meets the panel, ``inset_px`` in from its border."""
+    import cv2
+
+    lat = 90 - (np.arange(height) + 0.5) / height * 180
+    lon = (np.arange(width) + 0.5) / width * 360 - 180
+    rays = lonlat_to_ray(*np.meshgrid(lon, lat)).reshape(-1, 3)
+    one = np.ones((1, scene.wavelength_nm.size), np.float32)
+    differs = np.abs(scene.band_radiance(rays, one, sun_disk=False) - base.band_radiance(rays, one))
+    mask = (differs.reshape(height, width, -1).max(axis=-1) > 0).astype(np.uint8)
+    return cv2.erode(mask, np.ones((2 * inset_px + 1, 2 * inset_px + 1), np.uint8)) > 0
+
+
+def true_spectra(scene, rows: np.ndarray, cols: np.ndarray, height: int, width: int, scale: float) -> np.ndarray:
+    """The scene's spectra on 2 × 2 rays per pixel (as the truth's bands are made), in the truth's units."""
+    acc = 0.0
+    for dy in (0.25, 0.75):
+        for dx in (0.25, 0.75):
+            lat = 90 - (rows + dy) / height * 180
+            lon = (cols + dx) / width * 360 - 180
+            acc = acc + scene.spectral_radiance(lonlat_to_ray(lon, lat), sun_disk=False)
+    return acc / 4.0 * scale
+
+
+def unit_nrmse(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Per-row RMS difference of the unit-norm spectra (scale removed)."""
+    an = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    bn = b / np.linalg.norm(b, axis=-1, keepdims=True)
+    return np.sqrt(((an - bn) ** 2).mean(axis=-1)) / np.sqrt((bn ** 2).mean(axis=-1))
+
+
+def measure(out: Path, cube, placement: str, noise: bool) -> dict:
+    base = ProceduralOutdoorScene(time_hhmm="12:00", day_of_year=172)
+    wall, lon, lat, width_m = PLACEMENTS[placement]
+    scene = CubeOnWallScene(cube, base=base, wall=wall, lon_deg=lon, lat_deg=lat, width_m=width_m)
+    t0 = time.perf_counter()
+    simulate_session(out / "s", load_preset("small"), scene, start=NOON, noise=noise, progress=False)
+    t1 = time.perf_counter()
+    process(out / "s", out / "p", progress=False)
+    t2 = time.perf_counter()
+    _, store, est = open_product(out / "p")
+    bands = store.read(0)
+    truth = np.load(out / "s" / "ground_truth" / "bands.npy", mmap_mode="r")
+    h, w = bands.shape[:2]
+    mask = panel_mask(scene, base, h, w)
+    rows, cols = np.nonzero(mask)
+    p, t = bands[mask].astype(np.float64), np.asarray(truth[rows, cols], np.float64)
+    rel = np.abs(p - t) / np.maximum(t, 1e-12)
+    scale = json.loads((out / "s" / "ground_truth" / "ground_truth.json").read_text())["dn_per_second_per_unit"]
+    spec_t = true_spectra(scene, rows, cols, h, w, scale)
+    est_p, est_t = est.estimate(p.astype(np.float32)), est.estimate(t.astype(np.float32))
+    added, floor = unit_nrmse(est_p, est_t), unit_nrmse(est_t, spec_t)
+    a_err, b_err = float(np.median(rel[:, :3])), float(np.median(rel[:, 3:]))
+    distance_m = round(float(np.linalg.norm(scene.centre_m)), 2)
+    return {"placement": placement, "distance_m": distance_m, "noise": noise, "panel_px": int(mask.sum()),
+            "a_band_error": a_err, "b_band_error": b_err, "b_over_a": b_err / a_err,
+            "spectral_added_nrmse": float(np.median(added)), "estimator_floor_nrmse": float(np.median(floor)),
+            "added_over_floor": float(np.median(added) / np.median(floor)),
+            "holes": int((~np.isfinite(bands[mask])).any(axis=-1).sum()),
+            "simulate_s": round(t1 - t0, 1), "process_s": round(t2 - t1, 1)}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--cube", action="append", default=None, help="reflectance cube file (repeatable)")
+    ap.add_argument("--placement", nargs="+", default=list(PLACEMENTS), choices=list(PLACEMENTS))
+    ap.add_argument("--noise", nargs="+", default=["on"], choices=["on", "off"])
+    ap.add_argument("--out", default="/tmp/bench_texture")
+    ap.add_argument("--json", default=None, help="write the results here")
+    args = ap.parse_args(argv)
+    cubes = [(c, c) for c in args.cube] if args.cube else [("coffee (photo texture, Vrhel PCs)", photo_cube())]
+    print(f"load {os.getloadavg()[0]:.1f}", file=sys.stderr)
+    rows = []
+    for name, cube in cubes:
+        for d in args.placement:
+            for n in args.noise:
+                out = Path(args.out) / f"{len(rows)}"
+                res = {"cube": str(name), **measure(out, cube, d, n == "on")}
+                rows.append(res)
+                print(json.dumps(res), flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

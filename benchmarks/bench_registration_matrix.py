@@ -109,10 +109,16 @@ def chart_errors_px(product: Path, scene, truth: dict) -> dict | None:
 
 
 def accuracy(product: Path) -> dict:
-    acc = json.loads((product / "report" / "report.json").read_text())["accuracy"]
+    report = json.loads((product / "report" / "report.json").read_text())
+    acc = report["accuracy"]
     cc = acc.get("colorchecker") or {}
+    edges = ((acc.get("pixel_errors") or {}).get("depth_edges") or {})
+    ratio = edges.get("ratio") or {}
     return {"psnr_db": acc["six_band_psnr_db"], "spectral_nrmse": acc["spectral_nrmse"],
-            "cc_de_mean": cc.get("delta_e_ab"), "cc_de_max": cc.get("delta_e_ab_max"), "cc_nrmse": cc.get("nrmse")}
+            "cc_de_mean": cc.get("delta_e_ab"), "cc_de_max": cc.get("delta_e_ab_max"), "cc_nrmse": cc.get("nrmse"),
+            "holes": (report.get("holes") or {}).get("n_pixels"),
+            "edge_band_nrmse": (edges.get("edge") or {}).get("band_nrmse"),
+            "edge_to_smooth_band_nrmse": ratio.get("band_nrmse"), "edge_to_smooth_delta_e": ratio.get("delta_e_ab")}
 
 
 def truth_bands_delta_e(product: Path) -> dict | None:
@@ -204,8 +210,9 @@ def fmt(x, spec=".2f") -> str:
 
 def table(rows: list[dict]) -> str:
     lines = ["| scene | time | seed | chart m | ΔE mean / max (parallax) | ΔE mean / max (paper) | NRMSE par / paper | "
-             "PSNR dB par / paper | ∞ error px | chart parallax err px | chart B position err px (p90) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "PSNR dB par / paper | ∞ error px | chart parallax err px | chart B position err px (p90) | "
+             "holes par / paper | edge/smooth band NRMSE par / paper |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         p, q = r["parallax"], r["paper"]
         scene = r["scene"].split("_1k")[0]
@@ -216,7 +223,10 @@ def table(rows: list[dict]) -> str:
                      f"{fmt(q['psnr_db'], '.1f')} | {fmt(p['infinity_error_px'], '.3f')} | "
                      f"{fmt(p.get('chart_parallax_error_px'), '.3f')} | "
                      f"{fmt(p.get('chart_registration_error_px'), '.3f')} "
-                     f"({fmt(p.get('chart_registration_error_p90_px'), '.3f')}) |")
+                     f"({fmt(p.get('chart_registration_error_p90_px'), '.3f')}) | "
+                     f"{fmt(p.get('holes'), 'd')} / {fmt(q.get('holes'), 'd')} | "
+                     f"{fmt(p.get('edge_to_smooth_band_nrmse'), '.1f')} / "
+                     f"{fmt(q.get('edge_to_smooth_band_nrmse'), '.1f')} |")
     return "\n".join(lines)
 
 

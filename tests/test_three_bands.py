@@ -178,10 +178,21 @@ def test_cli_simulate_one_camera_writes_a_three_band_session_and_truth(tmp_path,
     assert s.cameras() == ("A",) and not list((tmp_path / "s" / "frames").rglob("B_*.tif"))
     gt = json.loads((tmp_path / "s" / "ground_truth" / "ground_truth.json").read_text())
     assert gt["bands"]["names"] == BANDS3 and "camera_b_true" not in gt
-    # camera A keeps its filter (34A): the truth is the six-band rig's first three bands, exactly
+    # --one-camera drops camera A's filter (34A) too: a plain RGB camera, the truth through it alone
+    wl = np.asarray(np.load(tmp_path / "s" / "ground_truth" / "wavelength_nm.npy"), float)
     matrix = np.load(tmp_path / "s" / "ground_truth" / "system_matrix.npy")
-    assert np.allclose(matrix, tiny_rig().system(np.asarray(
-        np.load(tmp_path / "s" / "ground_truth" / "wavelength_nm.npy"), float)).matrix[:3], rtol=1e-6)
+    plain = rig_with_camera_settings(one_camera_rig(tiny_rig()), {"A": {"filter": "none"}})
+    assert np.allclose(matrix, plain.system(wl).matrix, rtol=1e-6)
+    assert not np.allclose(matrix, tiny_rig().system(wl).matrix[:3], rtol=1e-2)
+    assert "wratten-34a" not in (tmp_path / "s" / "rig.toml").read_text()
+
+
+def test_a_three_band_product_never_calls_itself_six_band(products, capsys):
+    from omnispectral.cli.product import _print_summary
+
+    _print_summary(products["rgb"][2])
+    first = capsys.readouterr().out.splitlines()[0]
+    assert "3-band panorama" in first and "six-band" not in first and "camera B" not in first
 
 
 def test_calibrate_rig_refuses_a_one_camera_session(products, capsys):

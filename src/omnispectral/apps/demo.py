@@ -69,7 +69,8 @@ def run_demo(out: str | Path, *, full: bool = False, time_hhmm: str = "12:00", s
                "total_s": time.perf_counter() - t0, "panorama": [index["width"], index["height"]],
                "session": str(out / "session"), "product": str(out / "product"),
                "report_html": str(report_dir / "report.html"), "exports": exports, "sun": index.get("sun"),
-               "irradiance": report.get("irradiance"), "rig_calibration": calibration_summary(index)}
+               "irradiance": report.get("irradiance"), "rig_calibration": calibration_summary(index),
+               "holes": report.get("holes")}
     accuracy = dict(report["accuracy"])
     if accuracy.get("colorchecker"):  # the summary keeps the numbers, the product's report keeps the spectra
         accuracy["colorchecker"] = {k: v for k, v in accuracy["colorchecker"].items()

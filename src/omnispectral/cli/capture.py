@@ -10,7 +10,7 @@ from omnispectral.capture.resume import repair_session
 from omnispectral.capture.session import verify_session
 from omnispectral.cli._common import console, print_json
 from omnispectral.io import atomic_write_json
-from omnispectral.rig import PRESETS, one_camera_rig, resolve_rig
+from omnispectral.rig import PRESETS, one_camera_rig, resolve_rig, rig_with_camera_settings
 
 
 def add_rig_args(p) -> None:
@@ -18,14 +18,17 @@ def add_rig_args(p) -> None:
     g.add_argument("--preset", choices=PRESETS, default=None, help="built-in rig of the paper (or 'small')")
     g.add_argument("--rig", default=None, metavar="FILE.toml", help="rig description file")
     p.add_argument("--one-camera", action="store_true",
-                   help="use the rig's camera A alone: one RGB camera, three bands (a rig file with only "
-                        "[cameras.A] is one-camera already)")
+                   help="use the rig's camera A alone and without its filter: one plain RGB camera, three bands "
+                        "(take the filter off the lens; for a filtered one-camera rig write a rig file with only "
+                        "[cameras.A], which is one-camera already)")
 
 
 def rig_from_args(args, default_preset: str | None = None):
     preset = args.preset if args.preset or args.rig else default_preset
     rig = resolve_rig(preset, args.rig)
-    return one_camera_rig(rig) if getattr(args, "one_camera", False) else rig
+    if not getattr(args, "one_camera", False) or rig.camera_names == ("A",):
+        return rig
+    return rig_with_camera_settings(one_camera_rig(rig), {"A": {"filter": "none"}})
 
 
 def cmd_plan(args) -> int:

@@ -46,15 +46,22 @@ def cmd_process(args) -> int:
 def _print_summary(index: dict) -> None:
     registration = index["registration"]
     reg = registration["directions"]
-    if registration.get("method") == "parallax":
+    n_bands = len(index.get("bands") or ()) or 6
+    if n_bands != 6:
+        console.print(f"[bold]{index['width']}×{index['height']}[/bold] {n_bands}-band panorama of {index['rig']} "
+                      f"(one camera: nothing to register; {len(index['skipped_directions'])} directions skipped "
+                      "as bad).")
+    elif registration.get("method") == "parallax":
         d = registration["rig_calibration"]["delta_from_rig_file_deg"]
         how = (f"camera B {d['yaw']:+.3f}° yaw, {d['pitch']:+.3f}° pitch, {d['roll']:+.3f}° roll from the rig "
                "file, per-pixel parallax")
     else:
         n_fb = sum(a["used_fallback"] for a in reg)
         how = f"camera B registered by POC in {len(reg) - n_fb}, calibrated offset in {n_fb}"
-    console.print(f"[bold]{index['width']}×{index['height']}[/bold] six-band panorama of {index['rig']} "
-                  f"({len(reg)} directions; {how}; {len(index['skipped_directions'])} directions skipped as bad).")
+    if n_bands == 6:
+        console.print(f"[bold]{index['width']}×{index['height']}[/bold] six-band panorama of {index['rig']} "
+                      f"({len(reg)} directions; {how}; {len(index['skipped_directions'])} directions skipped as "
+                      "bad).")
     source = registration.get("rig_calibration_source")
     if source:
         console.print(f"Calibration: {escape(source['description'])}.")
@@ -159,12 +166,12 @@ def cmd_report(args) -> int:
     if args.json:
         print_json(rep["report"])
     else:
-        _print_accuracy(rep["report"].get("accuracy"))
+        _print_accuracy(rep["report"].get("accuracy"), rep["report"].get("holes"))
         console.print(f"Report: {rep['files']['html']} and {rep['files']['json']}")
     return 0
 
 
-def _print_accuracy(acc: dict | None) -> None:
+def _print_accuracy(acc: dict | None, holes: dict | None = None) -> None:
     if not acc:
         console.print("No ground truth: accuracy not measured (not a simulated session).")
         return
@@ -183,6 +190,15 @@ def _print_accuracy(acc: dict | None) -> None:
         for x in cc.get("not_uniformly_lit", []):
             t.add_row(f"  not scored: {x['name']}", f"ΔE*ab {x['delta_e_ab']:.2f}",
                       f"shadow edge across the patch (radiance spread {x['radiance_spread']:.0%})")
+    edges = (acc.get("pixel_errors") or {}).get("depth_edges")
+    if edges:  # where the aggregates do not look (product.report_edges)
+        e, s_ = edges["edge"], edges["smooth"]
+        t.add_row("band NRMSE at depth edges / smooth", f"{e['band_nrmse']:.3f} / {s_['band_nrmse']:.4f}",
+                  f"within {edges['radius_px']:g} px of a depth step")
+        t.add_row("ΔE*ab at depth edges / smooth", f"{e['delta_e_ab']:.2f} / {s_['delta_e_ab']:.2f}",
+                  "the pipeline's, same estimator")
+    if holes is not None:
+        t.add_row("holes (covered, a band missing)", f"{holes['n_pixels']}", "")
     console.print(t)
 
 
@@ -195,7 +211,7 @@ def cmd_demo(args) -> int:
 
     with ProgressBars() as bars:
         summary = run_demo(out, full=args.full, time_hhmm=args.time, seed=args.seed, on_step=step, progress=bars)
-    _print_accuracy(summary["accuracy"])
+    _print_accuracy(summary["accuracy"], summary.get("holes"))
     cal = summary.get("rig_calibration") or {}
     if cal.get("source"):
         console.print(f"Calibration: {escape(cal['source'])}; far content may be off by up to "

@@ -10,11 +10,14 @@ and renames into place.
   no ``polarisationHandedness`` (unpolarised: S0 only), an sRGB preview in ``R,G,B``, tiled, one level (the
   OpenEXR Python package writes corrupt mip-maps), float32 or half.  Values are finite and ≥ 0 (NaN,
   ±inf and negative estimates → 0).  Readable by colour-science's ``read_spectral_image_Fichet2021``.
-- :func:`write_envi`: ENVI via Spectral Python, band names and ``wavelength`` in nm.
+  Product exports add ``mask.valid`` (1 covered, 0 where the written 0 means nothing was seen) and
+  ``quality.b_predicted`` (:func:`validity_layers`).
+- :func:`write_envi`: ENVI via Spectral Python, band names and ``wavelength`` in nm, ``data ignore value``
+  where nothing covers a pixel.
 - :func:`write_rgb_exr` / :func:`write_radiance_hdr`: linear Rec.709/sRGB-primaries RGB for
   image-based lighting (Blender, Mitsuba), from the spectra through the CIE 1931 observer; finite and ≥ 0
   (out-of-gamut channels clipped); the EXR declares ``chromaticities`` (Rec.709 primaries, D65 white) and
-  ``envmap = latlong``.
+  ``envmap = latlong``, the ``.hdr`` the same primaries and white in ``PRIMARIES=``.
 - :func:`tone_map_srgb` / :func:`write_preview`: an 8-bit sRGB preview (exposure to put the 99th
   luminance percentile at 1, Reinhard 2002 global operator ``L/(1+L)`` rescaled, sRGB encoding).
 """

@@ -80,12 +80,45 @@ def read_fingerprint(directory: str | Path) -> dict | None:
     return data if isinstance(data, dict) else {"unreadable": True}
 
 
+def _json_format(path: Path) -> str:
+    """The ``format`` a small JSON file of ours declares (at the top level or under ``attributes.omnispectral``,
+    as a Zarr group's ``zarr.json``), or ``""``."""
+    try:
+        if path.stat().st_size > 1 << 26:
+            return ""
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return ""
+    if not isinstance(data, dict):
+        return ""
+    attributes = data.get("attributes")
+    inner = attributes.get("omnispectral") if isinstance(attributes, dict) else None
+    fmt = data.get("format") or (inner.get("format") if isinstance(inner, dict) else "")
+    return fmt if isinstance(fmt, str) else ""
+
+
+def written_by_omnispectral(path: str | Path) -> bool:
+    """Whether ``path`` is something omnispectral wrote and may replace: an empty directory, a directory with
+    our fingerprint or ``merged.json``, a Zarr store or JSON file whose format names omnispectral.  Anything
+    else — a user's file or folder in the way — is never deleted, ``--overwrite`` or not."""
+    path = Path(path)
+    if path.is_dir():
+        if not any(path.iterdir()):
+            return True
+        if (path / FINGERPRINT_FILE).is_file() or (path / "merged.json").is_file():
+            return True
+        return _json_format(path / "zarr.json").startswith("omnispectral")
+    return path.is_file() and path.suffix == ".json" and _json_format(path).startswith("omnispectral")
+
+
 def check_merged(merged_dir: str | Path, wanted: dict, overwrite: bool = False,
                  dependents: tuple[str | Path, ...] = ()) -> str:
     """Make ``merged_dir`` hold intermediates of exactly ``wanted``: ``"new"``, ``"resume"`` or ``"overwritten"``.
 
     Another fingerprint (or intermediates without one) is refused naming the differences unless
-    ``overwrite``, which removes ``merged_dir`` and the ``dependents`` (products derived from it).
+    ``overwrite``, which removes ``merged_dir`` and the ``dependents`` (products derived from it) — only
+    what :func:`written_by_omnispectral` recognises: anything else in the way is refused, ``overwrite``
+    or not, before anything is removed.
     """
     merged_dir = Path(merged_dir)
     state = "new"
@@ -101,6 +134,10 @@ def check_merged(merged_dir: str | Path, wanted: dict, overwrite: bool = False,
                 raise InputFileError(merged_dir, f"{what}. Rerun with --overwrite to rebuild the product, or "
                                                  f"choose another output directory")
             state = "overwritten"
+        for path in (merged_dir, *map(Path, dependents)):
+            if path.exists() and not written_by_omnispectral(path):
+                raise InputFileError(path, "is in the way and was not written by omnispectral: nothing was "
+                                           "removed; move it, or choose another output directory")
         shutil.rmtree(merged_dir)
         for dep in dependents:
             dep = Path(dep)

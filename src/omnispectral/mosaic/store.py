@@ -199,10 +199,9 @@ class PanoramaStore:
             existing = None
             try:
                 existing = cls.open(path)
-            except InputFileError:
-                if not overwrite:
-                    raise InputFileError(path, "exists and is not a panorama store; choose another output or "
-                                               "overwrite it") from None
+            except InputFileError:  # never deleted, --overwrite or not: only what omnispectral wrote is replaced
+                raise InputFileError(path, "exists and is not a panorama store; omnispectral replaces only a store "
+                                           "it wrote: choose another output or remove it yourself") from None
             if existing is not None and not overwrite:
                 if existing.format_version < FORMAT_VERSION:
                     raise InputFileError(path, f"was written by an older omnispectral (panorama format "

@@ -250,7 +250,7 @@ def test_the_product_holds_the_sun_and_its_irradiance(product):
     assert np.all(np.abs(ratio - 1) <= 0.05), ratio  # 0.990-1.005 measured
     assert json.loads((root / "p" / "report" / "report.json").read_text())["irradiance"]["sun_recovered"]
     # the quality layer flags exactly the painted pixels
-    assert store.has_quality() and store.read_quality(slice(0, 1), slice(0, 1)).shape[2] == 3
+    assert store.has_quality() and store.read_quality(slice(0, 1), slice(0, 1)).shape[2] == 4
     assert int(np.nansum(store.read_quality()[..., 2])) == sun["pixels"]["n_pixels"]
     # the RGB export: the painted pixels less their sky background have the truth's sun colour
     out = root / "rgb.exr"

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from omnispectral.cli import main
+from omnispectral.errors import InputFileError
 from omnispectral.mosaic import PanoramaStore, mosaic
 from omnispectral.mosaic.synthetic import six_band_panorama, write_synthetic_merged
 from omnispectral.product.process import DEFAULT_INTERP as PROCESS_INTERP  # the command's default (issue 14)
@@ -115,6 +116,15 @@ def test_mosaic_of_a_raw_session_matches_its_ground_truth(tmp_path):
     assert np.median(rel) < 2e-3 and np.percentile(rel, 99) < 1e-2  # 12-bit quantisation of the brackets
     attrs = PanoramaStore.open(tmp_path / "p.zarr").attrs()["omnispectral"]
     assert attrs["session"]["kind"] == "simulation" and attrs["rig"]["name"] == "small"
-    # mosaicking again (the library takes the merged directions the command wrote) resumes the store
-    again = mosaic(session / "merged", tmp_path / "p.zarr", width=256, tile=64, interp=PROCESS_INTERP)
+    # mosaicking again (the library takes the merged directions the command wrote, and the prior's predictor
+    # of B's bands the command used) resumes the store; without the predictor it is another panorama
+    from omnispectral.capture.session import Session
+    from omnispectral.product.estimator import b_predictor, rig_estimator
+
+    predictor = b_predictor(rig_estimator(Session.open(session).rig())[0])
+    assert attrs["mosaic"]["b_predictor"] == predictor.to_dict()
+    again = mosaic(session / "merged", tmp_path / "p.zarr", width=256, tile=64, interp=PROCESS_INTERP,
+                   b_predictor=predictor)
     assert again["tiles_skipped"] == again["tiles"]
+    with pytest.raises(InputFileError, match="other inputs or parameters"):
+        mosaic(session / "merged", tmp_path / "p.zarr", width=256, tile=64, interp=PROCESS_INTERP)

@@ -7,12 +7,14 @@ from pathlib import Path
 
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
+from omnispectral.capture.session import Session
 from omnispectral.cli._common import console, err_console, print_json, progress_wanted
 from omnispectral.errors import InputFileError
 from omnispectral.mosaic import mosaic
 from omnispectral.mosaic.blending import BLENDS, DEFAULT_MULTIBAND_LEVELS
 from omnispectral.mosaic.engine import DEFAULT_TILE
 from omnispectral.mosaic.interp import METHODS
+from omnispectral.product.estimator import b_predictor, rig_estimator
 from omnispectral.product.merge import merge_session
 from omnispectral.product.process import DEFAULT_INTERP
 
@@ -37,13 +39,15 @@ def cmd_mosaic(args) -> int:
         source = Path(args.input)
         if not source.exists():
             raise InputFileError(source, "not found")
+        predictor = None
         if (source / "session.json").is_file():  # a raw session: merge it into directions first
             merged_dir = Path(args.merged_dir) if args.merged_dir is not None else source / "merged"
+            predictor = b_predictor(rig_estimator(Session.open(source).rig())[0])
             source = merge_session(source, merged_dir, progress=lambda d, n: progress("merge", {}, d, n))
         summary = mosaic(source, args.output, width=args.width, tile=args.tile, interp=args.interp,
                          blend=args.blend, multiband_levels=args.levels, gain_compensation=args.gain_compensation,
                          scheduler=args.scheduler, workers=args.workers, overwrite=args.overwrite,
-                         region=region, progress=progress)
+                         region=region, b_predictor=predictor, progress=progress)
     if args.json:
         print_json(summary)
         return 0

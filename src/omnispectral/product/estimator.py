@@ -15,6 +15,7 @@ import functools
 import json
 
 from omnispectral.rig import Rig, camera_system
+from omnispectral.spectral.conditional import BandPredictor, b_from_a_predictor
 from omnispectral.spectral.evaluate import Protocol, fit_for_protocol
 from omnispectral.spectral.library import load_reflectances
 from omnispectral.spectral.noise import SensorNoiseModel
@@ -61,3 +62,9 @@ def rig_estimator(rig: Rig, mixture: bool = True) -> tuple[WienerEstimator, dict
     params = estimator_params(rig, mixture)
     est, info = estimator_from_params(params)
     return est, {"params": params, **info}
+
+
+def b_predictor(estimator: WienerEstimator) -> BandPredictor | None:
+    """The prior's predictor of camera B's bands from A's for a six-band estimator (used where B saw nothing,
+    :mod:`omnispectral.mosaic.predict`); ``None`` for a three-band one."""
+    return b_from_a_predictor(estimator) if estimator.n_bands == 6 else None

@@ -49,7 +49,7 @@ from omnispectral.mosaic import engine
 from omnispectral.mosaic.sources import MergedDirections, MergedDirectionsWriter
 from omnispectral.mosaic.store import PanoramaStore
 from omnispectral.product.align import FAR_OFFSET_MIN_STD_PX, align_direction, off_model_warnings, parallax_direction
-from omnispectral.product.estimator import rig_estimator
+from omnispectral.product.estimator import b_predictor, rig_estimator
 from omnispectral.product.fingerprint import product_fingerprint
 from omnispectral.product.layout import MERGED, PANORAMA, PRODUCT_FORMAT, RIG_CALIBRATION, product_paths
 from omnispectral.product.merge import merge_session
@@ -63,7 +63,6 @@ from omnispectral.product.rigsource import (
 )
 from omnispectral.product.sun import SUN_FILE, paint_sun, sun_summary
 from omnispectral.product.sun_methods import recover_sun
-from omnispectral.spectral.conditional import b_from_a_predictor
 from omnispectral.threads import ordered_thread_map
 
 #: ``progress(stage, done, total)``: how far a named stage of a long run is (the command line draws it).
@@ -330,8 +329,7 @@ def _process_locked(session_path: Path, paths: dict, *, width, tile, interp, sch
     t1 = time.perf_counter()
     kwargs = {k: v for k, v in (("width", width), ("tile", tile)) if v is not None}
     kwargs["interp"] = interp or DEFAULT_INTERP
-    if est.n_bands == 6:  # B's bands where B saw nothing: the prior's prediction from A's (mosaic.predict)
-        kwargs["b_predictor"] = b_from_a_predictor(est)
+    kwargs["b_predictor"] = b_predictor(est)  # B's bands where B saw nothing (mosaic.predict)
     summary = engine.mosaic(merged, paths["panorama"], scheduler=scheduler, workers=workers,
                             progress=None if progress is None else
                             (lambda stage, _result, done, total: progress(stage, done, total)),

@@ -82,3 +82,17 @@ def test_b_outside_camera_a_coverage_is_dropped_and_a_tile_fits_its_own_predicto
     assert not np.isfinite(img[:5]).any()
     np.testing.assert_allclose(img[20, 5, 3:], 1.5 * img[20, 5, :3], rtol=1e-3)
     assert tile_predictor(np.ones((10, 3)), np.ones((10, 3))) is None  # too few pixels to fit
+
+
+def test_b_from_another_surface_than_a_is_flagged_but_an_unusual_colour_is_not():
+    from omnispectral.mosaic.predict import implausible_b
+
+    img = _two_surfaces((60, 80))
+    prior = BandPredictor(np.eye(3), np.full(3, 0.4))
+    img[10:40, 30:33, 3:] *= 250.0  # B sees the sun past a thin pole that A sees
+    flagged = implausible_b(img, prior)
+    assert flagged[10:40, 30:33].all() and flagged.sum() == 90
+    exotic = _two_surfaces((60, 80))
+    exotic[..., 3:] *= 20.0  # a colour far from the prior, but the whole surface: its own neighbourhood agrees
+    assert not implausible_b(exotic, prior).any()
+    assert not implausible_b(img, None).any()  # no predictor, no test

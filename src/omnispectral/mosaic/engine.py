@@ -56,7 +56,7 @@ from omnispectral.mosaic.interp import (
     spline_prefilter,
 )
 from omnispectral.mosaic.maps import Canvas, Rect, SourceGeometry, exact_map, source_map, tile_cone
-from omnispectral.mosaic.predict import fill_missing_b
+from omnispectral.mosaic.predict import fill_missing_b, implausible_b
 from omnispectral.mosaic.sources import BAND_NAMES, MergedDirections, SourceImage, read_npy_rows
 from omnispectral.mosaic.store import PanoramaStore
 from omnispectral.spectral.conditional import BandPredictor
@@ -305,12 +305,12 @@ def render_tile(job: MosaicJob, rect: Rect) -> tuple[np.ndarray, dict]:
 
 
 def _predict_missing_b(job: MosaicJob, out: np.ndarray, quality: np.ndarray | None) -> np.ndarray:
-    """Fill camera B's bands of a rendered tile where no direction measured them
-    (:mod:`omnispectral.mosaic.predict`); completes ``quality``'s sun (0) and b_predicted layers.
+    """Fill camera B's bands of a rendered tile where no direction measured them or what B measured cannot
+    be A's surface (:mod:`omnispectral.mosaic.predict`); completes ``quality``'s sun (0) and b_predicted layers.
     Returns the prediction's relative error per pixel (NaN where B was measured or nothing covers)."""
     if job.n_bands != N_BANDS:
         return np.full(out.shape[:2], np.nan, np.float32)
-    missing = ~np.isfinite(out[..., 3:6]).all(axis=-1)
+    missing = ~np.isfinite(out[..., 3:6]).all(axis=-1) | implausible_b(out, job.b_predictor)
     predicted = fill_missing_b(out, missing, job.b_predictor)
     if quality is not None:
         covered = np.isfinite(out).all(axis=-1)

@@ -2,8 +2,7 @@
 
 A tile pixel needs B's bands where no direction gives them (B's views of the point disagree and are
 all dropped, :func:`~omnispectral.mosaic.blending.reject_inconsistent`; the point lies beyond B's
-frame) or where every direction's view is hidden by a nearer surface (``occluded``): B's value
-there would be the occluder's.  Such a pixel takes
+frame) or where what B gave cannot be the surface A sees (:func:`implausible_b`).  Such a pixel takes
 
 .. math:: \\hat\\rho_B = (M\\rho_A) \\odot \\exp\\bar\\ell, \\qquad
           \\bar\\ell = \\frac{\\sum_q w_q \\log\\big(\\rho_B(q) / M\\rho_A(q)\\big)}{\\sum_q w_q},
@@ -23,11 +22,12 @@ covers: a pixel only B sees is left out (NaN), like the rest of the uncovered sp
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from omnispectral.spectral.conditional import BandPredictor
 
-__all__ = ["fill_missing_b", "tile_predictor"]
+__all__ = ["fill_missing_b", "implausible_b", "tile_predictor"]
 
 #: Neighbourhood radii (px) tried in turn: a pixel with no measured neighbour like it within the first
 #: looks within the second (sampled every :data:`WIDE_STEP_PX`).
@@ -40,6 +40,10 @@ SIGMA_LOG_BRIGHTNESS = 0.4
 MIN_WEIGHT = 0.05
 #: Fewest measured pixels in a tile for fitting the tile's own predictor (when none is given).
 MIN_TILE_SAMPLES = 64
+#: A measured B band this many times off (either way) the ratio to the prediction its neighbourhood shows
+#: is taken for another surface than A's (:func:`implausible_b`); the neighbourhood's side (px).
+IMPLAUSIBLE_RATIO = 8.0
+IMPLAUSIBLE_WINDOW_PX = 31
 
 
 def tile_predictor(a: np.ndarray, b: np.ndarray) -> BandPredictor | None:
@@ -83,6 +87,30 @@ def _neighbour_stats(todo_yx: tuple[np.ndarray, np.ndarray], usable: np.ndarray,
             sl += wt[:, None] * ell
             sl2 += wt[:, None] * ell * ell
     return sw, sw2, sl, sl2
+
+
+def implausible_b(values: np.ndarray, predictor: BandPredictor | None) -> np.ndarray:
+    """``(h, w)`` bool: pixels whose measured B bands disagree with A's beyond anything a surface explains.
+
+    ``ℓ = log(ρ_B / Mρ_A)`` per band; a pixel is implausible when some band's ``ℓ`` is more than
+    ``log`` :data:`IMPLAUSIBLE_RATIO` from the mean of ``ℓ`` over its :data:`IMPLAUSIBLE_WINDOW_PX`
+    neighbourhood: B saw another surface than A there (a thin near object whose parallax was missed, with
+    the sun behind it: B 250 times the truth), while a surface's own colour, however far from the prior,
+    moves its neighbours' ``ℓ`` with it.  On the simulator's truth no pixel's ``ℓ`` leaves ``±log 8``
+    even against the prior alone.  Without a predictor nothing is flagged."""
+    h, w = values.shape[:2]
+    if predictor is None:
+        return np.zeros((h, w), bool)
+    a, b = values[..., :3].astype(np.float64), values[..., 3:6].astype(np.float64)
+    with np.errstate(all="ignore"):
+        ell = np.log(b / (a @ np.asarray(predictor.matrix, np.float64).T))
+    usable = np.isfinite(ell).all(axis=-1)
+    ell = np.where(usable[..., None], ell, 0.0).astype(np.float32)
+    k = (IMPLAUSIBLE_WINDOW_PX, IMPLAUSIBLE_WINDOW_PX)
+    count = cv2.boxFilter(usable.astype(np.float32), -1, k, normalize=False, borderType=cv2.BORDER_CONSTANT)
+    local = np.stack([cv2.boxFilter(ell[..., i], -1, k, normalize=False, borderType=cv2.BORDER_CONSTANT)
+                      for i in range(3)], axis=-1) / np.maximum(count, 1.0)[..., None]
+    return usable & (np.abs(ell - local) > np.log(IMPLAUSIBLE_RATIO)).any(axis=-1)
 
 
 def fill_missing_b(values: np.ndarray, missing: np.ndarray, predictor: BandPredictor | None = None) -> np.ndarray:

@@ -310,8 +310,11 @@ def _predict_missing_b(job: MosaicJob, out: np.ndarray, quality: np.ndarray | No
     Returns the prediction's relative error per pixel (NaN where B was measured or nothing covers)."""
     if job.n_bands != N_BANDS:
         return np.full(out.shape[:2], np.nan, np.float32)
-    missing = ~np.isfinite(out[..., 3:6]).all(axis=-1) | implausible_b(out, job.b_predictor)
+    implausible = implausible_b(out, job.b_predictor)
+    measured = out[implausible, 3:6].copy()
+    missing = ~np.isfinite(out[..., 3:6]).all(axis=-1) | implausible
     predicted = fill_missing_b(out, missing, job.b_predictor)
+    out[implausible, 3:6] = np.minimum(out[implausible, 3:6], measured)  # it replaces light, never adds it
     if quality is not None:
         covered = np.isfinite(out).all(axis=-1)
         quality[..., 2] = np.where(covered, np.float32(0.0), np.float32(np.nan))

@@ -90,14 +90,18 @@ def _neighbour_stats(todo_yx: tuple[np.ndarray, np.ndarray], usable: np.ndarray,
 
 
 def implausible_b(values: np.ndarray, predictor: BandPredictor | None) -> np.ndarray:
-    """``(h, w)`` bool: pixels whose measured B bands disagree with A's beyond anything a surface explains.
+    """``(h, w)`` bool: pixels whose measured B bands are brighter than A's allow, beyond anything a surface
+    explains.
 
-    ``ℓ = log(ρ_B / Mρ_A)`` per band; a pixel is implausible when some band's ``ℓ`` is more than
-    ``log`` :data:`IMPLAUSIBLE_RATIO` from the mean of ``ℓ`` over its :data:`IMPLAUSIBLE_WINDOW_PX`
-    neighbourhood: B saw another surface than A there (a thin near object whose parallax was missed, with
-    the sun behind it: B 250 times the truth), while a surface's own colour, however far from the prior,
-    moves its neighbours' ``ℓ`` with it.  On the simulator's truth no pixel's ``ℓ`` leaves ``±log 8``
-    even against the prior alone.  Without a predictor nothing is flagged."""
+    ``ℓ = log(ρ_B / Mρ_A)`` per band; a pixel is implausible when some band's ``ℓ`` exceeds the mean of
+    ``ℓ`` over its :data:`IMPLAUSIBLE_WINDOW_PX` neighbourhood by more than ``log``
+    :data:`IMPLAUSIBLE_RATIO`: B saw another, brighter surface than A there (a thin near object whose
+    parallax was missed, with the sun behind it: B 250 times the truth), while a surface's own colour,
+    however far from the prior, moves its neighbours' ``ℓ`` with it.  Only too bright: a B darker than A
+    allows is where A is clipped (beside the sun A's bands are a lower bound, and a prediction from them
+    would invent light).  On the simulator's truth no pixel's ``ℓ`` leaves ``±log 8`` even against the
+    prior alone.  Without a predictor nothing is flagged; the engine never lets the prediction exceed
+    what B measured there."""
     h, w = values.shape[:2]
     if predictor is None:
         return np.zeros((h, w), bool)
@@ -110,7 +114,7 @@ def implausible_b(values: np.ndarray, predictor: BandPredictor | None) -> np.nda
     count = cv2.boxFilter(usable.astype(np.float32), -1, k, normalize=False, borderType=cv2.BORDER_CONSTANT)
     local = np.stack([cv2.boxFilter(ell[..., i], -1, k, normalize=False, borderType=cv2.BORDER_CONSTANT)
                       for i in range(3)], axis=-1) / np.maximum(count, 1.0)[..., None]
-    return usable & (np.abs(ell - local) > np.log(IMPLAUSIBLE_RATIO)).any(axis=-1)
+    return usable & ((ell - local) > np.log(IMPLAUSIBLE_RATIO)).any(axis=-1)
 
 
 def fill_missing_b(values: np.ndarray, missing: np.ndarray, predictor: BandPredictor | None = None) -> np.ndarray:

@@ -43,25 +43,28 @@ def cmd_process(args) -> int:
     return 0
 
 
+def _registration_summary(registration: dict) -> str:
+    """How camera B was registered, in a few words."""
+    if registration.get("method") == "parallax":
+        d = registration["rig_calibration"]["delta_from_rig_file_deg"]
+        return (f"camera B {d['yaw']:+.3f}° yaw, {d['pitch']:+.3f}° pitch, {d['roll']:+.3f}° roll from the rig "
+                "file, per-pixel parallax")
+    reg = registration["directions"]
+    n_fb = sum(a["used_fallback"] for a in reg)
+    return f"camera B registered by POC in {len(reg) - n_fb}, calibrated offset in {n_fb}"
+
+
 def _print_summary(index: dict) -> None:
     registration = index["registration"]
     reg = registration["directions"]
     n_bands = len(index.get("bands") or ()) or 6
+    skipped = f"{len(index['skipped_directions'])} directions skipped as bad"
     if n_bands != 6:
-        console.print(f"[bold]{index['width']}×{index['height']}[/bold] {n_bands}-band panorama of {index['rig']} "
-                      f"(one camera: nothing to register; {len(index['skipped_directions'])} directions skipped "
-                      "as bad).")
-    elif registration.get("method") == "parallax":
-        d = registration["rig_calibration"]["delta_from_rig_file_deg"]
-        how = (f"camera B {d['yaw']:+.3f}° yaw, {d['pitch']:+.3f}° pitch, {d['roll']:+.3f}° roll from the rig "
-               "file, per-pixel parallax")
+        what = f"{n_bands}-band panorama of {index['rig']} (one camera: nothing to register; {skipped})"
     else:
-        n_fb = sum(a["used_fallback"] for a in reg)
-        how = f"camera B registered by POC in {len(reg) - n_fb}, calibrated offset in {n_fb}"
-    if n_bands == 6:
-        console.print(f"[bold]{index['width']}×{index['height']}[/bold] six-band panorama of {index['rig']} "
-                      f"({len(reg)} directions; {how}; {len(index['skipped_directions'])} directions skipped as "
-                      "bad).")
+        what = f"six-band panorama of {index['rig']} ({len(reg)} directions; {_registration_summary(registration)}; "
+        what += f"{skipped})"
+    console.print(f"[bold]{index['width']}×{index['height']}[/bold] {what}.")
     source = registration.get("rig_calibration_source")
     if source:
         console.print(f"Calibration: {escape(source['description'])}.")

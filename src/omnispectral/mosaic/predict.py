@@ -60,6 +60,15 @@ def tile_predictor(a: np.ndarray, b: np.ndarray) -> BandPredictor | None:
     return BandPredictor(m.T, rel)
 
 
+def prior_log_ratio(a: np.ndarray, b: np.ndarray, predictor: BandPredictor) -> tuple[np.ndarray, np.ndarray]:
+    """The prior's prediction ``Mρ_A`` of B's bands ``(…, 3)`` (float64) and ``ℓ = log(ρ_B / Mρ_A)``, NaN
+    where either is not positive."""
+    prior_b = a.astype(np.float64) @ np.asarray(predictor.matrix, np.float64).T
+    with np.errstate(all="ignore"):
+        ell = np.where((b > 0) & (prior_b > 0), np.log(b / prior_b), np.nan)
+    return prior_b, ell
+
+
 def _neighbour_stats(todo_yx: tuple[np.ndarray, np.ndarray], usable: np.ndarray, log_ratio: np.ndarray,
                      chroma: np.ndarray, log_bright: np.ndarray, radius: int, step: int):
     """Weighted sums over the neighbours of the ``todo`` pixels: ``(Σw, Σw², Σwℓ, Σwℓ²)``."""
@@ -105,9 +114,7 @@ def implausible_b(values: np.ndarray, predictor: BandPredictor | None) -> np.nda
     h, w = values.shape[:2]
     if predictor is None:
         return np.zeros((h, w), bool)
-    a, b = values[..., :3].astype(np.float64), values[..., 3:6].astype(np.float64)
-    with np.errstate(all="ignore"):
-        ell = np.log(b / (a @ np.asarray(predictor.matrix, np.float64).T))
+    _, ell = prior_log_ratio(values[..., :3], values[..., 3:6].astype(np.float64), predictor)
     usable = np.isfinite(ell).all(axis=-1)
     ell = np.where(usable[..., None], ell, 0.0).astype(np.float32)
     k = (IMPLAUSIBLE_WINDOW_PX, IMPLAUSIBLE_WINDOW_PX)
@@ -148,11 +155,11 @@ def fill_missing_b(values: np.ndarray, missing: np.ndarray, predictor: BandPredi
         if predictor is None:
             b[todo] = np.nan
             return rel_out
-    prior_b = (a.astype(np.float64) @ np.asarray(predictor.matrix, np.float64).T)
+    prior_b, ell = prior_log_ratio(a, b, predictor)
     bright = a.sum(axis=-1, dtype=np.float64)
+    usable = measured & np.isfinite(ell).all(axis=-1) & (bright > 0)
+    log_ratio = np.where(usable[..., None], ell, 0.0)
     with np.errstate(all="ignore"):
-        usable = measured & (prior_b > 0).all(axis=-1) & (b > 0).all(axis=-1) & (bright > 0)
-        log_ratio = np.where(usable[..., None], np.log(b / prior_b), 0.0)
         chroma = np.where(bright[..., None] > 0, a / bright[..., None], 0.0)
         log_bright = np.log(np.maximum(bright, 1e-30))
     ys, xs = np.nonzero(todo)

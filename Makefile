@@ -18,7 +18,7 @@ $(STAMP): pyproject.toml
 		echo "python3 -m venv failed: installing Debian's python3-venv"; \
 		apt-get update -qq && apt-get install -y -qq python3-venv && $(PYTHON) -m venv $(VENV); }
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[test,bench]'
+	$(BIN)/python -m pip install --quiet -e '.[all,test,bench]'
 	@touch $(STAMP)
 
 demo: $(STAMP)

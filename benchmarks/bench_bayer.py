@@ -25,10 +25,11 @@ import re
 import shutil
 from pathlib import Path
 
-from omnispectral.capture.scenes import ProceduralOutdoorScene
-from omnispectral.capture.simulate import simulate_session
 from omnispectral.product.process import process
 from omnispectral.rig import load_preset
+from omnispectral.sim.scenes import ProceduralOutdoorScene
+from omnispectral.sim.simulate import simulate_session
+from omnispectral.sim.truth import GroundTruth
 
 VARIANTS = [("menon2007", "merge-first"), ("menon2007", "demosaic-first"), ("malvar2004", "merge-first"),
             ("malvar2004", "demosaic-first"), ("bilinear", "merge-first"), ("opencv-ea", "demosaic-first")]
@@ -68,14 +69,14 @@ def main() -> None:
         simulate_session(root / raw, load_preset("small"), scene, start=NOON, progress=False, seed=args.seed,
                          raw=raw)
     shutil.rmtree(root / "p_rgb", ignore_errors=True)  # products are rebuilt: a resumed merge would time nothing
-    index = process(root / "rgb", root / "p_rgb", progress=False)
+    index = process(root / "rgb", root / "p_rgb", truth=GroundTruth.of_session(root / "rgb"), progress=False)
     rows["rgb frames"] = accuracy(root / "p_rgb", index)
     print("rgb frames", json.dumps(rows["rgb frames"]), flush=True)
     for method, order in VARIANTS:
         name = f"{method} {order}"
         session = with_variant(root / "bayer", root / f"bayer_{method}_{order}", method, order)
         shutil.rmtree(root / f"p_{method}_{order}", ignore_errors=True)
-        index = process(session, root / f"p_{method}_{order}", progress=False)
+        index = process(session, root / f"p_{method}_{order}", truth=GroundTruth.of_session(session), progress=False)
         rows[name] = accuracy(root / f"p_{method}_{order}", index)
         print(name, json.dumps(rows[name]), flush=True)
     print(f"{'variant':28s} {'dE mean':>8s} {'dE max':>7s} {'chart NRMSE':>11s} {'PSNR dB':>8s} {'merge s':>8s}")

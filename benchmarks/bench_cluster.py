@@ -32,13 +32,13 @@ from pathlib import Path
 
 import numpy as np
 
-from omnispectral.capture.simulate import simulate_session
 from omnispectral.mosaic.cluster import process_cluster
 from omnispectral.mosaic.engine import mosaic
 from omnispectral.mosaic.sources import MergedDirections
 from omnispectral.mosaic.store import PanoramaStore
 from omnispectral.product.process import process
 from omnispectral.rig import load_preset
+from omnispectral.sim.simulate import simulate_session
 
 
 def prepare(work: Path, session: Path | None) -> MergedDirections:
@@ -46,7 +46,7 @@ def prepare(work: Path, session: Path | None) -> MergedDirections:
     if session is None:
         session = work / "session"
         if not (session / "session.json").is_file():
-            from omnispectral.capture.scenes import ProceduralOutdoorScene
+            from omnispectral.sim.scenes import ProceduralOutdoorScene
 
             simulate_session(session, load_preset("small"), ProceduralOutdoorScene(time_hhmm="12:00"),
                              start=dt.datetime(2017, 6, 21, 12, 0, tzinfo=dt.UTC), progress=False)

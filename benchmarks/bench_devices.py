@@ -23,10 +23,10 @@ import os
 import statistics
 import time
 
-from omnispectral.capture.drivers.emulators import MerlinEmulator, RodeonEmulator
 from omnispectral.capture.drivers.gentl import GenTLSystem, producer_paths
 from omnispectral.capture.drivers.merlin import MerlinHead
 from omnispectral.capture.drivers.rodeon import RodeonHead
+from omnispectral.sim.emulators import MerlinEmulator, RodeonEmulator
 
 SCALE = 20.0
 

@@ -25,11 +25,12 @@ import time
 from pathlib import Path
 
 from omnispectral.capture.importer import import_images, list_images, read_directions, read_exposure_table
-from omnispectral.capture.photographs import write_photographs
-from omnispectral.capture.scenes import PanoramaScene
-from omnispectral.capture.simulate import RigRenderer, simulate_session, true_mounting_error_deg
 from omnispectral.product.process import process
 from omnispectral.rig import load_preset
+from omnispectral.sim.photographs import write_photographs
+from omnispectral.sim.scenes import PanoramaScene
+from omnispectral.sim.simulate import RigRenderer, simulate_session, true_mounting_error_deg
+from omnispectral.sim.truth import GroundTruth
 
 
 def main() -> None:
@@ -65,7 +66,7 @@ def main() -> None:
     print(f"sessions ready in {time.perf_counter() - t0:.0f} s", flush=True)
     for name, s in sessions.items():
         product = root / f"p_{name.replace(' ', '_')}"
-        index = process(s, product, progress=False, registration="paper")
+        index = process(s, product, truth=GroundTruth.of_session(s), progress=False, registration="paper")
         acc = json.loads((product / "report" / "report.json").read_text())["accuracy"]
         rows[name] = {"six_band_psnr_db": acc["six_band_psnr_db"], "spectral_nrmse": acc["spectral_nrmse"],
                       "hdr_merge_s": index["timings_s"]["hdr_merge"]}

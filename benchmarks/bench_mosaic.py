@@ -6,7 +6,7 @@ Cases:
 
 ``quality``
     Noise-free simulated captures of a real HDR panorama (``venice_sunset_1k.hdr``, six bands via
-    :func:`omnispectral.mosaic.synthetic.six_band_panorama`) through the time-lapse geometry (12 × 3
+    :func:`omnispectral.sim.synthetic.six_band_panorama`) through the time-lapse geometry (12 × 3
     directions, 95° × 61° portrait, camera B misaligned as in the rig presets) with a sensor whose
     native panorama width equals the panorama's (1024 px), so pixel-scale detail matters.  Stitched
     back by our engine (each interpolation) and by Hugin's ``nona`` (spline36 ``m i2``, and spline16
@@ -56,7 +56,7 @@ from omnispectral.capture.plan import direction_grid
 from omnispectral.imaging.geometry import HEAD_TO_WORLD_AT_ZERO, CameraModel, Mounting
 from omnispectral.mosaic import PanoramaStore, mosaic
 from omnispectral.mosaic.sources import MergedDirections
-from omnispectral.mosaic.synthetic import six_band_panorama, write_synthetic_merged
+from omnispectral.sim.synthetic import six_band_panorama, write_synthetic_merged
 
 PANORAMA = Path(__file__).resolve().parents[2] / "shared" / "data" / "hdr_envmaps" / "polyhaven_1k_hdr" / \
     "venice_sunset_1k.hdr"
@@ -427,7 +427,7 @@ def window_psnr(store: PanoramaStore, truth: np.ndarray, n: int, size: int = 512
     """PSNR (:func:`psnr`, the window's own peak) of ``n`` windows of ``size``² of the level-0 panorama against
     the truth looked up along the same rays; the two polar windows plus ``n - 2`` at random (seeded)."""
     from omnispectral.mosaic.maps import Canvas
-    from omnispectral.mosaic.synthetic import lookup, pad_over_poles
+    from omnispectral.sim.synthetic import lookup, pad_over_poles
 
     h, w = store.shapes[0]
     canvas, padded = Canvas(w, h), pad_over_poles(np.asarray(truth, np.float32))

@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 from omnispectral.product.process import process
+from omnispectral.sim.truth import GroundTruth
 
 
 def stage_progress(stage: str, done: int, total: int) -> None:
@@ -42,7 +43,8 @@ def main() -> None:
     if out.exists():
         shutil.rmtree(out)
     t0 = time.perf_counter()
-    index = process(args.session, out, width=args.width, report=args.report, progress=stage_progress,
+    index = process(args.session, out, truth=GroundTruth.of_session(args.session),
+                    width=args.width, report=args.report, progress=stage_progress,
                     rig_calibration=args.rig_calibration, sun=args.sun)
     wall = time.perf_counter() - t0
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20

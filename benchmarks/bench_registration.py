@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 import scipy.fft as sfft
 
-from omnispectral.imaging.disparity import block_disparity
+from omnispectral.imaging.blockpoc import block_disparity
 from omnispectral.imaging.hdr import merge_exposures
 from omnispectral.imaging.imageio import read_image
 from omnispectral.imaging.registration import DEFAULT_MIN_CONFIDENCE, phase_correlate

@@ -36,14 +36,16 @@ from pathlib import Path
 
 import numpy as np
 
-from omnispectral.capture.scenes import PanoramaScene, ProceduralOutdoorScene
-from omnispectral.capture.simulate import simulate_board_views, simulate_session
 from omnispectral.imaging.geometry import CameraModel
 from omnispectral.mosaic.sources import MergedDirections
+from omnispectral.product.pairgeometry import predict_b_px
 from omnispectral.product.process import process
 from omnispectral.product.rigboard import calibrate_chessboard_folder
-from omnispectral.product.rigcal import RigCalibration, predict_b_px
+from omnispectral.product.rigfile import RigCalibration
 from omnispectral.rig import load_preset
+from omnispectral.sim.scenes import PanoramaScene, ProceduralOutdoorScene
+from omnispectral.sim.simulate import simulate_board_views, simulate_session
+from omnispectral.sim.truth import GroundTruth
 
 TIMES = ("06:30", "08:00", "09:30", "11:00", "12:30", "14:00", "15:30", "17:00", "18:00")
 SEEDS = (0, 1, 5)
@@ -75,7 +77,7 @@ def chart_errors_px(product: Path, scene, truth: dict) -> dict | None:
       pixel (the calibrated model at the estimated inverse depth) and where B really saw that content
       (the true mounting at the true depth): the error that reaches the spectra.
     """
-    from omnispectral.product.align import cached_epipolar_field
+    from omnispectral.product.pairgeometry import cached_epipolar_field
 
     merged = MergedDirections.open(product / "merged")
     ma, mb = merged.cameras["A"], merged.cameras["B"]
@@ -185,13 +187,14 @@ def run_one(work: Path, key: dict, paper: dict | None = None,
         common["paper"] = {**paper, "reused": True}
     else:
         t1 = time.perf_counter()
-        process(session, work / "paper", progress=False, registration="paper")
+        process(session, work / "paper", truth=GroundTruth.of_session(session), progress=False, registration="paper")
         common["paper"] = {**accuracy(work / "paper"), "process_s": time.perf_counter() - t1}
     rows = []
     for name, cal in calibrations.items():
         out = work / f"parallax-{name}"
         t1 = time.perf_counter()
-        process(session, out, progress=False, registration="parallax", rig_calibration=cal,
+        process(session, out, truth=GroundTruth.of_session(session),
+                progress=False, registration="parallax", rig_calibration=cal,
                 calibration_views=name == "views")
         row = {**common, "rig_calibration": name,
                "parallax": {**accuracy(out), "process_s": time.perf_counter() - t1,

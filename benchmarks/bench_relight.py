@@ -71,11 +71,12 @@ def main() -> None:
     ap.add_argument("--work", default="bench-relight")
     ap.add_argument("--json-out", default=None)
     a = ap.parse_args()
-    from omnispectral.apps.colour import delta_e_ab, signals_to_lab, spectra_to_xyz
     from omnispectral.apps.relight import WhiteReference, reflectance_prior
-    from omnispectral.capture.scenes import IndoorScene
     from omnispectral.imaging.geometry import lonlat_to_ray
     from omnispectral.product.spectra import open_product
+    from omnispectral.sim.scenes import IndoorScene
+    from omnispectral.spectral.colour import delta_e_ab, spectra_to_xyz
+    from omnispectral.spectral.colour import signal_to_Lab as signals_to_lab
     from omnispectral.spectral.library import load_illuminant
 
     work = Path(a.work)

@@ -26,8 +26,8 @@ import numpy as np
 
 
 def make_product(root: Path, width: int, tile: int, noise: float = 0.01) -> None:
-    from omnispectral.apps.productio import create_band_product, fill_pyramid, write_level0
     from omnispectral.product.estimator import estimator_params, rig_estimator
+    from omnispectral.product.layout import create_band_product, fill_pyramid, write_level0
     from omnispectral.rig import load_preset
     from omnispectral.spectral.library import load_illuminant, load_reflectances
 

@@ -41,8 +41,8 @@ print(json.dumps({"seconds": time.perf_counter() - t, "passes": res.info["passes
 
 
 def make_product(root: Path) -> None:
-    from omnispectral.apps.productio import write_band_product
     from omnispectral.product.estimator import estimator_params, rig_estimator
+    from omnispectral.product.layout import write_band_product
     from omnispectral.rig import load_preset, rig_toml
     from omnispectral.spectral.library import load_illuminant
 

@@ -19,9 +19,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from omnispectral.capture.scenes import ProceduralOutdoorScene
-from omnispectral.capture.simulate import simulate_session
 from omnispectral.rig import load_preset
+from omnispectral.sim.scenes import ProceduralOutdoorScene
+from omnispectral.sim.simulate import simulate_session
 
 
 def frame_progress(stage: str, done: int, total: int) -> None:

@@ -33,14 +33,15 @@ from pathlib import Path
 
 import numpy as np
 
-from omnispectral.capture.scenes import ProceduralOutdoorScene
-from omnispectral.capture.scenes.sky import unit_luminance_daylight
-from omnispectral.capture.simulate import simulate_session
 from omnispectral.mosaic.store import PanoramaStore
 from omnispectral.product.irradiance import irradiance
 from omnispectral.product.process import process
 from omnispectral.product.sun_reference import SunReference
 from omnispectral.rig import load_preset
+from omnispectral.sim.scenes import ProceduralOutdoorScene
+from omnispectral.sim.scenes.sky import unit_luminance_daylight
+from omnispectral.sim.simulate import simulate_session
+from omnispectral.sim.truth import GroundTruth
 from omnispectral.spectral.metrics import nrmse
 
 TIMES = ("06:30", "08:00", "09:30", "11:00", "12:30", "14:00", "15:30", "17:00", "18:00")
@@ -105,7 +106,8 @@ def run_one(work: Path, time_hhmm: str, seed: int, methods: list[str], render: b
     rows = []
     for method in methods:
         t1 = time.perf_counter()
-        index = process(work / "session", work / method, progress=False, sun=method,
+        index = process(work / "session", work / method, truth=GroundTruth.of_session(work / "session"),
+                        progress=False, sun=method,
                         sun_reference=reference if method == "diffuse-reference" else None)
         extra = {"render_plate_ratio": plate_ratio(work / "session", work / method)} if render else {}
         rows.append({"time": time_hhmm, "seed": seed, "sun_method": method, **extra,

@@ -10,7 +10,7 @@ its border):
   from P and from T, next to the estimator's own floor, the NRMSE between its spectra from T and the true
   spectra (the scene's radiance on the truth's 2 × 2 rays per pixel).
 
-Cubes: ``--cube FILE`` (``.npz`` or ENVI, see ``omnispectral.capture.scenes.cube``; repeatable) or, by
+Cubes: ``--cube FILE`` (``.npz`` or ENVI, see ``omnispectral.sim.scenes.cube``; repeatable) or, by
 default, one made here from a photograph (scikit-image's ``coffee``, a real scene's texture) whose linear
 sRGB is lifted per pixel onto the first three principal components of the Vrhel et al. (1994) object
 reflectances shipped with the package (mean plus three components fitted to the pixel's colour under
@@ -31,13 +31,14 @@ from pathlib import Path
 
 import numpy as np
 
-from omnispectral.capture.scenes import ProceduralOutdoorScene
-from omnispectral.capture.scenes.cube import CubeOnWallScene
-from omnispectral.capture.simulate import simulate_session
 from omnispectral.imaging.geometry import lonlat_to_ray
 from omnispectral.product.layout import open_product
 from omnispectral.product.process import process
 from omnispectral.rig import load_preset
+from omnispectral.sim.scenes import ProceduralOutdoorScene
+from omnispectral.sim.scenes.cube import CubeOnWallScene
+from omnispectral.sim.simulate import simulate_session
+from omnispectral.sim.truth import GroundTruth
 from omnispectral.spectral.colour import spectra_to_linear_srgb
 from omnispectral.spectral.library import load_reflectances
 
@@ -112,7 +113,7 @@ def measure(out: Path, cube, placement: str, noise: bool) -> dict:
     t0 = time.perf_counter()
     simulate_session(out / "s", load_preset("small"), scene, start=NOON, noise=noise, progress=False)
     t1 = time.perf_counter()
-    process(out / "s", out / "p", progress=False)
+    process(out / "s", out / "p", truth=GroundTruth.of_session(out / "s"), progress=False)
     t2 = time.perf_counter()
     _, store, est = open_product(out / "p")
     bands = store.read(0)

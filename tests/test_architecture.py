@@ -1,17 +1,17 @@
 """The package's layers, checked on its import statements (every one, including those inside functions).
 
     base      omnispectral, errors, io, threads, limits, locking,  (import nothing else of the package)
-              fingerprint
-    core      imaging, spectral                                    (base and each other)
+              fingerprint, extras, progress, choices
+    core      imaging → spectral                                   (base; imaging may use spectral, never the reverse)
     rig       omnispectral.rig                                     (base, core)
-    stages    capture, mosaic                                      (base, core, rig; mosaic never capture)
+    stages    capture (the real path), mosaic                      (base, core, rig; mosaic never capture)
     product   product                                              (all of the above)
     apps      apps: rendering, relighting, the demo                (all of the above)
+    sim       the simulator                                        (base, core, rig, stages)
     front     view (library), cli (command line)                   (anything; nothing imports cli)
 
-and the simulator (``capture.simulate``, ``capture.scenes``) is used under ``product/`` only by the report's
-ground-truth comparison (the demo, which runs it, is an application); ``mosaic`` never sees it.
-See docs/architecture.md.
+Only ``sim`` itself, the demo (``apps.demo``), the command line and the tests import the simulator: processing,
+the capture path, the other applications and the viewer never see it.  See docs/architecture.md.
 """
 
 from __future__ import annotations
@@ -27,17 +27,17 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 PACKAGE = "omnispectral"
 
 BASE = {"omnispectral", "omnispectral.errors", "omnispectral.io", "omnispectral.threads", "omnispectral.limits",
-        "omnispectral.locking", "omnispectral.fingerprint"}
-CORE = ("imaging", "spectral")
-SIMULATOR = ("omnispectral.capture.simulate", "omnispectral.capture.scenes")
-#: Modules of ``product`` that may use the simulator: the demo runs it; the report compares with its truth.
-SIMULATOR_USERS = {"omnispectral.product.report"}
+        "omnispectral.locking", "omnispectral.fingerprint", "omnispectral.extras",
+        "omnispectral.progress",
+        "omnispectral.choices"}  # names and defaults the command line shows: its parsers import nothing heavy
+SIMULATOR = "omnispectral.sim"
+#: Modules outside ``sim`` that may import it: the demo runs a simulation; the command line offers it.
+SIMULATOR_USERS = ("omnispectral.apps.demo", "omnispectral.cli", "omnispectral.__main__")
 #: Function-level imports kept lazy on purpose: heavy dependencies a code path needs only sometimes.
 LAZY_OK = ("matplotlib", "zarr", "dask", "distributed", "scipy.signal", "numba", "uvicorn", "spectral.io.envi",
            "mitsuba", "drjit", "rawpy", "xarray",
            "omnispectral.capture.drivers.gentl")  # the last loads harvesters/genicam and the GenTL native libraries
-#: Modules whose function-level imports are not checked (none left: product.align and product.rigcal no
-#: longer call each other, session 5).
+#: Modules whose function-level imports are not checked.
 LAZY_EXEMPT: set[str] = set()
 
 
@@ -90,14 +90,15 @@ def _layer(module: str) -> str:
 ALLOWED = {
     "base": {"base"},
     "imaging": {"base", "imaging", "spectral"},
-    "spectral": {"base", "imaging", "spectral"},
+    "spectral": {"base", "spectral"},
     "rig": {"base", "imaging", "spectral", "rig"},
     "capture": {"base", "imaging", "spectral", "rig", "capture"},
     "mosaic": {"base", "imaging", "spectral", "rig", "mosaic"},
     "product": {"base", "imaging", "spectral", "rig", "capture", "mosaic", "product"},
-    "apps": {"base", "imaging", "spectral", "rig", "capture", "mosaic", "product", "apps"},
+    "apps": {"base", "imaging", "spectral", "rig", "capture", "mosaic", "product", "apps", "sim"},
+    "sim": {"base", "imaging", "spectral", "rig", "capture", "mosaic", "sim"},
     "view": {"base", "imaging", "spectral", "rig", "capture", "mosaic", "product", "apps", "view"},
-    "cli": {"base", "imaging", "spectral", "rig", "capture", "mosaic", "product", "apps", "view", "cli"},
+    "cli": {"base", "imaging", "spectral", "rig", "capture", "mosaic", "product", "apps", "sim", "view", "cli"},
 }
 
 
@@ -109,7 +110,7 @@ def test_the_walk_sees_the_package():
     """The check is not vacuous: it finds the modules and their known imports."""
     assert len(GRAPH) > 60
     assert any(name == "omnispectral.product.layout" for name, _ in _internal("omnispectral.product.spectra"))
-    assert any(name == "omnispectral.capture.simulate" for name, _ in _internal("omnispectral.apps.demo"))
+    assert any(name == "omnispectral.sim.simulate" for name, _ in _internal("omnispectral.apps.demo"))
     assert {_layer(m) for m in GRAPH} == set(ALLOWED)
 
 
@@ -127,10 +128,20 @@ def test_nothing_imports_the_cli():
     assert not bad
 
 
-def test_mosaic_and_product_do_not_use_the_simulator():
-    bad = [(m, name) for m in GRAPH if m.startswith(("omnispectral.mosaic", "omnispectral.product"))
-           and m not in SIMULATOR_USERS for name, _ in _internal(m) if name.startswith(SIMULATOR)]
-    assert not bad
+def test_only_the_demo_and_the_cli_use_the_simulator():
+    """Processing, the capture path, the applications and the viewer never import ``omnispectral.sim``."""
+    users = {m for m in GRAPH if any(n == SIMULATOR or n.startswith(SIMULATOR + ".") for n, _ in _internal(m))}
+    assert "omnispectral.apps.demo" in users and "omnispectral.cli.simulate" in users  # the check is not vacuous
+    bad = sorted(m for m in users if not (m == SIMULATOR or m.startswith((SIMULATOR + ".", *SIMULATOR_USERS))))
+    assert not bad, f"import the simulator: {bad}"
+
+
+def test_the_capture_package_is_the_real_path_only():
+    """Nothing under ``capture/`` simulates: no module there defines a simulated device or renders a scene."""
+    simulating = re.compile(r"^class (Simulated|Fake)\w*|^def simulate(_\w+)?\(", re.M)
+    offenders = [str(p.relative_to(SRC)) for p in sorted((SRC / PACKAGE / "capture").rglob("*.py"))
+                 if simulating.search(p.read_text(encoding="utf-8"))]
+    assert not offenders
 
 
 def test_mosaic_never_reads_a_rig_or_a_session():
@@ -192,3 +203,64 @@ def test_the_paper_table_names_functions_that_exist():
                 missing.append(name)
             break
     assert not missing, missing
+
+
+def _references() -> dict[str, set[str]]:
+    """Identifier → the modules whose code refers to it (a name, an attribute or a keyword argument's value),
+    definitions left out."""
+    refs: dict[str, set[str]] = {}
+    for path in sorted((SRC / PACKAGE).rglob("*.py")):
+        module = _module_name(path)
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Name):
+                refs.setdefault(node.id, set()).add(module)
+            elif isinstance(node, ast.Attribute):
+                refs.setdefault(node.attr, set()).add(module)
+            elif isinstance(node, ast.ImportFrom):  # a re-export is not a use: counted only with a use
+                continue
+    return refs
+
+
+def test_the_paper_table_names_what_the_pipeline_runs():
+    """Every function or class the paper table names is used by the package's own code outside the simulator
+    (the pipeline, the command line, the apps): nothing in the table is reached only from the tests.  Names of
+    the simulator (a simulated scene as the ground truth of an application) are used within it."""
+    doc = (SRC.parent / "docs" / "architecture.md").read_text(encoding="utf-8")
+    names = sorted(set(re.findall(r"`(omnispectral(?:\.\w+)+)`", doc[: doc.index("\n## ")])))
+    refs = _references()
+    unused = []
+    for name in names:
+        last = name.rsplit(".", 1)[1]
+        if (SRC / Path(*name.split("."))).with_suffix(".py").exists() or (SRC / Path(*name.split("."))).is_dir():
+            continue  # a module
+        users = refs.get(last, set())
+        in_sim = name.startswith(SIMULATOR + ".")
+        if not any(u.startswith(SIMULATOR) == in_sim or (not in_sim and u.startswith("omnispectral.cli"))
+                   for u in users):
+            unused.append(name)
+    assert not unused, f"named in the paper table but used by no pipeline code: {unused}"
+
+
+def test_every_module_declares_its_public_names():
+    """Each module says what it offers (``__all__``), and every name it lists exists there."""
+    missing, wrong = [], []
+    for path in sorted((SRC / PACKAGE).rglob("*.py")):
+        if path.name in ("__init__.py", "__main__.py"):
+            continue
+        module = _module_name(path)
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        listed = next((n.value for n in tree.body if isinstance(n, ast.Assign)
+                       and any(isinstance(t, ast.Name) and t.id == "__all__" for t in n.targets)), None)
+        if listed is None:
+            missing.append(module)
+            continue
+        targets = [t for n in tree.body if isinstance(n, ast.Assign) for t in n.targets]
+        names = [e for t in targets for e in (t.elts if isinstance(t, ast.Tuple) else [t])]
+        defined = {e.id for e in names if isinstance(e, ast.Name)}
+        defined |= {n.target.id for n in tree.body if isinstance(n, ast.AnnAssign) and isinstance(n.target, ast.Name)}
+        defined |= {n.name for n in tree.body if isinstance(n, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef)}
+        defined |= {(a.asname or a.name).split(".")[0] for n in tree.body if isinstance(n, ast.Import | ast.ImportFrom)
+                    for a in n.names}
+        wrong += [f"{module}.{e.value}" for e in listed.elts if e.value not in defined]
+    assert not missing, f"no __all__: {missing}"
+    assert not wrong, f"listed in __all__ but not defined: {wrong}"

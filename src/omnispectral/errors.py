@@ -9,6 +9,8 @@ from __future__ import annotations
 import errno
 from pathlib import Path
 
+__all__ = ["ConfigurationError", "InputFileError", "InvalidFileContent", "OmnispectralError", "describe_os_error"]
+
 
 class OmnispectralError(Exception):
     """Base class for errors the CLI reports as a clear one-line message."""

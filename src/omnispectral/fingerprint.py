@@ -27,16 +27,26 @@ from pathlib import Path
 from omnispectral.errors import InputFileError
 from omnispectral.io import atomic_write_json
 
+__all__ = ["FINGERPRINT_FILE", "FINGERPRINT_VERSION", "check_merged", "differences", "file_sha256", "flatten",
+           "read_fingerprint", "written_by_omnispectral"]
+
 FINGERPRINT_VERSION = 1
 FINGERPRINT_FILE = "fingerprint.json"
 
 
-def sha256_bytes(data: bytes) -> str:
-    return hashlib.sha256(data).hexdigest()
-
-
 def file_sha256(path: str | Path) -> str:
-    """SHA-256 of a file's bytes (read in 1 MiB blocks)."""
+    """SHA-256 of a file's bytes (read in 1 MiB blocks).
+
+    Parameters
+    ----------
+    path
+        The file.
+
+    Returns
+    -------
+    str
+        The hex digest.
+    """
     h = hashlib.sha256()
     with open(path, "rb") as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):
@@ -45,7 +55,20 @@ def file_sha256(path: str | Path) -> str:
 
 
 def flatten(d: dict, prefix: str = "") -> dict:
-    """``{"a": {"b": 1}}`` → ``{"a.b": 1}`` (lists stay values)."""
+    """Nested dictionaries as one level of dotted keys: ``{"a": {"b": 1}}`` → ``{"a.b": 1}``.
+
+    Parameters
+    ----------
+    d
+        The nested dictionary (lists stay values).
+    prefix
+        Prepended to every key.
+
+    Returns
+    -------
+    dict
+        The flat dictionary.
+    """
     out = {}
     for k, v in d.items():
         name = f"{prefix}{k}"
@@ -62,14 +85,37 @@ def _short(v) -> str:
 
 
 def differences(recorded: dict, wanted: dict) -> list[str]:
-    """What differs between two fingerprints (or two parameter sets), one ``key: old → new`` each; top-level
-    keys first (the parameter a user changed before the quantities derived from it)."""
+    """What differs between two fingerprints (or two parameter sets).
+
+    Parameters
+    ----------
+    recorded, wanted
+        The two (nested) dictionaries.
+
+    Returns
+    -------
+    list of str
+        One ``key: old → new`` per differing dotted key; top-level keys first (the parameter a user changed
+        before the quantities derived from it).
+    """
     a, b = flatten(recorded), flatten(wanted)
     keys = sorted(set(a) | set(b), key=lambda k: (k.count("."), k))
     return [f"{k}: {_short(a.get(k))} → {_short(b.get(k))}" for k in keys if a.get(k) != b.get(k)]
 
 
 def read_fingerprint(directory: str | Path) -> dict | None:
+    """The fingerprint recorded in a ``merged/`` directory.
+
+    Parameters
+    ----------
+    directory
+        The directory.
+
+    Returns
+    -------
+    dict or None
+        The fingerprint; ``None`` when there is none; ``{"unreadable": True}`` when it cannot be read.
+    """
     p = Path(directory) / FINGERPRINT_FILE
     try:
         data = json.loads(p.read_text(encoding="utf-8"))
@@ -98,9 +144,22 @@ def _json_format(path: Path) -> str:
 
 
 def written_by_omnispectral(path: str | Path) -> bool:
-    """Whether ``path`` is something omnispectral wrote and may replace: an empty directory, a directory with
-    our fingerprint or ``merged.json``, a Zarr store or JSON file whose format names omnispectral.  Anything
-    else — a user's file or folder in the way — is never deleted, ``--overwrite`` or not."""
+    """Whether ``path`` is something omnispectral wrote and may replace.
+
+    That is an empty directory, a directory with our fingerprint or ``merged.json``, a Zarr store or JSON file
+    whose format names omnispectral.  Anything else — a user's file or folder in the way — is never deleted,
+    ``--overwrite`` or not.
+
+    Parameters
+    ----------
+    path
+        A file or directory.
+
+    Returns
+    -------
+    bool
+        True when omnispectral wrote it.
+    """
     path = Path(path)
     if path.is_dir():
         if not any(path.iterdir()):
@@ -113,12 +172,33 @@ def written_by_omnispectral(path: str | Path) -> bool:
 
 def check_merged(merged_dir: str | Path, wanted: dict, overwrite: bool = False,
                  dependents: tuple[str | Path, ...] = ()) -> str:
-    """Make ``merged_dir`` hold intermediates of exactly ``wanted``: ``"new"``, ``"resume"`` or ``"overwritten"``.
+    """Make ``merged_dir`` hold intermediates of exactly ``wanted``.
 
     Another fingerprint (or intermediates without one) is refused naming the differences unless
     ``overwrite``, which removes ``merged_dir`` and the ``dependents`` (products derived from it) — only
     what :func:`written_by_omnispectral` recognises: anything else in the way is refused, ``overwrite``
     or not, before anything is removed.
+
+    Parameters
+    ----------
+    merged_dir
+        The intermediates' directory (``PRODUCT/merged``).
+    wanted
+        The fingerprint of this run.
+    overwrite
+        Remove intermediates made from something else (and the ``dependents``) instead of refusing.
+    dependents
+        Paths derived from the intermediates, removed with them.
+
+    Returns
+    -------
+    str
+        ``"new"``, ``"resume"`` or ``"overwritten"``.
+
+    Raises
+    ------
+    InputFileError
+        On another fingerprint without ``overwrite``, or something in the way that omnispectral did not write.
     """
     merged_dir = Path(merged_dir)
     state = "new"

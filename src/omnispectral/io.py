@@ -12,6 +12,9 @@ from typing import Any
 
 from omnispectral.errors import InputFileError
 
+__all__ = ["TEMP_MARK", "atomic_path", "atomic_write_json", "atomic_write_text", "clean_temp_files", "current_umask",
+           "error_naming_output", "follow_umask", "is_temp_name", "jsonable", "names_temp_file_of", "read_text_file"]
+
 #: Every temporary file of :func:`atomic_path` is named ``.NAME.omnitmp-XXXXXXXX[.suffix]``: it starts with
 #: a dot (final names never do) and carries this mark, so that readers never take it for a finished
 #: file and :func:`clean_temp_files` can remove the leftovers of a killed process.
@@ -132,6 +135,11 @@ def atomic_write_text(path: str | Path, text: str) -> Path:
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return Path(path)
+
+
+def jsonable(x: Any) -> Any:
+    """``x`` with NumPy arrays and scalars as lists and numbers, anything else JSON cannot hold as its ``str``."""
+    return json.loads(json.dumps(x, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
 
 
 def atomic_write_json(path: str | Path, data: Any) -> Path:

@@ -22,6 +22,11 @@ import tifffile
 
 from omnispectral.errors import ConfigurationError, InputFileError
 
+__all__ = ["MAX_DIRECTIONS", "MAX_EXPOSURE_S", "MAX_IMAGE_PIXELS", "MAX_IMAGE_SIDE_PX", "MAX_PANORAMA_WIDTH_PX",
+           "MIN_EXPOSURE_S", "MIN_FOV_DEG", "PANORAMA_BYTES_PER_PX", "check_bit_depth", "check_directions",
+           "check_exposure_times", "check_image_header", "check_image_shape", "check_panorama_size", "gib",
+           "guard_product_output", "refuse_overwriting_inputs", "same_file"]
+
 MIN_EXPOSURE_S = 1e-7
 MAX_EXPOSURE_S = 3600.0
 MAX_IMAGE_SIDE_PX = 32768

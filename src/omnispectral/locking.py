@@ -7,8 +7,8 @@ product, ``session repair``) holds ``DIR/.omnispectral.lock`` for its whole dura
   (SIGKILL, power loss on a local disk): a crashed run never blocks the next one;
 * the file holds the holder's pid, host name, command and start time, so a second run is refused
   with one line that says who holds it (:class:`LockedError`);
-* a lock file left by a holder that is gone (its flock released, or its pid no longer alive on this
-  host) is *stale*: it is taken over and reported in :attr:`DirectoryLock.stale_holder`.
+* a lock file left by a holder that is gone (its flock released by the kernel when that process ended)
+  is *stale*: it is taken over and reported in :attr:`DirectoryLock.stale_holder`.
 
 Locks are re-entrant within one process (a nested ``with directory_lock(d)`` of the same directory
 is a no-op), because ``flock`` locks of two open file descriptions conflict even in one process.
@@ -29,6 +29,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from omnispectral.errors import OmnispectralError
+
+__all__ = ["LOCK_NAME", "DirectoryLock", "LockedError", "directory_lock", "read_holder"]
 
 LOCK_NAME = ".omnispectral.lock"
 
@@ -55,35 +57,24 @@ def _holder_record(what: str) -> dict:
 
 
 def read_holder(directory: str | Path) -> dict | None:
-    """The record written by the lock's last holder, or ``None`` (no lock file or unreadable)."""
+    """The record written by the lock's last holder.
+
+    Parameters
+    ----------
+    directory
+        The locked (or once locked) directory.
+
+    Returns
+    -------
+    dict or None
+        ``pid``, ``host``, ``what``, ``command``, ``since_utc``; ``None`` without a readable lock file.
+    """
     p = Path(directory) / LOCK_NAME
     try:
         data = json.loads(p.read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
     return data if isinstance(data, dict) else None
-
-
-def pid_alive(pid: int) -> bool:
-    """Whether a process with this pid exists on this host."""
-    try:
-        os.kill(int(pid), 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # exists, owned by someone else
-        return True
-    except (OverflowError, ValueError):
-        return False
-    return True
-
-
-def is_stale(holder: dict | None) -> bool:
-    """A holder record whose process is gone (same host, pid not alive); other hosts are never presumed dead."""
-    if not holder:
-        return True
-    if holder.get("host") != socket.gethostname():
-        return False
-    return not pid_alive(holder.get("pid", -1))
 
 
 def _describe(holder: dict | None) -> str:
@@ -97,7 +88,22 @@ def _describe(holder: dict | None) -> str:
 def directory_lock(directory: str | Path, what: str = "writing") -> Iterator[DirectoryLock]:
     """Hold the exclusive lock of ``directory`` (created if needed) for the ``with`` block.
 
-    Raises :class:`LockedError` naming the holder when another live run holds it.
+    Parameters
+    ----------
+    directory
+        The session or product directory.
+    what
+        What the holder does, written in the lock file for a refused second run to name.
+
+    Yields
+    ------
+    DirectoryLock
+        The held lock, with the record of a stale holder it took over (if any).
+
+    Raises
+    ------
+    LockedError
+        Naming the holder, when another live run holds the lock.
     """
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)

@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 import tomli_w
 
+from omnispectral.choices import PRESETS
 from omnispectral.errors import ConfigurationError, InputFileError, InvalidFileContent
 from omnispectral.imaging.bayer import CFA_PATTERNS, DEMOSAIC_METHODS, ORDERS
 from omnispectral.imaging.geometry import CameraModel, Mounting
@@ -47,7 +48,12 @@ from omnispectral.spectral.library import load_camera, load_filter
 from omnispectral.spectral.noise import SensorNoiseModel
 from omnispectral.spectral.system import MultibandSystem, build_system
 
-PRESETS = ("paper-timelapse", "paper-gigapixel", "small")
+__all__ = ["CAMERA_DRIVERS", "CAMERA_NAMES", "DEFAULT_SUN_FILTER", "HEAD_DRIVERS", "KIND_NAMES", "MAX_SUN_BRACKETS",
+           "ORIENTATIONS", "PRESETS", "SUN_EXPOSURE_BASE", "SUN_FILTER_CHANGERS", "BracketSpec", "CameraSpec",
+           "GridSpec", "HeadSpec", "LensSpec", "MountingSpec", "RawSpec", "Rig", "SunBracketSpec", "camera_model",
+           "camera_system", "load_preset", "load_rig", "one_camera_rig", "resolve_rig", "rig_from_dict", "rig_system",
+           "rig_toml", "rig_with_camera_settings"]
+
 HEAD_DRIVERS = ("simulated", "rodeon", "merlin")
 CAMERA_DRIVERS = ("simulated", "genicam")
 ORIENTATIONS = {"landscape": 0.0, "portrait": 90.0}
@@ -250,7 +256,38 @@ class GridSpec:
 
 @dataclass(frozen=True)
 class Rig:
-    """Everything about the hardware a capture needs; ``source`` is where it was read from."""
+    """Everything about the hardware a capture needs; ``source`` is where it was read from.
+
+    Attributes
+    ----------
+    name, description : str
+        The rig's name and a one-line description.
+    cameras : dict of str to CameraSpec
+        Camera ``"A"`` (bands 0-2) and, for six bands, camera ``"B"`` (bands 3-5): sensor size (px), bit depth,
+        read-out time (s), lens fields of view (deg) and distortion, orientation, spectral sensitivity and
+        filter, noise (electrons), device.
+    mounting : MountingSpec
+        Camera B relative to camera A in the head frame: baseline (mm) and a small yaw, pitch, roll (deg).
+    head : HeadSpec
+        The pan/tilt head: driver, pan and tilt speeds (deg/s), settle time (s), tolerance (deg), retries.
+    bracket : BracketSpec
+        Exposure times of one direction's bracket (s), longest first.
+    grid : GridSpec
+        The direction grid: counts, or the per-side overlap they follow from.
+    source : str
+        Where the rig was read from (a file, ``preset:NAME``).
+    toml_text : str
+        The TOML it was read from (stored with sessions and products).
+    sun : SunBracketSpec or None
+        The sun bracket (``[sun]`` table), or ``None``: a saturated sun then stays a lower bound.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 3, Fig. 2 (two programmable high-speed colour cameras behind two
+       colour filters on a programmable rotating table), Table 1 (hardware), Sec. 4.1 (the bracket),
+       Sec. 4.5, Table 2 (directions).
+    """
 
     name: str
     description: str
@@ -330,7 +367,26 @@ def _model_from_fovs(width: int, height: int, hfov_deg: float, vfov_deg: float, 
 
 def rig_system(rig: Rig, wavelength_nm: np.ndarray | None = None) -> MultibandSystem:
     """The system of a rig (Eq. (6)'s ``R``): camera A's sensitivity × filter A, then camera B's × filter B
-    when the rig has a camera B (six bands), else camera A's three bands alone."""
+    when the rig has a camera B (six bands), else camera A's three bands alone.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig: each camera's ``sensitivity`` and ``filter`` (names or CSV files).
+    wavelength_nm : numpy.ndarray, optional
+        The wavelength grid (nm; default 400-700 nm every 5 nm).
+
+    Returns
+    -------
+    MultibandSystem
+        Bands ``A:R, A:G, A:B[, B:R, B:G, B:B]`` (:func:`camera_system`), named after the rig.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 3, Fig. 4 (the six-band sensitivities: two RGB cameras behind
+       two filters), Eqs. (5)-(6) (``R``).
+    """
     pairs = tuple((rig.cameras[c].sensitivity, rig.cameras[c].filter) for c in rig.camera_names)
     return camera_system(pairs, wavelength_nm, rig.name)
 
@@ -338,7 +394,36 @@ def rig_system(rig: Rig, wavelength_nm: np.ndarray | None = None) -> MultibandSy
 def camera_system(pairs: tuple[tuple[str, str], ...], wavelength_nm: np.ndarray | None = None,
                   name: str = "rig") -> MultibandSystem:
     """Bands ``A:R, A:G, A:B[, B:R … B:B]`` of one or two cameras given as (sensitivity, filter) names or CSV
-    files, in the order of ``pairs``."""
+    files, in the order of ``pairs``.
+
+    Parameters
+    ----------
+    pairs : tuple of (str, str)
+        One or two ``(sensitivity, filter)`` pairs: an RGB sensitivity set of
+        :func:`~omnispectral.spectral.library.load_camera` and a filter of
+        :func:`~omnispectral.spectral.library.load_filter` (names or CSV paths).
+    wavelength_nm : numpy.ndarray, optional
+        The wavelength grid (nm; default 400-700 nm every 5 nm).
+    name : str
+        Prefix of the system's description.
+
+    Returns
+    -------
+    MultibandSystem
+        Three bands per camera, each the camera's channel sensitivity times its filter's transmittance,
+        with the camera index of every band.
+
+    Raises
+    ------
+    ConfigurationError
+        For no pair or more than two.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 3, Fig. 3 (filter transmittances), Fig. 4 (the six-band
+       sensitivities), Eqs. (5)-(6) (``R``).
+    """
     if not 1 <= len(pairs) <= len(CAMERA_NAMES):
         raise ConfigurationError(f"a rig has 1 or {len(CAMERA_NAMES)} cameras, got {len(pairs)}")
     parts = [build_system(load_camera(sens), [load_filter(filt)], wavelength_nm) for sens, filt in pairs]
@@ -541,7 +626,32 @@ def load_rig(path: str | Path) -> Rig:
 
 
 def load_preset(name: str) -> Rig:
-    """A built-in rig of the paper (``paper-timelapse``, ``paper-gigapixel``) or the test rig ``small``."""
+    """A built-in rig of the paper (``paper-timelapse``, ``paper-gigapixel``) or the test rig ``small``.
+
+    Parameters
+    ----------
+    name : str
+        ``"paper-timelapse"`` (wide-angle lens, 12 x 3 directions), ``"paper-gigapixel"`` (telephoto lens,
+        60 x 21 directions) or ``"small"``.
+
+    Returns
+    -------
+    Rig
+        The preset, validated, with ``source`` ``preset:NAME`` and its TOML text.
+
+    Raises
+    ------
+    ConfigurationError
+        For another name.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 3 (Baumer HXG20 cameras, 2048 x 1088 px, 12 bits; Kodak No. 34A
+       and Fujifilm SP-18 filters; wide-angle 95° x 61° and telephoto 14.5° x 10.8° lenses), Table 1
+       (hardware), Sec. 4.1 (fifteen exposures from 252 ms to 0.015 ms), Sec. 4.5, Table 2 (36 and 1260
+       directions).
+    """
     if name not in PRESETS:
         raise ConfigurationError(f"unknown preset {name!r}; built-in presets are {', '.join(PRESETS)}")
     text = resources.files("omnispectral").joinpath("data", "rigs", f"{name}.toml").read_text(encoding="utf-8")

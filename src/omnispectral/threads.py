@@ -20,6 +20,9 @@ from contextlib import contextmanager
 import cv2
 from threadpoolctl import ThreadpoolController
 
+__all__ = ["blocks", "kernel_threads", "ordered_thread_map", "single_threaded_blas", "single_threaded_libraries",
+           "worker_call"]
+
 _LOCK = threading.Lock()
 _DEPTH = 0
 _LIMITER = None

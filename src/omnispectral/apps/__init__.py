@@ -8,5 +8,6 @@
   RGB pass) and the six-band fast path; the mirror ball on a grey plate of Fig. 16.
 - :mod:`~omnispectral.apps.relight`: relighting from a white reference (Sec. 6.2, Fig. 17), tile by
   tile into a product-like store.
-- :mod:`~omnispectral.apps.colour`: CIE XYZ / sRGB of spectral images through colour-science.
 """
+
+__all__: list[str] = []

@@ -20,13 +20,17 @@ from pathlib import Path
 
 from omnispectral.apps.relight import WhiteReference, relight_product
 from omnispectral.apps.render import render_product
-from omnispectral.capture.scenes import DEFAULT_DATE, build_scene
-from omnispectral.capture.simulate import simulate_session
 from omnispectral.io import atomic_write_json
 from omnispectral.product.exports import export_product
 from omnispectral.product.layout import product_paths
-from omnispectral.product.process import ProgressCallback, process
+from omnispectral.product.process import process
+from omnispectral.progress import ProgressCallback
 from omnispectral.rig import load_preset
+from omnispectral.sim.scenes import DEFAULT_DATE, build_scene
+from omnispectral.sim.simulate import simulate_session
+from omnispectral.sim.truth import GroundTruth
+
+__all__ = ["DEMO_EXPORTS", "calibration_summary", "demo_applications", "run_demo"]
 
 #: The exports the demo writes, ``(format, file name)``.
 DEMO_EXPORTS = (("spectral-exr", "panorama_spectral.exr"), ("png", "panorama_preview.png"),
@@ -55,7 +59,8 @@ def run_demo(out: str | Path, *, full: bool = False, time_hhmm: str = "12:00", s
                            seed=seed, progress=progress)
     step(2, 4, f"process into {out / 'product'}")
     # a product left by another version (or before the session had its calibration views) is rebuilt
-    index = process(out / "session", out / "product", report=True, progress=progress, overwrite=True)
+    index = process(out / "session", out / "product", report=True, progress=progress, overwrite=True,
+                    truth=GroundTruth.of_session(out / "session"))
     step(3, 4, "export")
     level = 0 if not full else 1
     exports = {fmt: export_product(out / "product", fmt, out / name, level=level)["output"]
@@ -88,7 +93,7 @@ def calibration_summary(index: dict) -> dict:
 
 
 def demo_applications(product: str | Path, out: str | Path, session: str | Path | None = None,
-                      progress: Callable[[str], None] | None = None) -> dict:
+                      progress: ProgressCallback | None = None) -> dict:
     """Render the mirror ball and relight the product (when the session knows its white patch); returns the files."""
     out = Path(out)
     files: dict = {}

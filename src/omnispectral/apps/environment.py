@@ -26,10 +26,14 @@ from pathlib import Path
 
 import numpy as np
 
-from omnispectral.capture.scenes.base import resample_matrix
 from omnispectral.errors import ConfigurationError
+from omnispectral.product.layout import open_product
 from omnispectral.product.saturation import saturated_mask, saturation_level_dn_s
-from omnispectral.product.spectra import SunOverlay, estimate_image, open_product
+from omnispectral.product.spectra import SunOverlay, estimate_image
+from omnispectral.spectral.curves import resample_matrix
+
+__all__ = ["DEFAULT_MAX_WIDTH", "EnvironmentMap", "choose_level", "environment_from_bands", "environment_from_product",
+           "fill_uncovered", "uniform_environment"]
 
 #: Default largest environment width picked when no level is given (px).
 DEFAULT_MAX_WIDTH = 1024
@@ -49,25 +53,57 @@ class EnvironmentMap:
 
     @property
     def height(self) -> int:
+        """Rows of the map."""
         return self.spectra.shape[0]
 
     @property
     def width(self) -> int:
+        """Columns of the map."""
         return self.spectra.shape[1]
 
     def resampled(self, wavelength_nm: np.ndarray) -> EnvironmentMap:
-        """The same map on another wavelength grid (linear interpolation within the current range)."""
+        """The same map on another wavelength grid.
+
+        Linear interpolation within the current range, as one float32 matrix product
+        (:func:`omnispectral.spectral.curves.resample_matrix`).
+
+        Parameters
+        ----------
+        wavelength_nm
+            The new grid (nm), within the current one.
+
+        Returns
+        -------
+        EnvironmentMap
+            A copy with the resampled spectra.
+
+        Raises
+        ------
+        ConfigurationError
+            When the new grid reaches outside the current one.
+        """
         m = resample_matrix(self.wavelength_nm, np.asarray(wavelength_nm, float)).astype(np.float32)
         return replace(self, spectra=self.spectra @ m.T, wavelength_nm=np.asarray(wavelength_nm, float).copy())
 
     def solid_angle_weights(self) -> np.ndarray:
-        """Solid angle (sr) of each row's pixels, ``(H,)``."""
+        """Solid angle of each row's pixels.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(H,)`` steradians.
+        """
         h, w = self.height, self.width
         lat_edges = np.radians(90.0 - np.arange(h + 1) * 180.0 / h)
         return (2 * math.pi / w) * (np.sin(lat_edges[:-1]) - np.sin(lat_edges[1:]))
 
     def describe(self) -> dict:
-        """JSON-able summary: size, grid, flags and the saturated pixels' share of the energy."""
+        """JSON-able summary: size, grid, flags and the saturated pixels' share of the energy.
+
+        Returns
+        -------
+        dict
+        """
         omega = self.solid_angle_weights()[:, None]
         power = (self.spectra.sum(axis=2) * omega)
         total = float(power.sum())
@@ -86,15 +122,41 @@ class EnvironmentMap:
 
 def uniform_environment(spectrum: np.ndarray, wavelength_nm: np.ndarray, height: int = 16,
                         units: str = "relative") -> EnvironmentMap:
-    """A constant environment (every direction the same spectral radiance): a test and a reference."""
+    """A constant environment (every direction the same spectral radiance): a test and a reference.
+
+    Parameters
+    ----------
+    spectrum
+        The spectral radiance ``(n,)``.
+    wavelength_nm
+        Its grid (nm).
+    height
+        Rows (the width is twice that).
+    units
+        The radiance's units.
+
+    Returns
+    -------
+    EnvironmentMap
+    """
     s = np.asarray(spectrum, np.float32)
     return EnvironmentMap(np.broadcast_to(s, (height, 2 * height, s.size)).copy(),
                           np.asarray(wavelength_nm, float), units, info={"source": "uniform"})
 
 
 def fill_uncovered(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Replace non-finite pixels ``(H, W, c)`` by the nearest finite pixel of their column (rows); columns
-    with nothing finite become 0.  Returns ``(filled values, mask of the replaced pixels)``."""
+    """Replace non-finite pixels by the nearest finite pixel of their column; columns with nothing finite become 0.
+
+    Parameters
+    ----------
+    values
+        ``(H, W, c)``.
+
+    Returns
+    -------
+    tuple
+        The filled values and the ``(H, W)`` mask of the replaced pixels.
+    """
     bad = ~np.isfinite(values).all(axis=2)
     if not bad.any():
         return values, bad
@@ -115,7 +177,26 @@ def fill_uncovered(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def choose_level(shapes: list[tuple[int, int]], level: int | None, max_width: int = DEFAULT_MAX_WIDTH) -> int:
-    """``level`` checked, or the finest level at most ``max_width`` wide (the coarsest if none is)."""
+    """The pyramid level to use.
+
+    Parameters
+    ----------
+    shapes
+        ``(height, width)`` of each level, finest first.
+    level
+        A level asked for (checked), or ``None``.
+    max_width
+        With ``level=None``: the finest level at most this wide (the coarsest if none is).
+
+    Returns
+    -------
+    int
+
+    Raises
+    ------
+    ConfigurationError
+        For a level that does not exist.
+    """
     if level is not None:
         if not 0 <= level < len(shapes):
             raise ConfigurationError(f"level {level} does not exist; the product has levels 0-{len(shapes) - 1} "
@@ -130,9 +211,30 @@ def choose_level(shapes: list[tuple[int, int]], level: int | None, max_width: in
 def environment_from_bands(bands: np.ndarray, estimator, units: str, saturated: np.ndarray | None = None,
                            info: dict | None = None, linear_map: tuple | None = None,
                            sun: SunOverlay | None = None) -> EnvironmentMap:
-    """Environment map from six-band radiance ``(H, W, 6)``: uncovered pixels filled, per-pixel mixture
-    estimate (or one ``linear_map = (M (n, 6), b (n,))``), clipped at 0; the recovered sun's pixels
-    (``sun``) take its measured spectrum (:class:`~omnispectral.product.spectra.SunOverlay`)."""
+    """Environment map from band radiance: uncovered pixels filled, spectra estimated, clipped at 0.
+
+    Parameters
+    ----------
+    bands
+        Band radiance ``(H, W, m)``.
+    estimator
+        The product's estimator (per-pixel mixture estimate).
+    units
+        The radiance's units.
+    saturated
+        ``(H, W)`` flags of lower-bound pixels, if known.
+    info
+        Recorded in the map's ``info``.
+    linear_map
+        ``(M (n, m), b (n,))`` to apply instead of the mixture estimate.
+    sun
+        The recovered sun (:class:`~omnispectral.product.spectra.SunOverlay`): its pixels take its measured
+        spectrum.
+
+    Returns
+    -------
+    EnvironmentMap
+    """
 
     filled_bands, filled = fill_uncovered(np.asarray(bands, np.float32))
     filled_bands = np.maximum(filled_bands, 0.0)
@@ -146,7 +248,20 @@ def environment_from_bands(bands: np.ndarray, estimator, units: str, saturated: 
 
 
 def environment_from_product(product: str | Path, level: int | None = None, max_width: int = DEFAULT_MAX_WIDTH):
-    """``(EnvironmentMap, estimator)`` of a processed product at a pyramid level (module docstring)."""
+    """The environment map of a processed product at a pyramid level (module docstring).
+
+    Parameters
+    ----------
+    product
+        The product directory.
+    level, max_width
+        The level (:func:`choose_level`).
+
+    Returns
+    -------
+    tuple
+        ``(EnvironmentMap, estimator)``.
+    """
 
     index, store, estimator = open_product(product)
     level = choose_level(store.shapes, level, max_width)

@@ -21,7 +21,9 @@ from pathlib import Path
 import numpy as np
 
 from omnispectral.errors import ConfigurationError, InputFileError
-from omnispectral.spectral.curves import read_spectral_csv
+from omnispectral.spectral.curves import read_spectral_csv, resample_spectra
+
+__all__ = ["METALS", "Conductor", "Diffuse", "conductor_reflectance", "load_metal", "material_at"]
 
 METALS = ("silver", "aluminium")
 _DATA = Path(__file__).resolve().parents[1] / "data" / "metals"
@@ -32,7 +34,7 @@ def _interp(wavelength_nm: np.ndarray, table_nm: np.ndarray, values: np.ndarray,
     if wl.min() < table_nm[0] - 1e-9 or wl.max() > table_nm[-1] + 1e-9:
         raise ConfigurationError(f"{what} is tabulated on {table_nm[0]:g}-{table_nm[-1]:g} nm, not "
                                  f"{wl.min():g}-{wl.max():g} nm")
-    return np.interp(wl, table_nm, values)
+    return resample_spectra(values, table_nm, wl)
 
 
 @dataclass(frozen=True)
@@ -45,11 +47,27 @@ class Diffuse:
 
     @classmethod
     def constant(cls, name: str, value: float) -> Diffuse:
+        """A wavelength-flat reflectance ``value`` (tabulated on 300-900 nm)."""
         return cls(name, np.array([300.0, 900.0]), np.array([value, value], float))
 
     @classmethod
     def from_csv(cls, path: str | Path) -> Diffuse:
-        """A reflectance CSV (``wavelength_nm,<name>``, one curve; percent detected) as a material."""
+        """A reflectance CSV as a material.
+
+        Parameters
+        ----------
+        path
+            ``wavelength_nm,<name>``, one curve (percent detected, :func:`read_spectral_csv`).
+
+        Returns
+        -------
+        Diffuse
+
+        Raises
+        ------
+        InputFileError
+            For a file that does not hold exactly one reflectance curve.
+        """
 
         s = read_spectral_csv(path, "reflectance")
         if len(s) != 1:
@@ -57,10 +75,27 @@ class Diffuse:
         return cls(s.names[0], np.asarray(s.wavelength_nm, float), np.asarray(s.values[0], float))
 
     def reflectance(self, wavelength_nm: np.ndarray) -> np.ndarray:
+        """The reflectance at some wavelengths (linear interpolation, no extrapolation).
+
+        Parameters
+        ----------
+        wavelength_nm
+            Wavelengths (nm) within the table.
+
+        Returns
+        -------
+        numpy.ndarray
+
+        Raises
+        ------
+        ConfigurationError
+            For wavelengths outside the table.
+        """
         return _interp(wavelength_nm, self.wavelength_nm, self.values, f"reflectance {self.name!r}")
 
     @property
     def flat(self) -> bool:
+        """Whether the reflectance does not depend on wavelength."""
         return bool(np.ptp(self.values) < 1e-9)
 
 
@@ -74,22 +109,69 @@ class Conductor:
     k: np.ndarray
 
     def eta_k(self, wavelength_nm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``n`` and ``k`` at some wavelengths (linear interpolation, no extrapolation).
+
+        Parameters
+        ----------
+        wavelength_nm
+            Wavelengths (nm) within the table.
+
+        Returns
+        -------
+        tuple
+            ``(n, k)``.
+
+        Raises
+        ------
+        ConfigurationError
+            For wavelengths outside the table.
+        """
         return (_interp(wavelength_nm, self.wavelength_nm, self.n, f"metal {self.name!r}"),
                 _interp(wavelength_nm, self.wavelength_nm, self.k, f"metal {self.name!r}"))
 
     def reflectance(self, wavelength_nm: np.ndarray, cos_theta: float | np.ndarray = 1.0) -> np.ndarray:
-        """Fresnel reflectance at incidence ``cos_theta`` on the wavelengths."""
+        """Fresnel reflectance at some wavelengths (:func:`conductor_reflectance`).
+
+        Parameters
+        ----------
+        wavelength_nm
+            Wavelengths (nm) within the table.
+        cos_theta
+            Cosine of the incidence angle.
+
+        Returns
+        -------
+        numpy.ndarray
+        """
         n, k = self.eta_k(wavelength_nm)
         return conductor_reflectance(cos_theta, n, k)
 
     @property
     def flat(self) -> bool:
+        """Whether ``n`` and ``k`` do not depend on wavelength."""
         return bool(np.ptp(self.n) < 1e-9 and np.ptp(self.k) < 1e-9)
 
 
 @functools.lru_cache(maxsize=8)
 def load_metal(name: str) -> Conductor:
-    """A built-in metal (``silver``, ``aluminium``) or a CSV ``wavelength_nm,n,k`` file."""
+    """A metal by name or file.
+
+    Parameters
+    ----------
+    name
+        ``silver`` (``ag``), ``aluminium`` (``al``, ``aluminum``) or a CSV ``wavelength_nm,n,k`` file.
+
+    Returns
+    -------
+    Conductor
+
+    Raises
+    ------
+    ConfigurationError
+        For an unknown name that is not a file.
+    InputFileError
+        For a file that is not three columns with increasing wavelengths.
+    """
     key = {"ag": "silver", "al": "aluminium", "aluminum": "aluminium"}.get(name.lower(), name.lower())
     path = _DATA / f"{key}.csv" if key in METALS else Path(name)
     if key not in METALS and not path.is_file():
@@ -116,6 +198,18 @@ def conductor_reflectance(cos_theta, n, k) -> np.ndarray:
     ``R_s = (a²+b² − 2a cos θ + cos²θ)/(a²+b² + 2a cos θ + cos²θ)``,
     ``R_p = R_s (cos²θ (a²+b²) − 2a cos θ sin²θ + sin⁴θ)/(cos²θ (a²+b²) + 2a cos θ sin²θ + sin⁴θ)``,
     ``R = (R_s + R_p)/2``.
+
+    Parameters
+    ----------
+    cos_theta
+        Cosine of the incidence angle (clipped to [0, 1]).
+    n, k
+        Real and imaginary parts of the refractive index.
+
+    Returns
+    -------
+    numpy.ndarray
+        The reflectance, broadcast over the inputs.
     """
     c = np.clip(np.asarray(cos_theta, float), 0.0, 1.0)
     n = np.asarray(n, float)
@@ -134,7 +228,20 @@ def conductor_reflectance(cos_theta, n, k) -> np.ndarray:
 
 
 def material_at(material, wavelength_nm: np.ndarray) -> dict[str, np.ndarray]:
-    """The parameters a renderer needs at some wavelengths: ``{"reflectance"}`` or ``{"eta", "k"}``."""
+    """The parameters a renderer needs at some wavelengths.
+
+    Parameters
+    ----------
+    material
+        :class:`Diffuse` or :class:`Conductor`.
+    wavelength_nm
+        Wavelengths (nm).
+
+    Returns
+    -------
+    dict
+        ``{"reflectance"}`` or ``{"eta", "k"}`` → values at the wavelengths.
+    """
     if isinstance(material, Conductor):
         n, k = material.eta_k(wavelength_nm)
         return {"eta": n, "k": k}

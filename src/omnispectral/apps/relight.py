@@ -42,19 +42,25 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from omnispectral.apps.colour import spectra_to_linear_srgb, spectra_to_xyz
 from omnispectral.apps.environment import choose_level
 from omnispectral.apps.materials import Diffuse
-from omnispectral.apps.productio import create_band_product, fill_pyramid, write_level0
 from omnispectral.apps.render import auto_exposure_reference
 from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.geometry import equirect_pixel_to_lonlat, lonlat_to_equirect_pixel, lonlat_to_ray
 from omnispectral.io import atomic_path, atomic_write_json
 from omnispectral.product.exports import reinhard_srgb8
-from omnispectral.product.spectra import SunOverlay, estimate_image, open_product
-from omnispectral.spectral.curves import concatenate
+from omnispectral.product.layout import create_band_product, fill_pyramid, open_product, write_level0
+from omnispectral.product.spectra import SunOverlay, estimate_image
+from omnispectral.progress import ProgressCallback
+from omnispectral.spectral.colour import spectra_to_linear_srgb, spectra_to_xyz
+from omnispectral.spectral.curves import concatenate, resample_spectra
 from omnispectral.spectral.library import PRIOR_REFLECTANCE_SETS, load_illuminant, load_reflectances
 from omnispectral.spectral.prior import exclude_near
+
+__all__ = ["BLOCK_PIXELS", "DEFAULT_RADIUS_DEG", "DEFAULT_SOURCE_FACTOR", "DEFAULT_WHITE_REFLECTANCE",
+           "PREVIEW_MAX_WIDTH", "Relighter", "WhiteReference", "disk_mean_bands", "luminance", "measure_relighter",
+           "parse_white", "pixel_rays", "reflectance_prior", "relight_bands_block", "relight_block",
+           "relight_product", "relight_tile", "target_illuminant", "white_reflectance"]
 
 DEFAULT_WHITE_REFLECTANCE = 0.95
 DEFAULT_RADIUS_DEG = 1.0
@@ -65,17 +71,35 @@ PREVIEW_MAX_WIDTH = 2048
 
 @dataclass(frozen=True)
 class WhiteReference:
+    """A white reference in the panorama: its direction (degrees) and the disk radius its bands are averaged over."""
+
     lon_deg: float
     lat_deg: float
     radius_deg: float = DEFAULT_RADIUS_DEG
 
     @property
     def ray(self) -> np.ndarray:
+        """The unit direction ``(3,)`` of the reference."""
         return lonlat_to_ray(self.lon_deg, self.lat_deg)
 
 
 def parse_white(text: str) -> WhiteReference:
-    """``LON,LAT[,RADIUS_DEG]`` in degrees."""
+    """A white reference from the command line.
+
+    Parameters
+    ----------
+    text
+        ``LON,LAT[,RADIUS_DEG]`` in degrees.
+
+    Returns
+    -------
+    WhiteReference
+
+    Raises
+    ------
+    ConfigurationError
+        For anything else, ``|LAT| > 90`` or a radius that is not positive.
+    """
     try:
         parts = [float(x) for x in text.split(",")]
     except ValueError:
@@ -87,12 +111,30 @@ def parse_white(text: str) -> WhiteReference:
 
 
 def white_reflectance(spec: str | float | None, wavelength_nm: np.ndarray) -> np.ndarray:
-    """The white reference's reflectance on the grid: a number (flat), a reflectance CSV, or
-    ``(wavelength_nm, values)`` arrays."""
+    """The white reference's reflectance on the grid.
+
+    Parameters
+    ----------
+    spec
+        ``None`` (flat :data:`DEFAULT_WHITE_REFLECTANCE`), a number in (0, 1] (flat), a reflectance CSV, or
+        ``(wavelength_nm, values)`` arrays (interpolated linearly, their end values beyond them).
+    wavelength_nm
+        The grid (nm).
+
+    Returns
+    -------
+    numpy.ndarray
+        The reflectance ``(n,)``.
+
+    Raises
+    ------
+    ConfigurationError
+        For a number outside (0, 1].
+    """
     if spec is None:
         return np.full(np.asarray(wavelength_nm).size, DEFAULT_WHITE_REFLECTANCE)
     if isinstance(spec, tuple):
-        return np.interp(np.asarray(wavelength_nm, float), np.asarray(spec[0], float), np.asarray(spec[1], float))
+        return resample_spectra(spec[1], spec[0], np.asarray(wavelength_nm, float), outside="edge")
     try:
         value = float(spec)
     except (TypeError, ValueError):
@@ -104,13 +146,46 @@ def white_reflectance(spec: str | float | None, wavelength_nm: np.ndarray) -> np
 
 
 def target_illuminant(name: str, wavelength_nm: np.ndarray) -> np.ndarray:
-    """``A``, ``D65``, any light source colour-science knows, or an illuminant CSV, on the grid."""
+    """The illuminant to relight to, on the grid.
+
+    Parameters
+    ----------
+    name
+        ``A``, ``D65``, any light source colour-science knows, or an illuminant CSV.
+    wavelength_nm
+        The grid (nm).
+
+    Returns
+    -------
+    numpy.ndarray
+        Its spectral power distribution ``(n,)`` float64.
+    """
 
     return np.asarray(load_illuminant(name).resample(np.asarray(wavelength_nm, float)).values[0], float)
 
 
 def disk_mean_bands(store, level: int, white: WhiteReference) -> np.ndarray:
-    """Mean six bands over the pixels within ``radius_deg`` of the reference's direction (window read only)."""
+    """Mean bands over the pixels within ``radius_deg`` of the reference's direction (window read only).
+
+    Parameters
+    ----------
+    store
+        The product's panorama store.
+    level
+        The pyramid level read.
+    white
+        The reference (its radius is at least 0.75 pixel).
+
+    Returns
+    -------
+    numpy.ndarray
+        The mean bands ``(m,)`` of the covered pixels in the disk.
+
+    Raises
+    ------
+    ConfigurationError
+        When no covered pixel is in the disk.
+    """
     h, w = store.shapes[level]
     radius = max(white.radius_deg, 0.75 * 360.0 / w)
     col, row = lonlat_to_equirect_pixel(white.lon_deg, white.lat_deg, w, h)
@@ -130,13 +205,40 @@ def disk_mean_bands(store, level: int, white: WhiteReference) -> np.ndarray:
 
 
 def luminance(spectra: np.ndarray, wavelength_nm: np.ndarray) -> np.ndarray:
+    """CIE Y of spectra (:func:`omnispectral.spectral.colour.spectra_to_xyz`, float64 kept).
+
+    Parameters
+    ----------
+    spectra
+        Spectra ``(..., n)``.
+    wavelength_nm
+        Their grid (nm).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(...)``.
+    """
     return spectra_to_xyz(spectra, wavelength_nm)[..., 1]
 
 
 @functools.lru_cache(maxsize=2)
 def reflectance_prior(wavelength_key: tuple) -> tuple[np.ndarray, np.ndarray]:
-    """Mean ``(n,)`` and covariance ``(n, n)`` of the prior's reflectance sets, ColorChecker look-alikes removed
-    (``spectral.prior.exclude_near``: the chart evaluates the relighting, so it is not in its prior)."""
+    """The reflectance prior of the Wiener relighting.
+
+    The prior's reflectance sets with ColorChecker look-alikes removed (``spectral.prior.exclude_near``: the
+    chart evaluates the relighting, so it is not in its prior).
+
+    Parameters
+    ----------
+    wavelength_key
+        The grid (nm) as a tuple (the cache key).
+
+    Returns
+    -------
+    tuple
+        Mean ``(n,)`` and covariance ``(n, n)``.
+    """
 
     wl = np.array(wavelength_key, float)
     refl = concatenate([load_reflectances(n).resample(wl) for n in PRIOR_REFLECTANCE_SETS], wl)
@@ -177,7 +279,18 @@ class Relighter:
         self._maps: dict = {}
 
     def weights_at(self, rays: np.ndarray) -> np.ndarray:
-        """Each reference's weight at directions ``(N, 3)`` → ``(N, k)`` (rounded to 1/20, summing to 1)."""
+        """Each reference's weight at some directions.
+
+        Parameters
+        ----------
+        rays
+            Directions ``(N, 3)``.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(N, k)``: inverse squared angular distance, rounded to 1/20, summing to 1.
+        """
         if len(self.illuminants) == 1:
             return np.ones((rays.shape[0], 1))
         ang = np.arccos(np.clip(rays @ self.rays.T, -1, 1))
@@ -185,10 +298,6 @@ class Relighter:
         w = np.round(20 * w / w.sum(axis=1, keepdims=True))
         w[np.arange(w.shape[0]), np.argmax(w, axis=1)] += 20 - w.sum(axis=1)
         return w / 20.0
-
-    def illuminant_at(self, rays: np.ndarray) -> np.ndarray:
-        """The measured illuminant interpolated at directions ``(N, 3)`` → ``(N, n)``."""
-        return self.weights_at(rays) @ self.illuminants
 
     def _reflectance_map(self, e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Wiener reflectance estimate under illuminant ``e``: ``ρ̂ = W b + c`` → ``(W (n, m), c (n,))``."""
@@ -227,8 +336,22 @@ class Relighter:
 
     def relight(self, signals: np.ndarray, rays: np.ndarray | None, bands: np.ndarray | None = None
                 ) -> tuple[np.ndarray, np.ndarray]:
-        """Relit signals ``(N, n)`` and the light-source flag ``(N,)`` of pixels at directions ``rays`` (their
-        estimated signals, and their bands for the Wiener reflectance)."""
+        """Relight the estimated signals of some pixels.
+
+        Parameters
+        ----------
+        signals
+            Their estimated colour signals ``(N, n)``.
+        rays
+            Their directions ``(N, 3)`` (``None`` with a single reference).
+        bands
+            Their bands ``(N, m)`` (the Wiener method's reflectance estimate).
+
+        Returns
+        -------
+        tuple
+            Relit signals ``(N, n)`` float32 and the light-source flag ``(N,)``.
+        """
         relit = np.empty(signals.shape, np.float32)
         bright = np.empty(signals.shape[0], bool)
         y_signal = luminance(np.asarray(signals, np.float32), self.wavelength_nm) if self.method == "ratio" else None
@@ -248,11 +371,29 @@ class Relighter:
         return relit, bright
 
     def relight_bands(self, bands: np.ndarray, rays: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-        """Wiener method straight on the six bands ``(N, m)`` → relit bands ``(N, m)`` and the flag ``(N,)``.
+        """Wiener method straight on the bands.
 
         The relit spectrum ``(W b + c) · E_new`` projected back on the bands is one ``m × m`` map plus an offset
         per illuminant, so no spectrum is formed (what :func:`relight_product` writes at level 0); equal to
-        ``relight(...)[0] @ R.T`` except that kept light sources keep their captured bands exactly."""
+        ``relight(...)[0] @ R.T`` except that kept light sources keep their captured bands exactly.
+
+        Parameters
+        ----------
+        bands
+            Bands ``(N, m)``.
+        rays
+            Their directions ``(N, 3)`` (``None`` with a single reference).
+
+        Returns
+        -------
+        tuple
+            Relit bands ``(N, m)`` float32 and the light-source flag ``(N,)``.
+
+        Raises
+        ------
+        ConfigurationError
+            For the ratio method.
+        """
         if self.method != "wiener":
             raise ConfigurationError("relighting the bands directly needs method='wiener'")
         R = np.asarray(self.system_matrix, float)
@@ -270,6 +411,7 @@ class Relighter:
         return relit, bright
 
     def describe(self) -> dict:
+        """JSON-able record of the relighting: grid, measured and new illuminants, method and settings."""
         return {"wavelength_nm": self.wavelength_nm.tolist(), "measured_illuminants": self.illuminants.tolist(),
                 "new_illuminant": self.new_illuminant.tolist(), "sources": self.sources, "method": self.method,
                 "source_factor": self.source_factor,
@@ -280,7 +422,34 @@ class Relighter:
 def measure_relighter(store, estimator, whites: list[WhiteReference], to: str, reflectance=None, level: int = 0,
                       sources: str = "keep", method: str = "wiener",
                       source_factor: float = DEFAULT_SOURCE_FACTOR) -> Relighter:
-    """Measure each white reference's illuminant and build the relighter for the new illuminant ``to``."""
+    """Measure each white reference's illuminant and build the relighter for the new illuminant ``to``.
+
+    Parameters
+    ----------
+    store
+        The product's panorama store.
+    estimator
+        The product's estimator.
+    whites
+        The white references (at least one).
+    to
+        The new illuminant (:func:`target_illuminant`).
+    reflectance
+        The references' reflectance (:func:`white_reflectance`).
+    level
+        The pyramid level the references are measured on.
+    sources, method, source_factor
+        Fields of :class:`Relighter`.
+
+    Returns
+    -------
+    Relighter
+
+    Raises
+    ------
+    ConfigurationError
+        Without a white reference, or for one that is not covered or measures no light.
+    """
     if not whites:
         raise ConfigurationError("relighting needs at least one white reference (--white LON,LAT[,RADIUS_DEG])")
     wl = np.asarray(estimator.wavelength_nm, float)
@@ -295,6 +464,20 @@ def measure_relighter(store, estimator, whites: list[WhiteReference], to: str, r
 
 
 def pixel_rays(rows: slice, cols: slice, height: int, width: int) -> np.ndarray:
+    """Directions of the pixels of a block of an equirectangular level.
+
+    Parameters
+    ----------
+    rows, cols
+        The block.
+    height, width
+        The level's size.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(rows × cols, 3)`` unit rays, row by row.
+    """
     rr, cc = np.mgrid[rows, cols]
     lon, lat = equirect_pixel_to_lonlat(cc, rr, width, height)
     return lonlat_to_ray(lon, lat).reshape(-1, 3)
@@ -306,8 +489,27 @@ BLOCK_PIXELS = 1 << 16
 
 def relight_tile(bands: np.ndarray, estimator, relighter: Relighter, r0: int, c0: int, shape: tuple[int, int],
                  reduce: Callable[[np.ndarray, np.ndarray, np.ndarray], tuple]) -> list:
-    """:func:`relight_block` over row strips of at most ``BLOCK_PIXELS``; ``reduce(relit, captured, flag)`` turns each
-    strip into what is kept (e.g. its six bands), so the spectra of a whole tile never exist at once."""
+    """:func:`relight_block` over row strips of at most :data:`BLOCK_PIXELS`.
+
+    Parameters
+    ----------
+    bands
+        The tile's bands ``(h, w, m)``.
+    estimator, relighter
+        The product's estimator and the relighter.
+    r0, c0
+        The tile's first row and column in the level.
+    shape
+        The level's ``(height, width)``.
+    reduce
+        ``reduce(relit, captured, flag)`` turns each strip into what is kept (e.g. its six bands), so the spectra
+        of a whole tile never exist at once.
+
+    Returns
+    -------
+    list
+        ``reduce``'s result per strip.
+    """
     h, w = bands.shape[:2]
     step = max(1, BLOCK_PIXELS // max(1, w))
     return [reduce(*relight_block(bands[i:i + step], estimator, relighter, slice(r0 + i, r0 + min(h, i + step)),
@@ -316,7 +518,24 @@ def relight_tile(bands: np.ndarray, estimator, relighter: Relighter, r0: int, c0
 
 def relight_block(bands: np.ndarray, estimator, relighter: Relighter, rows: slice, cols: slice,
                   shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(relit spectra (h, w, n), captured spectra (h, w, n), light-source flag (h, w))`` of a block of a level."""
+    """Relight a block of a level (the recovered sun's pixels take its measured spectrum).
+
+    Parameters
+    ----------
+    bands
+        The block's bands ``(h, w, m)``.
+    estimator, relighter
+        The product's estimator and the relighter.
+    rows, cols
+        The block in the level.
+    shape
+        The level's ``(height, width)``.
+
+    Returns
+    -------
+    tuple
+        Relit spectra ``(h, w, n)``, captured spectra ``(h, w, n)``, light-source flag ``(h, w)``.
+    """
 
     h, w = bands.shape[:2]
     sun = None
@@ -337,8 +556,25 @@ def relight_block(bands: np.ndarray, estimator, relighter: Relighter, rows: slic
 
 def relight_bands_block(bands: np.ndarray, relighter: Relighter, rows: slice, cols: slice, shape: tuple[int, int]
                         ) -> tuple[np.ndarray, dict]:
-    """Relit six bands of a block of level 0 (Wiener method, :meth:`Relighter.relight_bands`) and its count of
-    light-source pixels; pixels without finite bands stay NaN."""
+    """Relit bands of a block of level 0 (Wiener method, :meth:`Relighter.relight_bands`).
+
+    Parameters
+    ----------
+    bands
+        The block's bands ``(h, w, m)``.
+    relighter
+        The relighter.
+    rows, cols
+        The block in level 0.
+    shape
+        Level 0's ``(height, width)``.
+
+    Returns
+    -------
+    tuple
+        Relit bands ``(h, w, m)`` float32 (NaN where the bands are not finite) and
+        ``{"light_source_pixels": count}``.
+    """
     h, w, m = bands.shape
     flat = bands.reshape(-1, m)
     ok = np.isfinite(flat).all(axis=1)
@@ -355,8 +591,48 @@ def relight_bands_block(bands: np.ndarray, relighter: Relighter, rows: slice, co
 def relight_product(product: str | Path, output: str | Path, whites: list[WhiteReference], to: str = "A",
                     reflectance=None, sources: str = "keep", method: str = "wiener", workers: int | None = None,
                     source_factor: float = DEFAULT_SOURCE_FACTOR,
-                    progress: Callable[[str], None] | None = None) -> dict:
-    """Relight a whole product into a product-like directory ``output`` (module docstring)."""
+                    progress: ProgressCallback | None = None) -> dict:
+    """Relight a whole product into a product-like directory ``output`` (module docstring).
+
+    Parameters
+    ----------
+    product
+        The product directory.
+    output
+        The relit product's directory (not the input's).
+    whites
+        The white references.
+    to
+        The new illuminant (:func:`target_illuminant`).
+    reflectance
+        The references' reflectance (:func:`white_reflectance`).
+    sources, method, source_factor
+        Fields of :class:`Relighter`.
+    workers
+        Threads writing level 0.
+    progress
+        ``progress("relight", done, total)`` every tenth of the tiles.
+
+    Returns
+    -------
+    dict
+        Output, size, tiles, light-source pixels, previews, timing (also in ``relight.json``).
+
+    Raises
+    ------
+    ConfigurationError
+        When ``output`` is the input, or the relighter cannot be built (:func:`measure_relighter`).
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 6.2, Fig. 17 (relighting from a white reference; ``method="ratio"``
+       is the paper's ``s/E · E_new``), Eq. (7) (the product's estimator).
+    .. [2] S. M. Kay, Fundamentals of Statistical Signal Processing: Estimation Theory, Prentice Hall, 1993,
+       Ch. 12 (the linear MMSE (Wiener) estimator of the reflectance, ``method="wiener"``).
+    .. [3] CIE 015:2018, Colorimetry, 4th ed. (the CIE 1931 observer of the luminance and the previews;
+       standard illuminant ``A``).
+    """
 
     t0 = time.perf_counter()
     if Path(output).resolve() == Path(product).resolve():
@@ -382,9 +658,9 @@ def relight_product(product: str | Path, output: str | Path, whites: list[WhiteR
         parts = relight_tile(bands, estimator, relighter, r0, c0, (h, w), lambda rel, _, flag: (rel @ R.T, flag.sum()))
         return np.concatenate([p[0] for p in parts]), {"light_source_pixels": int(sum(p[1] for p in parts))}
 
-    def tick(done, total):
+    def tick(_stage, done, total):
         if progress and (done == total or done % max(1, total // 10) == 0):
-            progress(f"relit {done}/{total} tiles")
+            progress("relight", done, total)
 
     stats = write_level0(out, tile, workers, tick)
     fill_pyramid(out)

@@ -37,14 +37,12 @@ import os
 import tempfile
 import time
 import xml.etree.ElementTree as ET
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from omnispectral.apps.colour import spectra_to_linear_srgb
 from omnispectral.apps.environment import EnvironmentMap, environment_from_product
 from omnispectral.apps.materials import Conductor, Diffuse, load_metal, material_at
 from omnispectral.errors import ConfigurationError, InputFileError
@@ -52,7 +50,15 @@ from omnispectral.imaging.geometry import lonlat_to_ray
 from omnispectral.io import atomic_path, atomic_write_json
 from omnispectral.product.exports import reinhard_srgb8, write_rgb_exr, write_spectral_exr
 from omnispectral.product.spectra import estimate_image
+from omnispectral.progress import ProgressCallback, report_progress
+from omnispectral.spectral.colour import spectra_to_linear_srgb
+from omnispectral.spectral.curves import resample_spectra
 from omnispectral.spectral.library import load_reflectances
+
+__all__ = ["DEFAULT_HEIGHT", "DEFAULT_SPP", "DEFAULT_WIDTH", "FAST_PATH_NOTE", "MAX_SAMPLES_PER_CALL",
+           "MIN_LLVM_VERSION", "MIN_WAVELENGTHS", "VARIANT_ENV", "MirrorBallScene", "RenderResult", "XmlScene",
+           "auto_exposure_reference", "auto_variant", "band_materials", "mitsuba", "render_fast", "render_product",
+           "render_rgb", "render_settings", "render_spectral", "scene_from_name", "wavelength_grid", "write_render"]
 
 #: Largest number of samples (pixels × spp) handed to one ``mi.render`` call: bounds the LLVM wavefront's memory.
 MAX_SAMPLES_PER_CALL = 1 << 22
@@ -68,8 +74,20 @@ MIN_LLVM_VERSION = (17, 0, 0)
 
 
 def auto_variant(variants, llvm_version: tuple | None) -> str:
-    """``llvm_ad_rgb`` when Mitsuba has it and Dr.Jit found an LLVM library at least ``MIN_LLVM_VERSION``
-    (``llvm_version``, ``None`` when none was found), else ``scalar_rgb``."""
+    """The Mitsuba variant to use when none is asked for.
+
+    Parameters
+    ----------
+    variants
+        The variants Mitsuba has.
+    llvm_version
+        The LLVM library Dr.Jit found, ``None`` when none.
+
+    Returns
+    -------
+    str
+        ``llvm_ad_rgb`` when Mitsuba has it and the LLVM is at least :data:`MIN_LLVM_VERSION`, else ``scalar_rgb``.
+    """
     ok = llvm_version is not None and tuple(llvm_version) >= MIN_LLVM_VERSION
     return "llvm_ad_rgb" if "llvm_ad_rgb" in variants and ok else "scalar_rgb"
 
@@ -84,7 +102,24 @@ def _llvm_version(dr) -> tuple | None:
 
 
 def mitsuba(variant: str | None = None):
-    """The ``mitsuba`` module with a variant set (see the module docstring)."""
+    """The ``mitsuba`` module with a variant set (see the module docstring).
+
+    Parameters
+    ----------
+    variant
+        ``scalar_rgb`` or ``llvm_ad_rgb``; ``None`` for :data:`VARIANT_ENV`, the variant already set, or
+        :func:`auto_variant`.
+
+    Returns
+    -------
+    module
+        ``mitsuba``.
+
+    Raises
+    ------
+    ConfigurationError
+        Without Mitsuba, for another variant, or for ``llvm_ad_rgb`` without a recent enough LLVM.
+    """
     try:
         import drjit as dr
         import mitsuba as mi  # imported lazily: a large native library only rendering needs
@@ -109,8 +144,25 @@ def mitsuba(variant: str | None = None):
 
 
 def render_rgb(mi, scene, spp: int, seed: int = 0) -> np.ndarray:
-    """``(H, W, 3)`` float32 radiance of a loaded scene, rendered in chunks of at most
-    ``MAX_SAMPLES_PER_CALL`` samples (independent seeds), averaged."""
+    """Radiance of a loaded scene, rendered in chunks of at most :data:`MAX_SAMPLES_PER_CALL` samples
+    (independent seeds) and averaged.
+
+    Parameters
+    ----------
+    mi
+        The ``mitsuba`` module (:func:`mitsuba`).
+    scene
+        A loaded Mitsuba scene.
+    spp
+        Samples per pixel in all.
+    seed
+        Base seed of the chunks.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(H, W, 3)`` float32.
+    """
     size = scene.sensors()[0].film().crop_size()
     per_call = max(1, min(spp, MAX_SAMPLES_PER_CALL // max(1, int(size[0]) * int(size[1]))))
     acc = None
@@ -337,7 +389,24 @@ def _set_film_size(root: ET.Element, width: int, height: int) -> None:
 
 
 def scene_from_name(scene: str | None, **kwargs):
-    """``mirror-ball`` (default; keyword arguments go to :class:`MirrorBallScene`) or a Mitsuba XML file."""
+    """A scene by name.
+
+    Parameters
+    ----------
+    scene
+        ``None`` or ``"mirror-ball"`` for :class:`MirrorBallScene`, else a Mitsuba XML file (:class:`XmlScene`).
+    **kwargs
+        Fields of :class:`MirrorBallScene` (the built-in scene only).
+
+    Returns
+    -------
+    MirrorBallScene or XmlScene
+
+    Raises
+    ------
+    ConfigurationError
+        When keyword arguments are given with a scene file.
+    """
     if scene in (None, "mirror-ball"):
         return MirrorBallScene(**kwargs)
     if kwargs:
@@ -348,22 +417,48 @@ def scene_from_name(scene: str | None, **kwargs):
 # ------------------------------------------------------------------------------------------ rendering
 @dataclass
 class RenderResult:
+    """A rendered spectral image, its grid and units, and what made it (``info``)."""
+
     spectra: np.ndarray  # (H, W, n) float32
     wavelength_nm: np.ndarray
     units: str
     info: dict
 
     def linear_srgb(self) -> np.ndarray:
+        """The image's linear sRGB (:func:`omnispectral.spectral.colour.spectra_to_linear_srgb`).
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(H, W, 3)`` float32.
+        """
         return spectra_to_linear_srgb(self.spectra, self.wavelength_nm)
 
 
-#: Fewest wavelengths of a spectral render: colour-science interpolates the colour-matching functions onto the
-#: grid with a 6-point (Sprague) kernel.
+#: Fewest wavelengths of a spectral render (a coarser grid is refused: too few samples for its colour).
 MIN_WAVELENGTHS = 6
 
 
 def wavelength_grid(env: EnvironmentMap, step_nm: float | None) -> np.ndarray:
-    """The environment's own grid, or a coarser one every ``step_nm`` within it."""
+    """The wavelengths of a spectral render.
+
+    Parameters
+    ----------
+    env
+        The environment map.
+    step_nm
+        ``None`` for the environment's own grid, else a coarser one every ``step_nm`` within it.
+
+    Returns
+    -------
+    numpy.ndarray
+        The grid (nm).
+
+    Raises
+    ------
+    ConfigurationError
+        For a step that is not positive or leaves fewer than :data:`MIN_WAVELENGTHS` wavelengths.
+    """
     wl = env.wavelength_nm
     if step_nm is None:
         return wl.copy()
@@ -382,8 +477,31 @@ def _passes(n: int) -> list[np.ndarray]:
 
 def render_spectral(env: EnvironmentMap, scene, width: int = 256, height: int = 256, spp: int = 64,
                     wavelength_step_nm: float | None = None, seed: int = 0, variant: str | None = None,
-                    progress: Callable[[str], None] | None = None) -> RenderResult:
-    """Band-packed spectral render (module docstring): ``ceil(n/3)`` RGB passes of Mitsuba."""
+                    progress: ProgressCallback | None = None) -> RenderResult:
+    """Band-packed spectral render (module docstring): ``ceil(n/3)`` RGB passes of Mitsuba.
+
+    Parameters
+    ----------
+    env
+        The environment map (resampled onto :func:`wavelength_grid`'s grid when that is coarser).
+    scene
+        :class:`MirrorBallScene` or :class:`XmlScene`.
+    width, height, spp
+        Image size (pixels) and samples per pixel.
+    wavelength_step_nm
+        A coarser grid (:func:`wavelength_grid`), ``None`` for the environment's.
+    seed
+        Sampler seed, the same in every pass.
+    variant
+        Mitsuba variant (:func:`mitsuba`).
+    progress
+        ``progress("render passes", done, total)`` after each Mitsuba pass.
+
+    Returns
+    -------
+    RenderResult
+        ``(height, width, n)`` float32 spectral radiance in the environment's units.
+    """
     _check_size(width, height, spp)
     mi = mitsuba(variant)
     wl = wavelength_grid(env, wavelength_step_nm)
@@ -397,8 +515,7 @@ def render_spectral(env: EnvironmentMap, scene, width: int = 256, height: int = 
         mats = {k: material_at(m, lam) for k, m in scene.materials.items()}
         img = render_rgb(mi, scene.build(mi, mats, env.spectra[..., idx3], width, height, spp), spp, seed)
         out[..., idx] = img[..., :idx.size]
-        if progress:
-            progress(f"pass {p + 1}/{len(passes)}: {', '.join(f'{x:g}' for x in wl[idx])} nm")
+        report_progress(progress or None, "render passes", p + 1, len(passes))
     info = {"path": "spectral (band-packed)", "variant": mi.variant(), "passes": len(passes), "spp": spp,
             "width": width, "height": height, "seconds": time.perf_counter() - t0, "seed": seed,
             "scene": scene.describe(), "environment": env.describe()}
@@ -406,8 +523,25 @@ def render_spectral(env: EnvironmentMap, scene, width: int = 256, height: int = 
 
 
 def band_materials(scene, sensitivity: np.ndarray, wavelength_nm: np.ndarray, env_mean: np.ndarray) -> dict:
-    """Per-band material parameters of the fast path: the band's mean under the environment's mean spectrum
-    (exact for flat materials)."""
+    """Per-band material parameters of the fast path (exact for flat materials).
+
+    Parameters
+    ----------
+    scene
+        The scene (its ``materials``).
+    sensitivity
+        The bands' sensitivities ``(m, n)``.
+    wavelength_nm
+        Their grid ``(n,)`` (nm).
+    env_mean
+        The environment's mean spectrum ``(n,)`` on that grid.
+
+    Returns
+    -------
+    dict
+        Material key → parameter name → ``(m,)``: each band's mean of the parameter weighted by the band's
+        sensitivity times the environment's mean spectrum.
+    """
     w = np.asarray(sensitivity, float) * np.asarray(env_mean, float)[None, :]
     w /= np.maximum(w.sum(axis=1, keepdims=True), 1e-30)
     out = {}
@@ -419,10 +553,36 @@ def band_materials(scene, sensitivity: np.ndarray, wavelength_nm: np.ndarray, en
 
 def render_fast(env: EnvironmentMap, estimator, scene, width: int = 256, height: int = 256, spp: int = 64,
                 seed: int = 0, variant: str | None = None, linear_map: tuple[np.ndarray, np.ndarray] | None = None,
-                progress: Callable[[str], None] | None = None) -> RenderResult:
-    """Band fast path (module docstring): one RGB pass per camera's three bands (two for six bands, one for a
-    one-camera rig), then the estimator per pixel (the mixture with per-pixel weights, or
-    ``linear_map = (M (n, bands), b (n,))`` as one linear map)."""
+                progress: ProgressCallback | None = None) -> RenderResult:
+    """Band fast path (module docstring): one RGB pass per camera's three bands, then the estimator per pixel.
+
+    Parameters
+    ----------
+    env
+        An environment map from a product (with its ``bands``, three per camera).
+    estimator
+        The product's estimator.
+    scene
+        :class:`MirrorBallScene` or :class:`XmlScene`.
+    width, height, spp
+        Image size (pixels) and samples per pixel.
+    seed, variant
+        Sampler seed and Mitsuba variant.
+    linear_map
+        ``(M (n, bands), b (n,))`` to apply as one linear map; ``None`` for the mixture with per-pixel weights.
+    progress
+        ``progress("render passes", done, total)`` after each Mitsuba pass.
+
+    Returns
+    -------
+    RenderResult
+        Spectra on the estimator's grid; its ``bands`` attribute holds the rendered bands.
+
+    Raises
+    ------
+    ConfigurationError
+        When the environment has no bands, three per camera.
+    """
 
     _check_size(width, height, spp)
     if env.bands is None or env.bands.shape[2] % 3 or env.bands.shape[2] != estimator.n_bands:
@@ -433,15 +593,14 @@ def render_fast(env: EnvironmentMap, estimator, scene, width: int = 256, height:
     wl = np.asarray(estimator.wavelength_nm, float)
     omega = env.solid_angle_weights()[:, None, None]
     env_mean = (env.spectra * omega).sum(axis=(0, 1)) / (omega.sum() * env.width)
-    env_mean = np.interp(wl, env.wavelength_nm, env_mean)
+    env_mean = resample_spectra(env_mean, env.wavelength_nm, wl, outside="edge")
     mats = band_materials(scene, estimator.system_matrix, wl, env_mean)
     n_pass = env.bands.shape[2] // 3
     bands = np.empty((height, width, 3 * n_pass), np.float32)
     for p, sl in enumerate(slice(3 * q, 3 * q + 3) for q in range(n_pass)):
         pass_mats = {k: {q: v[sl] for q, v in params.items()} for k, params in mats.items()}
         bands[..., sl] = render_rgb(mi, scene.build(mi, pass_mats, env.bands[..., sl], width, height, spp), spp, seed)
-        if progress:
-            progress(f"pass {p + 1}/{n_pass}: bands {', '.join(estimator.band_names[sl]) or sl}")
+        report_progress(progress or None, "render passes", p + 1, n_pass)
     t_render = time.perf_counter() - t0
     if linear_map is not None:
         m, b = linear_map
@@ -465,8 +624,21 @@ DEFAULT_WIDTH, DEFAULT_HEIGHT, DEFAULT_SPP = 256, 256, 64
 
 def render_settings(scene, width: int | None = None, height: int | None = None,
                     spp: int | None = None) -> tuple[int, int, int]:
-    """Width, height and samples per pixel of a render: each value given wins, else the scene file's (its film's
-    ``width``/``height``, its sampler's ``sample_count``), else ``DEFAULT_WIDTH``/``DEFAULT_HEIGHT``/``DEFAULT_SPP``."""
+    """Width, height and samples per pixel of a render.
+
+    Parameters
+    ----------
+    scene
+        The scene (an :class:`XmlScene` gives its film's ``width``/``height`` and its sampler's ``sample_count``).
+    width, height, spp
+        Values given by the caller (``None``: not given).
+
+    Returns
+    -------
+    tuple of int
+        ``(width, height, spp)``: each value given wins, else the scene file's, else :data:`DEFAULT_WIDTH`,
+        :data:`DEFAULT_HEIGHT`, :data:`DEFAULT_SPP`.
+    """
     film_w, film_h = scene.film_size() if hasattr(scene, "film_size") else (None, None)
     count = scene.sample_count() if hasattr(scene, "sample_count") else None
     return (next(v for v in (width, film_w, DEFAULT_WIDTH) if v is not None),
@@ -484,7 +656,22 @@ def write_render(result: RenderResult, out_dir: str | Path, name: str = "render"
                  exposure: float | None = None) -> dict[str, str]:
     """Spectral EXR (Fichet 2021 layout), linear sRGB EXR and a tone-mapped PNG of a render, plus its JSON.
 
-    ``exposure`` scales the linear RGB before the tone curve (default: the 99th luminance percentile at 1).
+    Parameters
+    ----------
+    result
+        The render.
+    out_dir
+        The output directory (created if needed).
+    name
+        Stem of the file names.
+    exposure
+        Scale of the linear RGB before the tone curve (default: the 99th luminance percentile at 1,
+        :func:`auto_exposure_reference`).
+
+    Returns
+    -------
+    dict
+        ``spectral_exr``, ``srgb_exr``, ``png``, ``json`` → path.
     """
 
     out = Path(out_dir)
@@ -507,7 +694,20 @@ def write_render(result: RenderResult, out_dir: str | Path, name: str = "render"
 
 
 def auto_exposure_reference(rgb: np.ndarray, percentile: float = 99.0) -> float:
-    """The ``percentile`` luminance of linear sRGB (positive pixels), the level a preview puts at 1."""
+    """The level a preview puts at 1: a percentile of the luminance of linear sRGB.
+
+    Parameters
+    ----------
+    rgb
+        Linear sRGB ``(..., 3)`` (NaN as 0).
+    percentile
+        Of the positive pixels' luminance.
+
+    Returns
+    -------
+    float
+        The luminance; 1 when no pixel is positive.
+    """
     lum = np.nan_to_num(np.asarray(rgb, np.float32)).clip(0) @ np.array([0.2126, 0.7152, 0.0722], np.float32)
     pos = lum[lum > 0]
     return float(np.percentile(pos, percentile)) if pos.size else 1.0
@@ -517,11 +717,48 @@ def render_product(product: str | Path, out_dir: str | Path, scene: str | None =
                    height: int | None = None, spp: int | None = None, level: int | None = None,
                    max_env_width: int = 1024, wavelength_step_nm: float | None = None, fast: bool = False,
                    seed: int = 0, variant: str | None = None, name: str = "render", exposure: float | None = None,
-                   progress: Callable[[str], None] | None = None, **scene_kwargs) -> dict:
+                   progress: ProgressCallback | None = None, **scene_kwargs) -> dict:
     """Render a product's environment with a scene (mirror ball by default) and write the outputs.
 
-    ``width``, ``height`` and ``spp`` left at ``None`` come from a scene file's film and sampler, else the
-    defaults (:func:`render_settings`)."""
+    Parameters
+    ----------
+    product
+        The product directory.
+    out_dir
+        Where :func:`write_render` writes.
+    scene
+        ``None``/``"mirror-ball"`` or a Mitsuba XML file (:func:`scene_from_name`).
+    width, height, spp
+        ``None`` for the scene file's film and sampler, else the defaults (:func:`render_settings`).
+    level, max_env_width
+        The product's pyramid level for the environment (``None``: the finest at most ``max_env_width`` wide).
+    wavelength_step_nm
+        A coarser grid for the spectral render (:func:`wavelength_grid`).
+    fast
+        The six-band fast path (:func:`render_fast`) instead of the spectral render.
+    seed, variant
+        Sampler seed and Mitsuba variant.
+    name, exposure
+        Output file stem and exposure (:func:`write_render`).
+    progress
+        ``progress("render passes", done, total)`` after each Mitsuba pass.
+    **scene_kwargs
+        Fields of :class:`MirrorBallScene`.
+
+    Returns
+    -------
+    dict
+        The render's ``info``, its ``files`` and ``total_seconds``.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 6.1, Fig. 16 (spectral rendering with the captured panorama as the
+       environment; a mirror ball on a grey plate).
+    .. [2] A. Fichet, R. Pacanowski, A. Wilkie, "An OpenEXR Layout for Spectral Images", JCGT 10(3), 2021
+       (the spectral EXR written by :func:`write_render`).
+    .. [3] CIE 015:2018, Colorimetry, 4th ed. (the CIE 1931 observer of the sRGB outputs).
+    """
 
     t0 = time.perf_counter()
     sc = scene_from_name(scene, **scene_kwargs)

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import math
 import shutil
-from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -24,6 +23,9 @@ from omnispectral.imaging.imageio import read_image
 from omnispectral.io import atomic_path, atomic_write_json
 from omnispectral.product.exports import reinhard_srgb8
 from omnispectral.product.series import series_products
+from omnispectral.progress import ProgressCallback, report_progress
+
+__all__ = ["contact_sheet", "render_series", "series_slots"]
 
 
 def series_slots(series: str | Path) -> list[tuple[str, Path]]:
@@ -58,8 +60,46 @@ def contact_sheet(images: list[np.ndarray], labels: list[str], columns: int | No
 
 
 def render_series(series: str | Path, output: str | Path, exposure: str = "auto",
-                  progress: Callable[[str], None] | None = None, **render_kwargs) -> dict:
-    """Render every slot (keyword arguments as :func:`omnispectral.apps.render.render_product`)."""
+                  progress: ProgressCallback | None = None, **render_kwargs) -> dict:
+    """Render every slot (keyword arguments as :func:`omnispectral.apps.render.render_product`).
+
+    Parameters
+    ----------
+    series : str or pathlib.Path
+        A processed series (a ``process-series`` output with ``timestack.zarr``) or a directory whose
+        sub-directories are products (:func:`series_slots`).
+    output : str or pathlib.Path
+        The output directory: ``slot_<time>/`` per slot, ``frames/frame_NNNN.png``, ``contact_sheet.png`` and
+        ``render_series.json``.
+    exposure : {"auto", "common"}
+        ``"auto"``: each frame exposed for itself; ``"common"``: every frame's PNG re-tone-mapped with one
+        exposure scale, ``1 /`` the largest automatic reference of the slots (the brightest slot's).
+    progress : ProgressCallback, optional
+        ``progress("slots", done, total)`` after each slot.
+    **render_kwargs
+        Keyword arguments of :func:`~omnispectral.apps.render.render_product` (scene, size, samples, ...),
+        the same for every slot.
+
+    Returns
+    -------
+    dict
+        ``n_slots``, ``contact_sheet`` and ``frames`` (paths), ``exposure``, and ``slots``: per slot its
+        ``label`` and :func:`~omnispectral.apps.render.render_product`'s result (also in ``render_series.json``).
+
+    Raises
+    ------
+    ValueError
+        For an ``exposure`` other than ``"auto"`` or ``"common"``.
+    InputFileError
+        When ``series`` holds neither a processed series nor product sub-directories.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 6.1, Fig. 16 (time-lapse spectral rendering), Fig. 12 (the time-lapse).
+    .. [2] A. Fichet, R. Pacanowski, A. Wilkie, "An OpenEXR Layout for Spectral Images", JCGT 10(3), 2021
+       (each slot's spectral EXR).
+    """
 
 
     if exposure not in ("auto", "common"):
@@ -68,10 +108,9 @@ def render_series(series: str | Path, output: str | Path, exposure: str = "auto"
     slots = series_slots(series)
     results = []
     for k, (label, product) in enumerate(slots):
-        if progress:
-            progress(f"slot {k + 1}/{len(slots)} ({label})")
         res = render_product(product, out / f"slot_{_safe(label)}", **render_kwargs)
         results.append((label, res))
+        report_progress(progress or None, "slots", k + 1, len(slots))
     if exposure == "common":
         refs = [auto_exposure_reference(read_image(r["files"]["srgb_exr"])) for _, r in results]
         scale = 1.0 / max(refs)

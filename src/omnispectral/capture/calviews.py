@@ -1,7 +1,7 @@
 """Calibration views: chessboard pairs both cameras take once per mounting (``capture calibration-views``).
 
 Camera B's mounting relative to A fixes where B sees content at infinity.  Fitted from a session's own
-images, B's yaw is only as good as the scene's farthest content is far (``product.rigcal``); a board of
+images, B's yaw is only as good as the scene's farthest content is far (``product.rigfit``); a board of
 known square size, seen by both cameras at once at a few poses, fixes it to a few hundredths of a pixel
 (``product.rigboard``).  The views are taken once per mounting of the cameras: a session records them
 in ``SESSION/calibration/``, a time-lapse once for the whole series in ``SERIES/calibration/``, and
@@ -32,21 +32,26 @@ import tifffile
 
 from omnispectral.capture.devices import Camera, Clock, DeviceError, SystemClock
 from omnispectral.capture.session import CALIBRATION_DIR, utc_now_iso
+from omnispectral.choices import DEFAULT_N_VIEWS
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.imaging.bayer import demosaic
 from omnispectral.imaging.lens import check_board, find_board
 from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text, read_text_file
 from omnispectral.locking import directory_lock
+from omnispectral.progress import ProgressCallback
 from omnispectral.rig import Rig, rig_toml
+
+__all__ = ["AUTO_EXPOSURE_TARGET", "BOARD_FILE", "BOARD_FORMAT", "CAPTURE_FILE", "DEFAULT_N_VIEWS", "IMAGE_SUFFIXES",
+           "MAX_ATTEMPTS_PER_VIEW", "NextView", "auto_exposure_s", "board_problem", "calibration_folder",
+           "clear_views", "find_calibration_views", "gray8", "has_views", "operator_next_view",
+           "read_board_description", "record_calibration_views", "rgb_frame", "shoot_pair", "view_name",
+           "write_board_description"]
 
 BOARD_FILE = "board.json"
 #: Image files a views folder may hold (``calibrate rig --chessboard`` reads any of them).
 IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".jpg", ".jpeg", ".bmp", ".pgm", ".ppm", ".exr")
 BOARD_FORMAT = "omnispectral-chessboard-views"
 CAPTURE_FILE = "capture.json"
-#: Chessboard pairs recorded by default: six put B at infinity within 0.03 px of the truth on the small rig
-#: and within about 0.05 px at full scale (9 x 6 board; docs/benchmarks.md, "Calibration views").
-DEFAULT_N_VIEWS = 6
 #: The brightest 1 % of an auto-exposed calibration frame sits at this share of full scale.
 AUTO_EXPOSURE_TARGET = 0.6
 #: A view is asked for again at most this many times per view requested before the capture gives up.
@@ -195,7 +200,7 @@ def operator_next_view(ask: Callable[[str], None] | None = None, interval_s: flo
 def record_calibration_views(root: str | Path, rig: Rig, cameras: dict[str, Camera], next_view: NextView, *,
                              n_views: int = DEFAULT_N_VIEWS, board: tuple[int, int] = (9, 6),
                              square_mm: float = 60.0, exposure_s: dict[str, float] | None = None,
-                             timeout_s: float = 30.0, progress: Callable[[str, int, int], None] | None = None
+                             timeout_s: float = 30.0, progress: ProgressCallback | None = None
                              ) -> dict:
     """Take ``n_views`` chessboard pairs with the rig's cameras into ``ROOT/calibration/`` (module docstring).
 

@@ -16,7 +16,6 @@ Layout::
 from __future__ import annotations
 
 import json
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +26,9 @@ from omnispectral.capture.session import Session, utc_now_iso
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.io import atomic_path, atomic_write_json
 from omnispectral.locking import directory_lock
+from omnispectral.progress import ProgressCallback
+
+__all__ = ["DARKS_DIR", "DARKS_INDEX", "dark_relpath", "load_darks", "record_darks"]
 
 DARKS_DIR = "darks"
 DARKS_INDEX = "darks.json"
@@ -37,7 +39,7 @@ def dark_relpath(camera: str, exposure_index: int) -> str:
 
 
 def record_darks(session: Session | str | Path, cameras: dict[str, Camera], n_frames: int = 8,
-                 timeout_s: float = 30.0, progress: Callable[[str, int, int], None] | None = None) -> dict:
+                 timeout_s: float = 30.0, progress: ProgressCallback | None = None) -> dict:
     """Record and average ``n_frames`` dark frames per camera and exposure of the session's plan.
 
     The exposure actually set (as the camera reports it) is recorded; a dark frame whose exposure differs

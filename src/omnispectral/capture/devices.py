@@ -1,11 +1,10 @@
-"""Device protocols (camera, pan/tilt head, clock) and their simulated implementations.
+"""Device protocols (camera, pan/tilt head, filter changer, clock), the computer's clock and the operator's filter.
 
 The protocols say what real hardware does: a head is *commanded* to a position and later *reports*
 one (which may differ), it takes time to travel and to settle, and it may not answer; a camera is
-given an exposure (and may round it), triggered, and its frame is read with a timeout.  Simulated
-devices follow the same rules on a :class:`Clock`, so a :class:`FakeClock` makes a simulated capture
-take no wall time while its timestamps still follow the timing model.  Faults (no answer, a position
-off target) are injected with :class:`HeadFaults` / :class:`CameraFaults` for tests.
+given an exposure (and may round it), triggered, and its frame is read with a timeout.  The real
+drivers (:mod:`omnispectral.capture.drivers`) and the simulated devices (:mod:`omnispectral.sim.devices`)
+implement them; the capture loop (:mod:`omnispectral.capture.run`) sees only the protocols.
 """
 
 from __future__ import annotations
@@ -13,12 +12,14 @@ from __future__ import annotations
 import datetime as _dt
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from omnispectral.errors import OmnispectralError
+
+__all__ = ["Camera", "Clock", "DeviceDisconnected", "DeviceError", "DeviceProtocolError", "DeviceTimeout",
+           "FilterChanger", "ManualFilterChanger", "PanTiltHead", "SystemClock"]
 
 
 class DeviceError(OmnispectralError):
@@ -60,30 +61,6 @@ class SystemClock:
             time.sleep(seconds)
 
 
-class FakeClock:
-    """A clock that advances only when slept on: simulated time, no waiting."""
-
-    def __init__(self, start: _dt.datetime):
-        if start.tzinfo is None:
-            start = start.replace(tzinfo=_dt.UTC)
-        self._start = start
-        self._elapsed = 0.0
-
-    def now(self) -> _dt.datetime:
-        return self._start + _dt.timedelta(seconds=self._elapsed)
-
-    def monotonic(self) -> float:
-        return self._elapsed
-
-    def sleep(self, seconds: float) -> None:
-        if seconds > 0:
-            self._elapsed += float(seconds)
-
-    def set_elapsed(self, seconds: float) -> None:
-        """Set the simulated time since the start exactly (a resumed simulation's clock)."""
-        self._elapsed = float(seconds)
-
-
 @runtime_checkable
 class PanTiltHead(Protocol):
     def move_to(self, pan_deg: float, tilt_deg: float) -> None: ...  # command; returns at once
@@ -109,106 +86,6 @@ class Camera(Protocol):
     def close(self) -> None: ...
 
 
-@dataclass
-class HeadFaults:
-    """Injected head faults: silent calls (``silent_calls`` of the next ``position``/``wait`` calls time out),
-    a permanent offset of the reported position, or a head that stops answering after ``dead_after_moves``."""
-
-    silent_calls: int = 0
-    offset_deg: tuple[float, float] = (0.0, 0.0)
-    dead_after_moves: int | None = None
-
-
-@dataclass
-class CameraFaults:
-    """Injected camera faults: the next ``timeouts`` reads time out; dead after ``dead_after_frames`` frames."""
-
-    timeouts: int = 0
-    dead_after_frames: int | None = None
-
-
-class SimulatedHead:
-    """A pan/tilt head that travels at its speeds and settles on the given clock."""
-
-    def __init__(self, clock: Clock, pan_speed_deg_s: float = 60.0, tilt_speed_deg_s: float = 60.0,
-                 settle_s: float = 2.0, faults: HeadFaults | None = None):
-        self.clock = clock
-        self.pan_speed, self.tilt_speed, self.settle_s = pan_speed_deg_s, tilt_speed_deg_s, settle_s
-        self.faults = faults or HeadFaults()
-        self._pos = (0.0, 0.0)
-        self._target = (0.0, 0.0)
-        self._arrive_at = 0.0
-        self._placed = False
-        self.moves = 0
-
-    def _answer(self) -> None:
-        if self.faults.dead_after_moves is not None and self.moves > self.faults.dead_after_moves:
-            raise DeviceTimeout("pan/tilt head does not answer")
-        if self.faults.silent_calls > 0:
-            self.faults.silent_calls -= 1
-            raise DeviceTimeout("pan/tilt head did not answer in time")
-
-    def move_to(self, pan_deg: float, tilt_deg: float) -> None:
-        if not (np.isfinite(pan_deg) and np.isfinite(tilt_deg)) or abs(tilt_deg) > 90.0 + 1e-9:
-            raise DeviceError(f"head cannot go to pan {pan_deg} deg, tilt {tilt_deg} deg")
-        self.moves += 1
-        self._answer()
-        resumed_here, self._placed = self._placed and (float(pan_deg), float(tilt_deg)) == self._pos, False
-        if resumed_here:  # already at rest there (a resumed run continuing a direction): nothing moves
-            self._arrive_at = self.clock.monotonic()
-            return
-        travel = max(abs(pan_deg - self._pos[0]) / self.pan_speed, abs(tilt_deg - self._pos[1]) / self.tilt_speed)
-        self._target = (float(pan_deg), float(tilt_deg))
-        self._arrive_at = self.clock.monotonic() + travel + self.settle_s
-
-    def position(self) -> tuple[float, float]:
-        self._answer()
-        if self.clock.monotonic() >= self._arrive_at:
-            self._pos = self._target
-        return (self._pos[0] + self.faults.offset_deg[0], self._pos[1] + self.faults.offset_deg[1])
-
-    def wait_settled(self, timeout_s: float) -> tuple[float, float]:
-        self._answer()
-        wait = self._arrive_at - self.clock.monotonic()
-        if wait > timeout_s:
-            self.clock.sleep(timeout_s)
-            raise DeviceTimeout(f"head still moving after {timeout_s} s")
-        self.clock.sleep(wait)
-        return self.position()
-
-    def place_at(self, pan_deg: float, tilt_deg: float) -> None:
-        """Put the head at rest at a position (a resumed simulation continues where the last run stopped)."""
-        self._pos = self._target = (float(pan_deg), float(tilt_deg))
-        self._arrive_at = self.clock.monotonic()
-        self._placed = True
-
-    @property
-    def true_position(self) -> tuple[float, float]:
-        """Where the simulated head really points (what the renderer uses)."""
-        return self._target if self.clock.monotonic() >= self._arrive_at else self._pos
-
-    def close(self) -> None:
-        pass
-
-
-def frame_rng(seed: int, camera: str, pan_deg: float, tilt_deg: float, exposure_s: float,
-              filter_name: str | None = None) -> np.random.Generator:
-    """The noise stream of one simulated frame, spawned from the seed, the camera, the direction (its
-    exact pan/tilt), the exposure and the filter in front of the lens, if any (``numpy.random.SeedSequence``):
-    a frame's noise does not depend on what was rendered before it, so a resumed or retried simulation
-    gives the same frames."""
-    words = np.array([pan_deg, tilt_deg, exposure_s], np.float64).view(np.uint32)
-    entropy = [int(seed) % (1 << 63), *camera.encode("utf-8")[:8], *(int(w) for w in words)]
-    if filter_name:
-        entropy += [0x46494C54, *filter_name.encode("utf-8")[:32]]
-    return np.random.default_rng(np.random.SeedSequence(entropy))
-
-
-#: ``render(camera_name, pan_deg, tilt_deg, exposure_s, rng) -> uint16 frame`` of a simulated camera; with a
-#: filter in front of the lens the camera adds ``filter_name=NAME``.
-Renderer = Callable[..., np.ndarray]
-
-
 @runtime_checkable
 class FilterChanger(Protocol):
     """Puts a filter in front of both lenses and takes it away (the sun bracket's neutral density)."""
@@ -216,26 +93,6 @@ class FilterChanger(Protocol):
     def insert(self, filter_name: str) -> None: ...
 
     def remove(self) -> None: ...
-
-
-class SimulatedFilterChanger:
-    """A filter slider in front of the simulated cameras: each move takes ``change_s`` of clock time."""
-
-    def __init__(self, cameras: dict, clock: Clock, change_s: float = 2.0):
-        self.cameras, self.clock, self.change_s = cameras, clock, float(change_s)
-        self.filter_name: str | None = None
-
-    def insert(self, filter_name: str) -> None:
-        self.clock.sleep(self.change_s)
-        self.filter_name = filter_name
-        for cam in self.cameras.values():
-            cam.filter_name = filter_name
-
-    def remove(self) -> None:
-        self.clock.sleep(self.change_s)
-        self.filter_name = None
-        for cam in self.cameras.values():
-            cam.filter_name = None
 
 
 class ManualFilterChanger:
@@ -255,57 +112,3 @@ class ManualFilterChanger:
         self.filter_name = None
 
 
-@dataclass
-class SimulatedCamera:
-    """A camera whose frames come from a renderer at the head's true position; exposures take clock time."""
-
-    name: str
-    head: SimulatedHead
-    render: Renderer
-    clock: Clock
-    bit_depth: int = 12
-    readout_s: float = 0.0095
-    seed: int = 0
-    faults: CameraFaults = field(default_factory=CameraFaults)
-    #: what the camera reports with every frame besides time and exposure (a raw camera's CFA layout, black level)
-    metadata: dict = field(default_factory=dict)
-    exposure_s: float = 0.01
-    frames_read: int = 0
-    #: the filter a :class:`SimulatedFilterChanger` put in front of the lens (``None``: none)
-    filter_name: str | None = None
-    _pending: tuple | None = None
-
-
-    def set_exposure(self, exposure_s: float) -> float:
-        if not (np.isfinite(exposure_s) and exposure_s > 0):
-            raise DeviceError(f"camera {self.name}: exposure {exposure_s} s is not positive")
-        self.exposure_s = float(exposure_s)
-        return self.exposure_s
-
-    def trigger(self) -> None:
-        pan, tilt = self.head.true_position
-        self._pending = (pan, tilt, self.exposure_s, self.clock.now(), self.clock.monotonic(), self.filter_name)
-
-    def read_frame(self, timeout_s: float) -> tuple[np.ndarray, dict]:
-        if self._pending is None:
-            raise DeviceError(f"camera {self.name}: read without a trigger")
-        if self.faults.dead_after_frames is not None and self.frames_read >= self.faults.dead_after_frames:
-            raise DeviceTimeout(f"camera {self.name} does not answer")
-        if self.faults.timeouts > 0:
-            self.faults.timeouts -= 1
-            self.clock.sleep(timeout_s)
-            raise DeviceTimeout(f"camera {self.name}: no frame within {timeout_s} s")
-        pan, tilt, exposure, t0, t0_mono, filt = self._pending
-        # the frame exists after exposure + read-out (cameras triggered together overlap in time)
-        self.clock.sleep(t0_mono + exposure + self.readout_s - self.clock.monotonic())
-        rng = frame_rng(self.seed, self.name, pan, tilt, exposure, filt)
-        frame = (self.render(self.name, pan, tilt, exposure, rng) if filt is None
-                 else self.render(self.name, pan, tilt, exposure, rng, filter_name=filt))
-        self._pending = None
-        self.frames_read += 1
-        # the simulated clock's exact state (float seconds) lets a resumed simulation continue bit-identically
-        return frame, {"camera_time": t0.isoformat(timespec="milliseconds"), "exposure_s": exposure,
-                       "sim_clock_trigger_s": t0_mono, "sim_clock_read_s": self.clock.monotonic(), **self.metadata}
-
-    def close(self) -> None:
-        pass

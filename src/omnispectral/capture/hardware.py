@@ -4,7 +4,9 @@ The capture loop is :func:`omnispectral.capture.run.run_capture`, the same one t
 this module only opens the devices the rig file names (:mod:`omnispectral.capture.drivers`), runs
 the loop on the computer's clock, and always closes the devices again (the head's motors are
 stopped).  A run stopped by a device (a pulled cable, a head that never arrives) leaves a valid
-session; running the same command again resumes it after its last complete frame.
+session; running the same command again resumes it after its last complete frame.  Where a rig names
+simulated devices, the caller passes them in (``head``, ``cameras``: :mod:`omnispectral.sim.devices`);
+this module never simulates.
 """
 
 from __future__ import annotations
@@ -16,25 +18,22 @@ from pathlib import Path
 from omnispectral.capture import drivers
 from omnispectral.capture.calviews import DEFAULT_N_VIEWS, operator_next_view, record_calibration_views
 from omnispectral.capture.darks import record_darks
-from omnispectral.capture.devices import DeviceError, ManualFilterChanger, SimulatedHead, SystemClock
+from omnispectral.capture.devices import DeviceError, ManualFilterChanger, SystemClock
 from omnispectral.capture.plan import format_duration, make_plan
 from omnispectral.capture.run import RetryPolicy, run_capture
 from omnispectral.capture.session import Session
-from omnispectral.capture.simulate import simulated_board_cameras, simulated_dark_cameras
 from omnispectral.errors import ConfigurationError, OmnispectralError
+from omnispectral.progress import ProgressCallback
 from omnispectral.rig import Rig
+
+__all__ = ["capture_calibration_views", "capture_darks", "capture_with_devices", "dry_run", "policy_of", "probe_rig",
+           "real_filter_changer"]
 
 log = logging.getLogger(__name__)
 
 
 def policy_of(rig: Rig) -> RetryPolicy:
     return RetryPolicy(rig.head.retries, rig.head.timeout_s, rig.head.position_tolerance_deg)
-
-
-def _open_head(rig: Rig):
-    if rig.head.driver == "simulated":  # real cameras on a simulated head: a stand-in that only takes time
-        return SimulatedHead(SystemClock(), rig.head.pan_speed_deg_s, rig.head.tilt_speed_deg_s, rig.head.settle_s)
-    return drivers.open_head(rig)
 
 
 def real_filter_changer(rig: Rig, ask=None):
@@ -56,16 +55,22 @@ def _ask_on_terminal(message: str) -> None:
     sys.stdin.readline()
 
 
-def capture_with_devices(output: str | Path, rig: Rig, *, progress=None, ask=None) -> dict:
+def capture_with_devices(output: str | Path, rig: Rig, *, progress: ProgressCallback | None = None, ask=None,
+                         head=None) -> dict:
     """Capture (or resume) a session at ``output`` with the rig's real devices; returns the run summary.
-    ``ask(message)`` waits for the operator to move the sun bracket's filter (:func:`real_filter_changer`)."""
+
+    ``ask(message)`` waits for the operator to move the sun bracket's filter (:func:`real_filter_changer`).
+    ``head``: a head to use instead of opening the rig's (real cameras on a stand-in head, when the rig's head is
+    ``driver = "simulated"``: :func:`omnispectral.sim.devices.stand_in_head`); it is closed at the end."""
     if drivers.rig_device_kind(rig) != "real":
         raise ConfigurationError(f"{rig.source}: the rig's devices are all simulated; use 'omnispectral simulate'")
     plan = make_plan(rig)
     session = Session.create(output, rig, plan, kind="capture")
-    head = cams = system = None
+    if head is None and rig.head.driver == "simulated":
+        raise ConfigurationError(f"{rig.source}: the rig's head is simulated; pass a stand-in head")
+    cams = system = None
     try:
-        head = _open_head(rig)
+        head = head if head is not None else drivers.open_head(rig)
         cams, system = drivers.open_cameras(rig)
         session.log_event("devices", head=_head_info(rig, head), cameras={n: getattr(c, "info", {})
                                                                          for n, c in cams.items()})
@@ -85,16 +90,17 @@ def capture_with_devices(output: str | Path, rig: Rig, *, progress=None, ask=Non
     return result
 
 
-def capture_darks(session_path: str | Path, n_frames: int = 8, *, seed: int = 0, noise: bool = True,
-                  progress=None) -> dict:
+def capture_darks(session_path: str | Path, n_frames: int = 8, *, cameras: dict | None = None,
+                  progress: ProgressCallback | None = None) -> dict:
     """Dark frames for every exposure of a session's bracket with the cameras its rig names (lenses capped:
-    :func:`omnispectral.capture.darks.record_darks`); an all-simulated rig uses its simulated sensors."""
+    :func:`omnispectral.capture.darks.record_darks`), or with ``cameras`` when given (an all-simulated rig's
+    sensors: :func:`omnispectral.sim.simulate.simulated_dark_cameras`)."""
     session = Session.open(session_path)
     rig = session.rig()
     system = None
     try:
-        if all(rig.cameras[c].device.get("driver", "simulated") == "simulated" for c in rig.camera_names):
-            cams = simulated_dark_cameras(rig, seed=seed, noise=noise)
+        if cameras is not None:
+            cams = cameras
         else:
             cams, system = drivers.open_cameras(rig)
         return record_darks(session, cams, n_frames, rig.head.timeout_s, progress)
@@ -105,19 +111,17 @@ def capture_darks(session_path: str | Path, n_frames: int = 8, *, seed: int = 0,
 
 def capture_calibration_views(root: str | Path, rig: Rig, *, n_views: int = DEFAULT_N_VIEWS,
                               board: tuple[int, int] = (9, 6), square_mm: float = 60.0,
-                              interval_s: float | None = None, ask=None, say=None, seed: int = 0, noise: bool = True,
-                              mounting_error_deg: float = 0.5, progress=None) -> dict:
+                              interval_s: float | None = None, ask=None, say=None, devices=None,
+                              progress: ProgressCallback | None = None) -> dict:
     """Chessboard pairs with the rig's cameras into ``ROOT/calibration/`` (:mod:`omnispectral.capture.calviews`;
     ``ROOT`` a session or a time-lapse series): the rig's GenICam cameras with the operator moving the board
     between shots (asked through ``ask(message)``, default a prompt on the terminal, or given ``interval_s``
-    seconds), or an all-simulated rig's cameras in front of a simulated board (``seed`` and
-    ``mounting_error_deg`` as for ``simulate``: the same unknown mounting of camera B)."""
+    seconds), or ``devices = (cameras, next_view)`` when given (an all-simulated rig's cameras in front of a
+    simulated board: :func:`omnispectral.sim.simulate.simulated_board_cameras`)."""
     system = None
     try:
-        if drivers.rig_device_kind(rig) == "simulated":
-            cams, next_view = simulated_board_cameras(rig, seed=seed, noise=noise,
-                                                      mounting_error_deg=mounting_error_deg, board=board,
-                                                      square_mm=square_mm)
+        if devices is not None:
+            cams, next_view = devices
         else:
             cams, system = drivers.open_cameras(rig)
             next_view = operator_next_view(None if interval_s is not None else (ask or _ask_on_terminal),

@@ -43,7 +43,6 @@ import csv
 import datetime as _dt
 import re
 import xml.etree.ElementTree as ET
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -52,12 +51,16 @@ import numpy as np
 from omnispectral.capture.plan import Direction, Plan
 from omnispectral.capture.session import Session, sha256_of
 from omnispectral.capture.sourcefiles import IMAGE_SUFFIXES, decode_source_image
+from omnispectral.choices import RESPONSES
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.imaging.bracket import exif_exposure_s, parse_exposure_s, read_times_list
 from omnispectral.locking import directory_lock
+from omnispectral.progress import ProgressCallback
 from omnispectral.rig import Rig
 
-RESPONSES = ("auto", "linear", "srgb")
+__all__ = ["RESPONSES", "SAME_DIRECTION_DEG", "ImageEntry", "group_brackets", "import_images", "list_images",
+           "read_directions", "read_directions_csv", "read_exposure_table", "read_papywizard", "read_pto"]
+
 #: images whose pan and tilt agree within this belong to one direction's bracket
 SAME_DIRECTION_DEG = 0.05
 
@@ -277,7 +280,7 @@ def _timestamp(path: Path) -> str:
 
 def import_images(output: str | Path, rig: Rig, camera: str, entries: list[ImageEntry], *,
                   exposure_table: dict[str, float] | None = None, response: str = "auto", reference: bool = False,
-                  progress: Callable[[str, int, int], None] | None = None) -> dict:
+                  progress: ProgressCallback | None = None) -> dict:
     """Write camera ``camera``'s images into the session at ``output`` (created for the first camera); with
     ``reference`` the journal points at the files where they are instead of copying them (module docstring)."""
     if camera not in rig.cameras:

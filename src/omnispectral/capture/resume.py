@@ -1,10 +1,7 @@
-"""Recovery of sessions: a resumed simulation continues exactly, and a damaged journal is rebuilt.
+"""Recovery of sessions: the capture order of a session's frames, and a damaged journal rebuilt.
 
-:func:`resume_simulated_devices` puts the simulated clock and head where an uninterrupted run would
-have them after the last recorded frame (each frame records the simulated clock's exact float
-state), so that — with the per-frame noise streams of
-:func:`omnispectral.capture.devices.frame_rng` — a simulation killed and resumed any number of
-times writes the same bytes as one that never stopped.
+:func:`capture_order` gives every planned frame's position in the capture loop's order (a resumed
+simulation uses it: :func:`omnispectral.sim.devices.resume_simulated_devices`).
 
 :func:`repair_session` rebuilds ``journal.jsonl`` from the frames themselves: every raw frame
 embeds its journal record in its TIFF description, so a journal with garbage lines (an editor, a
@@ -24,6 +21,8 @@ from omnispectral.errors import InputFileError
 from omnispectral.io import atomic_write_text, clean_temp_files
 from omnispectral.locking import directory_lock
 from omnispectral.rig import MAX_SUN_BRACKETS, SUN_EXPOSURE_BASE
+
+__all__ = ["capture_order", "frame_record_from_file", "repair_session", "sun_bracket_order"]
 
 
 def sun_bracket_order(plan, cameras: tuple[str, ...]) -> list[tuple[int, str, int]]:
@@ -59,29 +58,6 @@ def capture_order(session: Session) -> dict[tuple[int, str, int], int]:
             order[key] = n
             n += 1
     return order
-
-
-def resume_simulated_devices(session: Session, clock, head) -> bool:
-    """Set a :class:`~omnispectral.capture.devices.FakeClock` and a simulated head to the state after the
-    session's last recorded frame; False when there is nothing to resume (or no clock state recorded)."""
-    records = session.completed()
-    if not records:
-        return False
-    order = capture_order(session)
-    known = [k for k in records if k in order]
-    if not known:
-        return False
-    last = max(known, key=order.__getitem__)
-    rec = records[last]
-    cam = rec.get("camera_metadata") or {}
-    if "sim_clock_read_s" not in cam or "sim_clock_trigger_s" not in cam:
-        return False
-    d, _, k = last
-    bracket_done = all((d, c, k) in records for c in session.cameras())
-    # both cameras are triggered together: a half-written exposure restarts from its trigger time
-    clock.set_elapsed(float(cam["sim_clock_read_s"] if bracket_done else cam["sim_clock_trigger_s"]))
-    head.place_at(float(rec["pan_deg_commanded"]), float(rec["tilt_deg_commanded"]))
-    return True
 
 
 def frame_record_from_file(session: Session, rel: str) -> dict:

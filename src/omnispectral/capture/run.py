@@ -32,7 +32,12 @@ from omnispectral.errors import OmnispectralError
 from omnispectral.imaging.geometry import ray_to_lonlat
 from omnispectral.io import clean_temp_files
 from omnispectral.locking import directory_lock
+from omnispectral.progress import ProgressCallback
 from omnispectral.rig import MAX_SUN_BRACKETS, SUN_EXPOSURE_BASE
+
+__all__ = ["SUN_RETRY_PAN_FRACTIONS", "CaptureResult", "RetryPolicy", "aim_at_clipped_spot", "clipped_centroid_px",
+           "clips", "every_camera_saw_sun", "expose_all", "expose_and_write", "goto_direction", "recorded_sun_pose",
+           "run_capture", "shoot_sun_bracket", "shortest_frame", "sun_poses", "sun_seen_whole"]
 
 
 @dataclass
@@ -204,7 +209,7 @@ def recorded_sun_pose(session: Session, plan: Plan, done: set) -> Direction | No
 
 def run_capture(session: Session, head: PanTiltHead, cameras: dict[str, Camera], clock: Clock,
                 policy: RetryPolicy | None = None,
-                progress: Callable[[str, int, int], None] | None = None,
+                progress: ProgressCallback | None = None,
                 filters: FilterChanger | None = None) -> CaptureResult:
     """Capture (or resume) every planned frame of ``session`` with the given devices; ``progress(stage, done,
     total)`` is called after every frame written.  ``filters`` moves the sun bracket's neutral-density filter
@@ -212,6 +217,42 @@ def run_capture(session: Session, head: PanTiltHead, cameras: dict[str, Camera],
 
     Holds the session's lock (:mod:`omnispectral.locking`) for the whole run: a second run on the same
     session is refused; temporary files a killed run left are removed first.
+
+    Parameters
+    ----------
+    session : Session
+        The session: its plan (directions, bracket in seconds, sun bracket), journal and frame files.
+    head : PanTiltHead
+        The pan/tilt head (real or simulated), commanded in degrees.
+    cameras : dict of str to Camera
+        The cameras by name (``"A"``, ``"B"``); each exposure triggers them together.
+    clock : Clock
+        Wall time of the journal records and the simulated seconds of the result.
+    policy : RetryPolicy, optional
+        Retries, timeout (s) and position tolerance (deg) of the devices; default :class:`RetryPolicy`.
+    progress : ProgressCallback, optional
+        ``progress("capture", done, total)``: once at the start, then after every frame written.
+    filters : FilterChanger, optional
+        The neutral-density filter changer of the sun bracket.
+
+    Returns
+    -------
+    CaptureResult
+        Frames planned, written by this run and already done before it, whether the session is complete,
+        the reason a device stopped the run (``None`` otherwise), simulated and wall seconds.
+
+    Raises
+    ------
+    LockedError
+        When another run holds the session's lock.
+    KeyboardInterrupt
+        Re-raised after a ``stop`` event is logged; a device failure does not raise (it stops the run).
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 3, Fig. 2 (two cameras on a programmable rotating table, both
+       exposing at once), Sec. 4.1 (the exposure bracket of every direction), Sec. 5.1, Table 2.
     """
     with directory_lock(session.path, "capture"):
         clean_temp_files(session.path)
@@ -268,7 +309,7 @@ def shoot_sun_bracket(session: Session, plan: Plan, d: Direction, cameras: dict[
 
 def _run_capture_locked(session: Session, head: PanTiltHead, cameras: dict[str, Camera], clock: Clock,
                         policy: RetryPolicy | None,
-                        progress: Callable[[str, int, int], None] | None,
+                        progress: ProgressCallback | None,
                         filters: FilterChanger | None = None) -> CaptureResult:
     policy = policy or RetryPolicy()
     plan = session.plan()

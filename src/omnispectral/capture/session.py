@@ -10,7 +10,7 @@ Layout of a session directory::
       events.jsonl      start / resume / stop / complete events with reasons
       frames/dNNNN/{A,B}_eKK.tif   16-bit raw frames (tifffile), metadata as JSON in the description
                         (camera B only in sessions of two-camera rigs)
-      ground_truth/     simulated sessions only (see omnispectral.capture.simulate)
+      ground_truth/     simulated sessions only (see omnispectral.sim.simulate)
       calibration/      chessboard views for camera B's mounting, once per mounting of the cameras
                         (omnispectral.capture.calviews; not part of the plan: verify and repair leave it alone)
 
@@ -47,11 +47,15 @@ from omnispectral.capture.plan import Plan
 from omnispectral.capture.sourcefiles import decode_source_image
 from omnispectral.errors import InputFileError
 from omnispectral.fingerprint import differences
-from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text, is_temp_name
+from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text, is_temp_name, jsonable
 from omnispectral.limits import check_image_shape
 from omnispectral.locking import LOCK_NAME, directory_lock
 from omnispectral.rig import CAMERA_NAMES, SUN_EXPOSURE_BASE, Rig, rig_from_dict, rig_toml
 from omnispectral.threads import ordered_thread_map
+
+__all__ = ["CALIBRATION_DIR", "CAMERAS", "FORMAT_VERSION", "FRAME_NAME", "JournalReadout", "Session", "decode_frame",
+           "frame_relpath", "half_created_leftovers", "read_journal", "record_key", "referenced_problem", "sha256_of",
+           "sun_bracket_keys", "sun_directions", "utc_now_iso", "verify_session"]
 
 FORMAT_VERSION = 1
 #: The folder of a session's calibration views (:mod:`omnispectral.capture.calviews`).
@@ -87,9 +91,6 @@ def half_created_leftovers(path: Path) -> list[Path] | None:
             return None
     return out
 
-
-def _jsonable(x):
-    return json.loads(json.dumps(x, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
 
 
 def sha256_of(path: Path) -> str:
@@ -200,7 +201,7 @@ class Session:
         meta = {"format": "omnispectral-session", "format_version": FORMAT_VERSION, "kind": kind, "rig": rig.name,
                 "created_utc": utc_now_iso(), "n_frames_planned": s.n_planned(plan, rig.camera_names)}
         if identity is not None:
-            meta["identity"] = _jsonable(identity)
+            meta["identity"] = jsonable(identity)
         meta.update(extra or {})
         atomic_write_json(s.path / "session.json", meta)  # written last: its presence marks a session
         return s
@@ -221,7 +222,7 @@ class Session:
         diffs += [f"rig {d}" for d in differences(old_rig, new_rig)]
         recorded = self.metadata().get("identity")
         if identity is not None and recorded is not None:
-            diffs += differences(recorded, _jsonable(identity))
+            diffs += differences(recorded, jsonable(identity))
         if diffs:
             raise InputFileError(self.path, "was captured with other parameters, resuming would mix frames: "
                                             + "; ".join(diffs[:4]) + (" …" if len(diffs) > 4 else "")

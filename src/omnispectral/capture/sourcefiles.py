@@ -14,6 +14,8 @@ import numpy as np
 from omnispectral.errors import InputFileError
 from omnispectral.imaging.bracket import read_frame
 
+__all__ = ["IMAGE_SUFFIXES", "RAW_SUFFIXES", "decode_source_image", "read_camera_raw"]
+
 #: camera raw files, read through rawpy (LibRaw; the optional ``raw`` extra): DNG and the common makers' formats
 RAW_SUFFIXES = (".dng", ".nef", ".cr2", ".cr3", ".arw", ".orf", ".raf", ".rw2", ".pef")
 IMAGE_SUFFIXES = (".tif", ".tiff", ".png", ".jpg", ".jpeg", *RAW_SUFFIXES)

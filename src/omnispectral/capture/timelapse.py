@@ -20,6 +20,8 @@ from omnispectral.capture.devices import Clock
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.io import atomic_write_json
 
+__all__ = ["INDEX", "parse_hhmm", "parse_interval_s", "run_timelapse", "slot_name", "slot_times"]
+
 INDEX = "series.json"
 
 
@@ -60,6 +62,41 @@ def run_timelapse(series_dir: str | Path, slots: list[_dt.datetime], clock: Cloc
     """Capture every slot that is still to come; returns the index (also written to ``series.json``).
 
     ``capture_slot(session_dir, slot_time)`` runs one capture and returns at least ``{"complete": bool}``.
+
+    Parameters
+    ----------
+    series_dir : str or pathlib.Path
+        The series directory (created if needed): ``series.json`` and one ``slot_HHMM[SS]/`` session per slot.
+    slots : list of datetime.datetime
+        The slot start times (timezone-aware, ascending; :func:`slot_times`); a resumed series must have the
+        same times.
+    clock : Clock
+        The clock the loop waits on (``now``, ``sleep`` in seconds).
+    capture_slot : callable
+        ``capture_slot(session_dir, slot_time) -> dict`` runs one capture; ``"complete"`` (bool) and
+        ``"stopped_reason"`` of its result are recorded.
+    meta : dict, optional
+        Extra fields of a new index (e.g. the rig and the interval).
+    on_slot : callable, optional
+        ``on_slot(entry)`` after each slot's entry is recorded and the index saved.
+
+    Returns
+    -------
+    dict
+        The index: ``slots`` (per slot ``time``, ``session``, ``status`` -- ``complete``, ``incomplete``,
+        ``skipped``, ``missed`` or ``pending`` -- and for captured slots ``started``, ``finished``,
+        ``duration_s`` in seconds and ``reason``), ``n_complete``, ``n_skipped`` and ``meta``'s fields.
+
+    Raises
+    ------
+    InputFileError
+        When ``series.json`` is unreadable or holds other slot times.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 5.3, Fig. 12 (a time-lapse sequence captured from 6:00 to 17:00 at
+       5-min intervals), Table 2 (about 180 s per omnidirectional capture).
     """
     series = Path(series_dir)
     series.mkdir(parents=True, exist_ok=True)

@@ -6,8 +6,13 @@ Every command has ``--help``; commands that report numbers have ``--json``.  Err
 a value or combination of options that makes no sense); 1 the work failed (a missing, unreadable or
 invalid file, a device, a lock, the disk); 130 interrupted.  Progress bars go to standard error, only when
 it is a terminal and ``--quiet`` is not given.  ``--version`` answers before any command module (and
-colour-science, NumPy…) is imported.  Each area of the package registers its commands from its own module
-(``add_commands(subparsers)``).
+colour-science, NumPy…) is imported.
+
+Each area of the package registers its commands from a light module of :mod:`omnispectral.cli.parsers`
+(``add_commands(subparsers)``: argparse and :mod:`omnispectral.choices` only), so ``omnispectral --help`` and
+``omnispectral COMMAND --help`` import nothing heavy.  A command's ``func`` default names the function that runs it,
+``"omnispectral.cli.AREA:cmd_NAME"``; :func:`main` imports that module (and with it the library) only to run the
+command, inside its error handling: a missing optional dependency (:mod:`omnispectral.extras`) is one line, exit 1.
 """
 
 from __future__ import annotations
@@ -15,17 +20,20 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from collections.abc import Callable
 
 from rich.markup import escape
 
 from omnispectral import __version__
 from omnispectral.cli import _common
 from omnispectral.errors import ConfigurationError, InputFileError, OmnispectralError, describe_os_error
+from omnispectral.extras import missing_extra_message
 
 #: Exit status of a command line that is wrong (argparse uses it too) and of work that failed.
 EXIT_USAGE, EXIT_FAILURE = 2, 1
 
-#: Modules of ``omnispectral.cli`` that register sub-commands, in the order ``--help`` lists them.
+#: Modules of ``omnispectral.cli.parsers`` that register sub-commands, in the order ``--help`` lists them (each
+#: command runs in the module of ``omnispectral.cli`` of the same name).
 COMMAND_MODULES = ("spectral", "hdr", "lens", "capture", "register", "simulate", "devices", "importer", "mosaic",
                    "product", "view", "apps")
 
@@ -46,8 +54,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMAND_MODULES:
-        importlib.import_module(f"omnispectral.cli.{name}").add_commands(sub)
+        importlib.import_module(f"omnispectral.cli.parsers.{name}").add_commands(sub)
     return parser
+
+
+def command_function(target: str) -> Callable[[argparse.Namespace], int]:
+    """The function a command's ``func`` default names, ``"module:function"``; its module is imported now."""
+    module, _, name = target.partition(":")
+    return getattr(importlib.import_module(module), name)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -59,12 +73,18 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(words)
     _common.QUIET = bool(getattr(args, "quiet", False))
     try:
-        return args.func(args)
+        return command_function(args.func)(args)  # the command's module is imported here, inside the handlers
     except OmnispectralError as exc:
         _common.err_console.print(f"[bold red]error:[/bold red] {escape(str(exc))}")  # user text is not markup
         return exit_status(exc)
     except OSError as exc:  # disk full, read-only or unwritable output, vanished input: one line, no traceback
         _common.err_console.print(f"[bold red]error:[/bold red] {escape(describe_os_error(exc))}")
+        return EXIT_FAILURE
+    except ModuleNotFoundError as exc:  # an optional dependency (omnispectral.extras) that is not installed
+        message = missing_extra_message(exc)
+        if message is None:
+            raise
+        _common.err_console.print(f"[bold red]error:[/bold red] omnispectral {args.command}: {escape(message)}")
         return EXIT_FAILURE
     except KeyboardInterrupt:
         _common.err_console.print("interrupted")

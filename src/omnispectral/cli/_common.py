@@ -8,6 +8,8 @@ import sys
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+__all__ = ["PIPE_WIDTH", "QUIET", "ProgressBars", "console", "err_console", "print_json", "progress_wanted"]
+
 #: Set by ``main`` from ``--quiet``: no progress bars.
 QUIET = False
 #: Width of tables and text when standard output is not a terminal (a pipe, a file): wide enough that

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
-import math
 import sys
 from pathlib import Path
 
@@ -13,19 +11,20 @@ from rich.table import Table
 from omnispectral.apps.demo import run_demo
 from omnispectral.cli._common import ProgressBars, console, print_json
 from omnispectral.cli.capture import rig_from_args
-from omnispectral.cli.lens import board_arg, calibrate_group, positive_mm_arg
 from omnispectral.errors import ConfigurationError
-from omnispectral.mosaic.interp import METHODS
-from omnispectral.product.exports import FORMATS, export_product
-from omnispectral.product.process import DEFAULT_INTERP, process
+from omnispectral.product.exports import export_product
+from omnispectral.product.layout import read_index
+from omnispectral.product.process import process
 from omnispectral.product.report import write_report
 from omnispectral.product.rigboard import calibrate_chessboard_folder
-from omnispectral.product.rigcal import calibrate_session
+from omnispectral.product.rigsession import calibrate_session
 from omnispectral.product.series import DEFAULT_REGIONS, parse_region, process_series
 from omnispectral.product.spectra import spectrum_at
-from omnispectral.product.sun_methods import SUN_METHODS
 from omnispectral.product.sun_reference import parse_sun_reference
-from omnispectral.rig import PRESETS
+from omnispectral.sim.truth import GroundTruth
+
+__all__ = ["cmd_calibrate_rig", "cmd_demo", "cmd_export", "cmd_process", "cmd_process_series", "cmd_report",
+           "cmd_spectrum"]
 
 
 def cmd_process(args) -> int:
@@ -35,7 +34,8 @@ def cmd_process(args) -> int:
                         hdr_weight=args.hdr_weight, progress=bars, verify_checksums=not args.sizes_only,
                         registration=args.registration, rig_calibration=args.rig_calibration,
                         overwrite=args.overwrite, sun=args.sun, calibration_views=not args.no_calibration_views,
-                        sun_reference=parse_sun_reference(args.sun_reference) if args.sun_reference else None)
+                        sun_reference=parse_sun_reference(args.sun_reference) if args.sun_reference else None,
+                        truth=GroundTruth.of_session(args.session))
     if args.json:
         print_json(index)
         return 0
@@ -133,21 +133,6 @@ def cmd_spectrum(args) -> int:
     return 0
 
 
-def degrees_in(low: float, high: float):
-    """argparse type: a finite angle in ``[low, high]`` degrees (out of range is a usage error, never wrapped)."""
-
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{text!r} is not a number of degrees") from None
-        if not (math.isfinite(value) and low <= value <= high):
-            raise argparse.ArgumentTypeError(f"{text} is outside {low:g}..{high:g} degrees")
-        return value
-
-    return parse
-
-
 def cmd_export(args) -> int:
     out = export_product(args.product, args.format, args.output,
                          tuple(args.region) if args.region else None, args.level, half=args.half)
@@ -165,7 +150,7 @@ def cmd_export(args) -> int:
 
 
 def cmd_report(args) -> int:
-    rep = write_report(args.product)
+    rep = write_report(args.product, truth=GroundTruth.of_session(read_index(args.product)["session"]))
     if args.json:
         print_json(rep["report"])
     else:
@@ -237,7 +222,8 @@ def cmd_demo(args) -> int:
 def cmd_process_series(args) -> int:
     regions = dict(parse_region(r) for r in args.region) if args.region else dict(DEFAULT_REGIONS)
     with ProgressBars(enabled=not args.json) as bars:
-        out = process_series(args.series, args.output, regions, progress=bars, rig_calibration=args.rig_calibration)
+        out = process_series(args.series, args.output, regions, progress=bars, rig_calibration=args.rig_calibration,
+                             truth_of=GroundTruth.of_session)
     if args.json:
         print_json(out)
     else:
@@ -287,138 +273,3 @@ def cmd_calibrate_rig(args) -> int:
     console.print(f"Written: {args.output} (use: omnispectral process SESSION -o PRODUCT --rig-calibration "
                   f"{args.output})")
     return 0
-
-
-def add_commands(sub) -> None:
-    """Register ``process``, ``process-series``, ``spectrum``, ``export``, ``report``, ``demo`` and
-    ``calibrate rig``."""
-
-    c = calibrate_group(sub).add_parser(
-        "rig", help="camera B's mounting relative to camera A, from a session's images or from chessboard pairs",
-        description="Fits camera B's rotation relative to A. From a SESSION: block correspondences of every "
-                    "direction (residuals across the epipolar lines; the farthest content taken to be at infinity, "
-                    "so B's yaw is only as good as that content is far). From --chessboard DIR: pairs of images of "
-                    "a chessboard both cameras saw at once (DIR/A/NAME and DIR/B/NAME; stereo calibration with the "
-                    "rig file's lenses), which fixes the yaw too. The file is reused with "
-                    "'process --rig-calibration'.")
-    c.add_argument("session", metavar="SESSION", nargs="?", default=None)
-    c.add_argument("-o", "--output", required=True, metavar="FILE.json")
-    c.add_argument("--work", default=None, metavar="DIR", help="keep the merged directions here (default: temporary)")
-    c.add_argument("--chessboard", default=None, metavar="DIR",
-                   help="chessboard pairs in DIR/A and DIR/B (same file names), e.g. from simulate-chessboard")
-    c.add_argument("--board", type=board_arg, default=None, metavar="COLSxROWS",
-                   help="inner corners of the chessboard (default: DIR/board.json)")
-    c.add_argument("--square-mm", type=positive_mm_arg, default=None, metavar="S",
-                   help="square side in mm (default: DIR/board.json)")
-    c.add_argument("--refine-baseline", action="store_true",
-                   help="fit B's baseline too (default: the rig file's; the fit's spread grows)")
-    g = c.add_mutually_exclusive_group()
-    g.add_argument("--preset", choices=PRESETS, default=None, help="with --chessboard: a built-in rig (default: "
-                                                                   "DIR/rig.toml)")
-    g.add_argument("--rig", default=None, metavar="FILE.toml", help="with --chessboard: the rig file (default: "
-                                                                   "DIR/rig.toml)")
-    c.add_argument("--json", action="store_true", help="print the calibration as JSON")
-    c.set_defaults(func=cmd_calibrate_rig)
-
-    p = sub.add_parser("process", help="a capture session into an HDR six-band panorama with its estimator",
-                       description="HDR merge per direction and camera; camera B's mounting from --rig-calibration, "
-                                   "else the chessboard views recorded with the session (SESSION/calibration/), else "
-                                   "fitted from the session's own images (then a warning says, per direction, how "
-                                   "far off far content may be), and per-pixel parallax (or the paper's one POC "
-                                   "offset per direction); mosaic into a six-band Zarr panorama with a "
-                                   "registration-quality layer; Wiener estimator attached; report. Resumable.")
-    p.add_argument("session", metavar="SESSION")
-    p.add_argument("-o", "--output", required=True, metavar="PRODUCT", help="product directory")
-    p.add_argument("--width", type=int, default=None, help="panorama width in px (default: the sensor's resolution)")
-    p.add_argument("--tile", type=int, default=None, help="tile side in px")
-    p.add_argument("--interp", default=DEFAULT_INTERP, choices=METHODS,
-                   help=f"interpolation (default {DEFAULT_INTERP}: no overshoot on small targets; also the "
-                        f"default of 'mosaic')")
-    p.add_argument("--hdr-weight", default="noise", choices=["noise", "triangle"],
-                   help="HDR weight (default inverse variance; 'triangle' is the paper's Eq. (2))")
-    p.add_argument("--registration", default="parallax", choices=["parallax", "paper"],
-                   help="camera B to A: rig calibration + per-pixel parallax (default), or the paper's one POC "
-                        "offset per direction")
-    p.add_argument("--rig-calibration", default=None, metavar="FILE.json",
-                   help="camera B's mounting from 'omnispectral calibrate rig' (default: from the chessboard views "
-                        "in SESSION/calibration/, or the series' for a time-lapse slot, fitted once and cached there; "
-                        "without views, fitted from this session's own images)")
-    p.add_argument("--no-calibration-views", action="store_true",
-                   help="fit camera B's mounting from this session's own images even where chessboard views are")
-    p.add_argument("--sun", default="auto", choices=list(SUN_METHODS),
-                   help="how the saturated sun is recovered: auto (the attenuated bracket when the session has "
-                        "one, else the diffuse reference if given, else the clear-sky model), nd-bracket, "
-                        "diffuse-reference, sky-model (a model estimate fitted to the sky), or none (keep the "
-                        "lower bound)")
-    p.add_argument("--sun-reference", default=None, metavar="LON,LAT[,normal=AZ/EL][,reflectance=R|FILE.csv]",
-                   help="a white or grey target lit by the sun, where it is in the panorama (degrees; a negative "
-                        "longitude as --sun-reference=-20,-45); default a horizontal target of reflectance 0.95")
-    p.add_argument("--min-confidence", type=float, default=None, help="with --registration paper: POC confidence "
-                                                                      "below which the calibrated offset is used")
-    p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="Dask distributed scheduler address")
-    p.add_argument("--skip-bad", action="store_true",
-                   help="leave out directions with missing or damaged frames instead of stopping")
-    p.add_argument("--verify-checksums", action="store_true",
-                   help="check every frame's SHA-256 and decode it first (the default; kept for old scripts)")
-    p.add_argument("--sizes-only", action="store_true",
-                   help="check frame sizes against the journal only (faster; a same-size corrupted frame is missed)")
-    p.add_argument("--overwrite", action="store_true",
-                   help="rebuild a product whose intermediates were made from other inputs or settings")
-    p.add_argument("--json", action="store_true", help="print the product index as JSON")
-    p.set_defaults(func=cmd_process)
-
-    ps = sub.add_parser("process-series", help="process a time-lapse series; region spectra over the day",
-                        description="Process every complete slot of a time-lapse series, stack the panoramas in "
-                                    "time and estimate the spectral power distribution of regions (sky, a wall) at "
-                                    "every time (paper Fig. 13) as JSON and PNG.")
-    ps.add_argument("series", metavar="SERIES")
-    ps.add_argument("-o", "--output", required=True, metavar="OUT")
-    ps.add_argument("--rig-calibration", default=None, metavar="FILE.json",
-                    help="camera B's mounting for every slot (default: the series' chessboard views in "
-                         "SERIES/calibration/, else fitted on the first slot and reused)")
-    ps.add_argument("--region", action="append", default=None, metavar="NAME:LON0,LON1,LAT0,LAT1",
-                    help="region to analyse (repeat; default: sky 45-75° and ground -75 to -45° all around)")
-    ps.add_argument("--json", action="store_true")
-    ps.set_defaults(func=cmd_process_series)
-
-    s = sub.add_parser("spectrum", help="the estimated spectrum at a direction of a product",
-                       description="Six bands, Wiener spectrum and its posterior std at a longitude/latitude.")
-    s.add_argument("product", metavar="PRODUCT")
-    s.add_argument("--lon", type=degrees_in(-180, 180), required=True, help="longitude in degrees (-180..180, 0 = +Z)")
-    s.add_argument("--lat", type=degrees_in(-90, 90), required=True, help="latitude in degrees (-90..90)")
-    s.add_argument("--level", type=int, default=0, help="pyramid level")
-    fmt = s.add_mutually_exclusive_group()
-    fmt.add_argument("--json", action="store_true")
-    fmt.add_argument("--csv", action="store_true",
-                     help="print CSV: one row per wavelength (wavelength_nm, spectrum, std: the posterior σ)")
-    s.set_defaults(func=cmd_spectrum)
-
-    e = sub.add_parser("export", help="standard files from a product",
-                       description="Spectral OpenEXR (Fichet 2021), ENVI, linear RGB EXR / Radiance HDR for "
-                                   "image-based lighting, sRGB PNG/JPEG preview, uncertainty map; by region or level.")
-    e.add_argument("product", metavar="PRODUCT")
-    e.add_argument("--format", required=True, choices=FORMATS)
-    e.add_argument("-o", "--output", required=True, metavar="FILE")
-    e.add_argument("--region", type=int, nargs=4, default=None, metavar=("ROW0", "ROW1", "COL0", "COL1"),
-                   help="pixel window of the chosen level")
-    e.add_argument("--level", type=int, default=0, help="pyramid level (0 = full size)")
-    e.add_argument("--half", action="store_true", help="spectral EXR in 16-bit floats (half the size)")
-    e.add_argument("--json", action="store_true")
-    e.set_defaults(func=cmd_export)
-
-    r = sub.add_parser("report", help="(re)write the report of a product",
-                       description="Preview, timings, registration per direction and, for simulated sessions, "
-                                   "accuracy against the ground truth (JSON + HTML).")
-    r.add_argument("product", metavar="PRODUCT")
-    r.add_argument("--json", action="store_true")
-    r.set_defaults(func=cmd_report)
-
-    d = sub.add_parser("demo", help="simulate, process, export and report in one go",
-                       description="Simulate the paper's time-lapse geometry on the procedural scene (reduced "
-                                   "sensor unless --full), process it, export, and print the accuracy table.")
-    d.add_argument("-o", "--output", "--out", dest="out", default="demo-output",
-                   help="output directory (default demo-output/)")
-    d.add_argument("--full", action="store_true", help="the paper's full scale (2048×1088 sensors)")
-    d.add_argument("--time", default="12:00", metavar="HH:MM", help="time of day of the scene")
-    d.add_argument("--seed", type=int, default=0)
-    d.set_defaults(func=cmd_demo)

@@ -40,6 +40,9 @@ with warnings.catch_warnings():  # colour-demosaicing 0.2.7 imports from scipy.n
 
 from omnispectral.errors import ConfigurationError
 
+__all__ = ["CFA_PATTERNS", "DEMOSAIC_METHODS", "ORDERS", "channel_index", "check_pattern", "correct_raw", "demosaic",
+           "mosaic"]
+
 CFA_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
 DEMOSAIC_METHODS = ("menon2007", "malvar2004", "bilinear", "opencv-ea")
 #: ``merge-first``: HDR merge on the mosaic, demosaic once; ``demosaic-first``: demosaic every frame, then merge.

@@ -31,6 +31,11 @@ from omnispectral.imaging.response import CameraResponse, recover_response
 from omnispectral.io import atomic_path
 from omnispectral.limits import check_bit_depth, check_exposure_times, check_image_header
 
+__all__ = ["EXIF_EXPOSURE_TIME", "EXIF_IFD_POINTER", "EXPOSURE_RATIO_TOLERANCE", "FLOAT_IMAGE_SUFFIXES", "Bracket",
+           "ExposureMismatch", "auto_weight", "exif_exposure_s", "exposure_time_mismatches", "exposure_times_for",
+           "guess_bit_depth", "load_bracket", "measured_exposure_ratio", "merge_bracket", "parse_exposure_s",
+           "read_frame", "read_times_list", "write_float_image"]
+
 #: EXIF tag numbers (EXIF 2.32, CIPA DC-008): the Exif sub-IFD pointer and ExposureTime in it.
 EXIF_IFD_POINTER = 0x8769
 EXIF_EXPOSURE_TIME = 0x829A
@@ -250,7 +255,29 @@ def guess_bit_depth(frames: Sequence[np.ndarray]) -> int:
 
 def auto_weight(bracket: Bracket, response: str | CameraResponse) -> str:
     """The HDR weight that ``auto`` stands for: the paper's triangle (Eq. (2)) for linear raw frames, and the
-    inverse-variance weight (``noise``) for 8-bit frames that go through a recovered or given response."""
+    inverse-variance weight (``noise``) for 8-bit frames that go through a recovered or given response.
+
+    Parameters
+    ----------
+    bracket : Bracket
+        The frames; their dtype decides (8-bit codes, or raw frames of more bits).
+    response : str or CameraResponse
+        ``"linear"``, another response name (e.g. ``"auto"``: recovered for 8-bit frames), or a response.
+
+    Returns
+    -------
+    str
+        ``"noise"`` for 8-bit frames with a response other than ``"linear"``, else ``"triangle"``.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Eqs. (1)-(2) (the HDR merge and its triangle weight).
+    .. [2] M. Granados et al., "Optimal HDR reconstruction with linear digital cameras", CVPR 2010 (the
+       inverse-variance weight).
+    .. [3] P. E. Debevec, J. Malik, "Recovering High Dynamic Range Radiance Maps from Photographs", SIGGRAPH 1997
+       (the response of 8-bit frames).
+    """
     linear = isinstance(response, str) and response == "linear"
     return "noise" if bracket.dtype.itemsize == 1 and not linear else "triangle"
 

@@ -70,6 +70,11 @@ from scipy.optimize import brentq
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.io import atomic_write_json, read_text_file
 
+__all__ = ["DIST_LENGTHS", "DIST_NAMES", "HEAD_TO_WORLD_AT_ZERO", "JSON_FORMAT", "JSON_VERSION",
+           "UNDISTORT_ACCEPT_TOL", "UNDISTORT_TOL", "CameraModel", "Mounting", "equirect_pixel_to_lonlat",
+           "head_rotation", "lonlat_to_equirect_pixel", "lonlat_to_ray", "monotonic_radius", "native_width",
+           "ray_to_lonlat", "rot_x", "rot_y", "rot_z", "tilt_matrix", "wrap_lon_deg"]
+
 #: Names of OpenCV's distortion coefficients, in OpenCV's order.
 DIST_NAMES = ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6", "s1", "s2", "s3", "s4", "tau_x", "tau_y")
 #: Vector lengths OpenCV accepts for ``distCoeffs``.
@@ -373,23 +378,39 @@ def monotonic_radius(dist, n_azimuth: int = 180, n_radius: int = 3000) -> float:
 class CameraModel:
     """A calibrated camera: OpenCV pinhole + distortion model, plus its mounting on the head.
 
-    Parameters
-    ----------
-    width, height
-        Image size in pixels.
-    fx, fy, cx, cy
-        Focal lengths and principal point in pixels (OpenCV's camera matrix, no skew).
-    dist
-        OpenCV distortion coefficients ``k1 k2 p1 p2 [k3 [k4 k5 k6 [s1 s2 s3 s4 [τx τy]]]]``
-        (length 0, 4, 5, 8, 12 or 14; see :data:`DIST_NAMES`).
-    mounting
-        Placement on the pan/tilt head (:class:`Mounting`).
-
     Maps pixel ↔ ray in the camera frame (:meth:`project`, :meth:`unproject`) and in the world
     frame for a head direction (:meth:`world_to_pixel`, :meth:`pixel_to_world`,
     :meth:`world_points_to_pixel`).  Forward maps return ``(values, valid)``; invalid entries are
     NaN.  The paper corrects lens distortion with a model from Zhang's method (Sec. 4.2); this is
     that model, in OpenCV's parametrisation so calibrations interoperate.
+
+    Parameters
+    ----------
+    width, height : int
+        Image size in pixels.
+    fx, fy, cx, cy : float
+        Focal lengths and principal point in pixels (OpenCV's camera matrix, no skew).
+    dist : tuple of float
+        OpenCV distortion coefficients ``k1 k2 p1 p2 [k3 [k4 k5 k6 [s1 s2 s3 s4 [τx τy]]]]``
+        (length 0, 4, 5, 8, 12 or 14; see :data:`DIST_NAMES`).
+    mounting : Mounting
+        Placement on the pan/tilt head (:class:`Mounting`).
+
+    Raises
+    ------
+    ConfigurationError
+        For a size that is not a positive integer, non-finite or non-positive focal lengths, a non-finite
+        principal point, distortion coefficients of another length or not finite, or a ``mounting`` that is
+        not a :class:`Mounting`.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 4.2 (lens distortion measured by Zhang's method), Sec. 3, Fig. 2
+       (the two cameras mounted on the rotating table, turned by 90 degrees).
+    .. [2] Z. Zhang, "A flexible new technique for camera calibration", IEEE TPAMI 22(11):1330-1334, 2000.
+    .. [3] "Camera Calibration and 3D Reconstruction", OpenCV documentation (the pinhole and distortion
+       model and its coefficients).
     """
 
     width: int

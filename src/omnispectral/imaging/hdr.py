@@ -35,7 +35,7 @@ per-exposure float64 image is ever formed.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -44,11 +44,36 @@ from scipy import ndimage
 
 from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.response import CameraResponse
+from omnispectral.imaging.weights import triangle_weight
 from omnispectral.limits import check_exposure_times
 from omnispectral.spectral.noise import CMV2000, SensorNoiseModel
 from omnispectral.threads import kernel_threads
 
-WEIGHTS = ("triangle", "noise")
+__all__ = ["WEIGHTS", "HDRResult", "HDRWeight", "merge_exposures"]
+
+#: The weights of :func:`merge_exposures`.
+@dataclass(frozen=True)
+class HDRWeight:
+    """One weight of Eq. (1): ``of(model, k, codes, variance)`` gives each pixel's weight in exposure ``k``;
+    ``inverse_variance``: the weights are inverse variances of ``I/t``, so the merged variance is ``1 / Σw``
+    (else it is propagated from the codes' variances)."""
+
+    of: Callable
+    inverse_variance: bool
+
+
+def _triangle(model, k: int, x: np.ndarray, var: np.ndarray) -> np.ndarray:
+    return triangle_weight(x, model.bit_depth)
+
+
+def _inverse_variance(model, k: int, x: np.ndarray, var: np.ndarray) -> np.ndarray:
+    return np.float32(model.times[k] ** 2) / var
+
+
+#: The HDR merge's weights by name: ``"triangle"`` (the paper's Eq. (2)), ``"noise"`` (inverse variance,
+#: Granados et al. 2010).
+WEIGHTS = {"triangle": HDRWeight(_triangle, inverse_variance=False),
+           "noise": HDRWeight(_inverse_variance, inverse_variance=True)}
 
 
 @dataclass(frozen=True)
@@ -65,13 +90,6 @@ class HDRResult:
     def valid(self) -> np.ndarray:
         """True where at least one exposure was usable (neither saturated everywhere nor dark everywhere)."""
         return ~(self.saturated | self.dark)
-
-
-def triangle_weight(dn: np.ndarray, bit_depth: int) -> np.ndarray:
-    """Eq. (2) generalised to ``bit_depth``: rises from 0 to mid-range, falls to 0 at full scale."""
-    top = float((1 << bit_depth) - 1)
-    dn = dn.astype(np.float32, copy=False)
-    return np.minimum(dn, top - dn).clip(0.0)
 
 
 def _check_inputs(frames: Sequence[np.ndarray], exposure_s: Sequence[float], bit_depth: int):
@@ -124,11 +142,8 @@ class _Model:
         return x, np.take(self.lin_table, idx), np.take(self.var_table, idx)
 
     def weight_of(self, k: int, x: np.ndarray, var: np.ndarray) -> np.ndarray:
-        """Eq. (2) weight (triangle) or inverse variance of ``I/t`` (noise), zero where saturated."""
-        if self.weight == "triangle":
-            w = np.minimum(x, np.float32(self.top) - x)
-        else:
-            w = np.float32(self.times[k] ** 2) / var
+        """The weight of :data:`WEIGHTS` ``[self.weight]`` (Eq. (2) or inverse variance), zero where saturated."""
+        w = WEIGHTS[self.weight].of(self, k, x, var)
         w *= (x < np.float32(self.saturation_dn)) & (x > 0)
         return w
 
@@ -165,7 +180,7 @@ def _merge_rows(model: _Model, frames: list[np.ndarray], rows: slice):
         inv_t = np.float32(1.0 / model.times[k])
         if num is None:
             num, den = np.zeros_like(x), np.zeros_like(x)
-            vnum = np.zeros_like(x) if model.weight == "triangle" else None
+            vnum = None if WEIGHTS[model.weight].inverse_variance else np.zeros_like(x)
         den += w
         lin *= inv_t  # in place: for a linear sensor ``lin`` is ``x``, which is not used after the weight
         num += w * lin
@@ -227,7 +242,8 @@ def _fused_kernel():
                     for i in range(n):
                         x = np.float32(f[i])
                         v = x * var_a + var_b
-                        w = min(x, top - x) if (x < sat) & (x > zero) else zero
+                        # triangle_weight, inline
+                        w = max(min(x, top - x), zero) if (x < sat) & (x > zero) else zero
                         den[i] += w
                         num[i] += w * (x * it)
                         vnum[i] += w * w * v * it2
@@ -298,7 +314,7 @@ def _merge_rows_fused(model: _Model, flat_frames, shape: tuple[int, int, int], r
         saturated = dark = np.empty(0, bool)
     _FUSED["kernel"](flat_frames, lo, hi, (1.0 / model.times).astype(np.float32),
                      (model.times**2).astype(np.float32), np.float32(model.top), np.float32(model.saturation_dn),
-                     np.float32(model.var_a), np.float32(model.var_b), model.weight == "triangle",
+                     np.float32(model.var_a), np.float32(model.var_b), not WEIGHTS[model.weight].inverse_variance,
                      float(model.saturation_dn), extremes[0], extremes[1], rad, var, den, saturated, dark)
     shape = (r1 - r0, w, c)
     return rad.reshape(shape), var.reshape(shape), den.reshape(shape)
@@ -395,6 +411,9 @@ def merge_exposures(frames: Sequence[np.ndarray], exposure_s: Sequence[float], b
         N raw frames, each ``(H, W)`` or ``(H, W, C)``, unsigned integers with ``bit_depth`` bits.
     exposure_s
         Exposure time of each frame in seconds (> 0).
+    bit_depth : int
+        Bits per code, 1-16 (default 12, the paper's cameras); sets the triangle weight's full scale
+        ``M = 2^bits - 1`` and the default saturation.
     weight
         ``"triangle"`` (paper) or ``"noise"`` (inverse variance, Granados et al. 2010).
     noise
@@ -409,6 +428,13 @@ def merge_exposures(frames: Sequence[np.ndarray], exposure_s: Sequence[float], b
         relative tolerance ``ghost_rel_tol``) from the ``reference`` exposure (default: the middle
         one by exposure time) and the exposures consistent with it; such pixels are flagged in
         ``ghost`` (dilated by one pixel).
+    reference : int, optional
+        Index (in ``frames``) of the reference exposure of ``deghost``; default the middle one by exposure time.
+    ghost_z : float
+        Disagreement, in standard deviations of ``I_k/t_k - I``, above which a pixel is a ghost (default 5).
+    ghost_rel_tol : float
+        Relative model error, a fraction of the merged radiance, added in quadrature to that standard deviation
+        (default 5 %).
     chunk_rows, workers
         Rows per work unit and threads (default :func:`omnispectral.threads.kernel_threads`: the
         usable cores, one inside another thread pool such as a Dask worker).
@@ -418,9 +444,26 @@ def merge_exposures(frames: Sequence[np.ndarray], exposure_s: Sequence[float], b
     HDRResult
         ``radiance`` float32 ``(H, W, C)`` in DN/s (or response units per second), ``variance`` of
         it, ``saturated`` / ``dark`` flags and, with ``deghost``, the ``ghost`` mask ``(H, W)``.
+
+    Raises
+    ------
+    ConfigurationError
+        For an unknown weight, no frames, a count of exposure times other than the frames', a time that is
+        not positive, a bit depth outside 1-16, frames of different shapes or not integer, or a
+        ``reference`` outside the bracket.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 4.1, Eqs. (1)-(2) (the HDR merge and its triangle weight; ghost removal
+       left as future work, Sec. 7).
+    .. [2] P. E. Debevec, J. Malik, "Recovering High Dynamic Range Radiance Maps from Photographs", SIGGRAPH 1997
+       (the method the paper adopts; the response of non-linear frames).
+    .. [3] M. Granados et al., "Optimal HDR reconstruction with linear digital cameras", CVPR 2010 (the
+       inverse-variance weight ``"noise"``).
     """
     if weight not in WEIGHTS:
-        raise ConfigurationError(f"unknown weight {weight!r}; expected one of {WEIGHTS}")
+        raise ConfigurationError(f"unknown weight {weight!r}; expected one of {', '.join(WEIGHTS)}")
     times = _check_inputs(frames, exposure_s, bit_depth)
     frames = [np.ascontiguousarray(f if np.ndim(f) == 3 else np.asarray(f)[..., None]) for f in frames]
     h, w, c = frames[0].shape

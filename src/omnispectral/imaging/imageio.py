@@ -22,6 +22,8 @@ import tifffile
 
 from omnispectral.errors import InputFileError
 
+__all__ = ["decode_with_opencv", "read_exr", "read_image"]
+
 #: Channel order used when an EXR file stores named channels.
 _EXR_ORDER = ("R", "G", "B", "A", "Y")
 

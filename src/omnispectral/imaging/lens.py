@@ -32,22 +32,23 @@ import cv2
 import numpy as np
 from PIL import Image, UnidentifiedImageError
 
+from omnispectral.choices import DEFAULT_SUBPIX_WINDOW, DETECTORS, LENS_MODEL_NAMES, MIN_IMAGES
 from omnispectral.errors import ConfigurationError, InputFileError, OmnispectralError
 from omnispectral.imaging.geometry import CameraModel
 
-#: Distortion models offered: name → (``cv2.calibrateCamera`` flags, number of coefficients).
-MODELS = {
-    "standard": (0, 5),  # k1 k2 p1 p2 k3
-    "rational": (cv2.CALIB_RATIONAL_MODEL, 8),  # + k4 k5 k6
-    "thin-prism": (cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL, 12),  # + s1..s4
-}
-DETECTORS = ("auto", "classic", "sb")
-#: Fewest views with a detected board that calibration accepts (Zhang 2000 needs ≥ 3 for a general K).
-MIN_IMAGES = 3
+__all__ = ["DEFAULT_SUBPIX_WINDOW", "DETECTORS", "MIN_IMAGES", "MODELS", "SUBPIX_WINDOW_PX", "BoardView",
+           "CalibrationError", "LensCalibration", "board_object_points", "calibrate_lens", "check_board",
+           "find_board", "parse_board", "read_gray8"]
+
+#: Distortion models offered: name (:data:`~omnispectral.choices.LENS_MODEL_NAMES`, in that order) →
+#: (``cv2.calibrateCamera`` flags, number of coefficients).
+MODELS = dict(zip(LENS_MODEL_NAMES, (
+    (0, 5),  # standard: k1 k2 p1 p2 k3
+    (cv2.CALIB_RATIONAL_MODEL, 8),  # rational: + k4 k5 k6
+    (cv2.CALIB_RATIONAL_MODEL | cv2.CALIB_THIN_PRISM_MODEL, 12),  # thin-prism: + s1..s4
+), strict=True))
 #: OpenCV tutorial's ``cornerSubPix`` half-window (the largest "auto" uses) and termination criteria.
 SUBPIX_WINDOW_PX = 11
-#: Default ``subpix_window_px``: "auto" (adapted to the corner spacing) or an int (11 = OpenCV's pipeline).
-DEFAULT_SUBPIX_WINDOW: int | str = "auto"
 _SUBPIX_CRITERIA = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 30, 0.001)
 _CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE | cv2.CALIB_CB_FAST_CHECK
 _SB_FLAGS = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
@@ -81,14 +82,6 @@ class LensCalibration:
     views: tuple[BoardView, ...]
     rejected: tuple[tuple[Path, str], ...]
     warnings: tuple[str, ...] = ()
-
-    @property
-    def images_used(self) -> list[Path]:
-        return [v.path for v in self.views]
-
-    @property
-    def images_rejected(self) -> list[Path]:
-        return [p for p, _ in self.rejected]
 
     def to_dict(self) -> dict[str, Any]:
         """The camera (:meth:`CameraModel.to_dict`) plus RMS, board and the images used and rejected."""
@@ -224,26 +217,51 @@ def calibrate_lens(paths: Iterable[str | Path], board: tuple[int, int], square_m
                    subpix_window_px: int | str = DEFAULT_SUBPIX_WINDOW) -> LensCalibration:
     """Calibrate a lens from chessboard images with Zhang's method (OpenCV ``calibrateCamera``).
 
+    Images where the board is not found are listed in ``rejected``, not fatal.  Unreadable
+    files raise :class:`InputFileError`; images of another size than the first raise it too.
+
     Parameters
     ----------
-    paths
+    paths : iterable of str or pathlib.Path
         Image files, all from one camera at one resolution.
-    board
+    board : tuple of int
         Inner corners ``(cols, rows)``, e.g. ``(9, 6)`` for OpenCV's sample board.
-    square_mm
-        Side of a square; sets the unit of the board poses (intrinsics do not depend on it).
-    model
+    square_mm : float
+        Side of a square (mm); sets the unit of the board poses (intrinsics do not depend on it).
+    model : str
         ``"standard"`` (k1 k2 p1 p2 k3), ``"rational"`` (+ k4 k5 k6) or ``"thin-prism"`` (+ s1..s4).
-    detector
+    detector : str
         ``"auto"`` (classic detector, sector-based as fallback), ``"classic"`` or ``"sb"``.
-    min_images
-        Fewest images with a detected board; fewer raise :class:`CalibrationError`.
-    subpix_window_px
+    min_images : int
+        Fewest images with a detected board (at least 3); fewer raise :class:`CalibrationError`.
+    subpix_window_px : int or "auto"
         ``cornerSubPix`` half-window: ``"auto"`` (default, ``min(11, 0.4 × corner spacing)``) or
         pixels (11 reproduces OpenCV's tutorial pipeline exactly); see the module docstring.
 
-    Images where the board is not found are listed in ``rejected``, not fatal.  Unreadable
-    files raise :class:`InputFileError`; images of another size than the first raise it too.
+    Returns
+    -------
+    LensCalibration
+        The :class:`~omnispectral.imaging.geometry.CameraModel` (intrinsics in pixels, distortion
+        coefficients of ``model``), the overall reprojection RMS (px), the board, the views used (each with
+        its pose and RMS), the images rejected and warnings (a distortion that folds inside the image).
+
+    Raises
+    ------
+    ConfigurationError
+        For no images, an invalid board, a square size that is not positive, an unknown model, ``min_images``
+        below 3 or an invalid ``subpix_window_px``.
+    InputFileError
+        For an unreadable image or one of another size than the first.
+    CalibrationError
+        When fewer than ``min_images`` images show the board.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 4.2 (lens distortion measured by Zhang's method in advance).
+    .. [2] Z. Zhang, "A flexible new technique for camera calibration", IEEE TPAMI 22(11):1330-1334, 2000.
+    .. [3] "Camera calibration With OpenCV", OpenCV tutorial (the detection, corner refinement and
+       ``calibrateCamera`` pipeline).
     """
     paths = [Path(p) for p in paths]
     if not paths:

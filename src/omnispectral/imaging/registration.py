@@ -48,9 +48,12 @@ Beyond the paper:
   the square root) is insensitive to contrast reversal between colour bands.
 - **Fallback** to the rig's calibrated offset when the confidence is low (texture-less sky):
   :func:`register_with_fallback`.
-- **Block-wise POC** (:func:`block_disparity`): a coarse dense disparity map of camera B against
-  camera A, with confidence, an unreliable mask and an occlusion mask (the paper's named open
-  problem, near objects and occlusion).
+- **Block-wise POC** (:func:`omnispectral.imaging.blockpoc.block_disparity`, in its own module): a
+  coarse dense disparity map of camera B against camera A, with confidence, an unreliable mask and an
+  occlusion mask (the paper's named open problem, near objects and occlusion).  It batches this
+  module's building blocks over blocks: :func:`check_poc_options`, :func:`check_image_pair`,
+  :func:`prepare_for_poc`, :func:`fade_saturated`, :func:`apply_window` and :func:`poc_shift`
+  (band spectra, :func:`band_limited_poc` -- Eq. (3) -- and :func:`fit_peak`).
 
 Sign convention
 ---------------
@@ -75,16 +78,19 @@ import numpy as np
 import scipy.fft as sfft
 from scipy import ndimage
 
+from omnispectral.choices import DEFAULT_BAND_LIMIT, DEFAULT_MIN_CONFIDENCE, DEFAULT_PREPROCESS, PREPROCESS, WINDOWS
 from omnispectral.errors import ConfigurationError
 from omnispectral.threads import single_threaded_blas
 
-WINDOWS = ("hann", "tukey", "none")
-PREPROCESS = ("sqrt", "none", "log", "gradient")
+__all__ = [
+    "AUTO_SATURATION_MIN_PX", "COARSE_MIN_SIZE_PX", "DEFAULT_BAND_LIMIT", "DEFAULT_FIT_RADIUS",
+    "DEFAULT_MIN_CONFIDENCE", "DEFAULT_PREPROCESS", "DEFAULT_REFINE", "DEFAULT_UPSAMPLE", "DEFAULT_WINDOW",
+    "MIN_SIZE_PX", "PREPROCESS",
+    "SPECTRAL_WEIGHT_POWER", "WINDOWS", "Registration", "apply_window", "as_gray", "band_limited_poc", "band_size",
+    "check_image_pair", "check_poc_options", "fade_saturated", "fit_peak", "phase_correlate", "poc_shift",
+    "prepare_for_poc", "preprocess_image", "register_with_fallback", "saturation_mask", "window_1d", "window_2d",
+]
 
-#: Fraction of Nyquist kept in each axis (Takita et al.'s ``K/M``), chosen by benchmark
-#: (``benchmarks/bench_registration.py``; docs/benchmarks.md).
-DEFAULT_BAND_LIMIT = 0.75
-DEFAULT_PREPROCESS = "sqrt"
 DEFAULT_WINDOW = "hann"
 #: Oversampling of the band-limited correlation grid (``M / L``) on which the peak model is fitted.
 DEFAULT_UPSAMPLE = 1.25
@@ -96,13 +102,6 @@ DEFAULT_REFINE = 1
 SPECTRAL_WEIGHT_POWER = 0.5
 #: Images at least this large get the first pass on 2 x 2-binned pixels (4x fewer FFT samples).
 COARSE_MIN_SIZE_PX = 512
-
-#: Peak height below which a whole-image registration is not trusted and the calibrated offset is
-#: used instead.  Measured (docs/benchmarks.md, "Registration"): pure CMV2000 noise peaks at 0.03-0.04
-#: (256 px) and 0.01 (1024 px); textured crops of real panoramas give 0.3-0.99.  Images smaller than
-#: about 128 px have higher noise peaks: raise the threshold there (see
-#: ``imaging.disparity.DEFAULT_BLOCK_MIN_CONFIDENCE``).
-DEFAULT_MIN_CONFIDENCE = 0.15
 
 #: Smallest image side accepted (below this a Hann window leaves almost nothing).
 MIN_SIZE_PX = 8
@@ -170,7 +169,24 @@ def as_gray(image, name: str = "image") -> np.ndarray:
     return arr
 
 
-def _check_pair(reference, moving) -> tuple[np.ndarray, np.ndarray]:
+def check_image_pair(reference, moving) -> tuple[np.ndarray, np.ndarray]:
+    """Check that a reference and a moving image have the same size (rows, columns).
+
+    Parameters
+    ----------
+    reference, moving
+        ``(H, W)`` or ``(H, W, C)`` array-likes.
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        Both images as arrays (not copied).
+
+    Raises
+    ------
+    ConfigurationError
+        When their first two dimensions differ.
+    """
     ref = np.asarray(reference)
     mov = np.asarray(moving)
     if ref.shape[:2] != mov.shape[:2]:
@@ -179,7 +195,27 @@ def _check_pair(reference, moving) -> tuple[np.ndarray, np.ndarray]:
     return ref, mov
 
 
-def _check_options(window: str, band_limit: float, upsample: float, preprocess: str, fit_radius: int) -> None:
+def check_poc_options(window: str, band_limit: float, upsample: float, preprocess: str, fit_radius: int) -> None:
+    """Check the options of the band-limited POC (shared by :func:`phase_correlate` and block-wise POC).
+
+    Parameters
+    ----------
+    window
+        One of :data:`WINDOWS`.
+    band_limit
+        Fraction of Nyquist kept in each axis, in ``(0, 1]``.
+    upsample
+        Oversampling of the band-limited correlation grid, in ``[1, 8]``.
+    preprocess
+        One of :data:`PREPROCESS`.
+    fit_radius
+        Half size of the peak-fit neighbourhood, an integer in ``1..4``.
+
+    Raises
+    ------
+    ConfigurationError
+        For a value outside these ranges.
+    """
     if window not in WINDOWS:
         raise ConfigurationError(f"unknown window {window!r}; choose one of {', '.join(WINDOWS)}")
     if preprocess not in PREPROCESS:
@@ -221,8 +257,24 @@ def saturation_mask(image, saturation: float | str | None = None) -> np.ndarray 
     return mask
 
 
-def _fade_saturated(gray: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Blend clipped regions (grown by 2 px, softened by a 1.5 px Gaussian) into the mean of the rest."""
+def fade_saturated(gray: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Blend clipped (or otherwise invalid) regions into the mean of the rest of the image.
+
+    The masked region is grown by 2 px and its edge softened by a 1.5 px Gaussian, so that no sharp,
+    aliased boundary (which does not obey the shift theorem) enters the correlation.
+
+    Parameters
+    ----------
+    gray
+        ``(H, W)`` float image (pre-processed).
+    mask
+        ``(H, W)`` boolean, ``True`` for the pixels to fade.
+
+    Returns
+    -------
+    numpy.ndarray
+        A faded copy of ``gray`` (``gray`` itself when ``mask`` is empty).
+    """
 
     pad = _SATURATION_GROW_PX + int(np.ceil(4 * _SATURATION_SOFTNESS_PX)) + 1
     if not mask.any():
@@ -262,7 +314,27 @@ def preprocess_image(gray: np.ndarray, kind: str = DEFAULT_PREPROCESS) -> np.nda
     raise ConfigurationError(f"unknown preprocess {kind!r}; choose one of {', '.join(PREPROCESS)}")
 
 
-def _prepare(image, name: str, preprocess: str, saturation) -> tuple[np.ndarray, np.ndarray | None]:
+def prepare_for_poc(image, name: str, preprocess: str, saturation) -> tuple[np.ndarray, np.ndarray | None]:
+    """An input image as the correlation uses it: grey (:func:`as_gray`), pre-processed, and its clipped pixels.
+
+    Parameters
+    ----------
+    image
+        ``(H, W)`` or ``(H, W, C)`` numeric array.
+    name
+        Name used in error messages.
+    preprocess
+        Intensity transform, see :func:`preprocess_image`.
+    saturation
+        ``None``, a clipping level or ``"auto"``, see :func:`saturation_mask`.
+
+    Returns
+    -------
+    gray : numpy.ndarray
+        ``(H, W)`` float32, pre-processed.
+    saturated : numpy.ndarray or None
+        ``(H, W)`` boolean mask of clipped pixels, or ``None`` when there are none.
+    """
     gray = as_gray(image, name)
     return preprocess_image(gray, preprocess), saturation_mask(image, saturation)
 
@@ -306,11 +378,23 @@ def window_2d(shape: tuple[int, int], kind: str = DEFAULT_WINDOW) -> np.ndarray:
     return w
 
 
-def _apply_window(x: np.ndarray, kind: str) -> np.ndarray:
+def apply_window(x: np.ndarray, kind: str) -> np.ndarray:
     """Subtract the window-weighted mean of each image (last two axes), then multiply by the window.
 
     Removing the weighted mean first matters: the window's own spectrum times a non-zero mean
     is identical in both images and would add a spurious peak at zero shift.
+
+    Parameters
+    ----------
+    x
+        ``(..., H, W)`` float32 image or batch of images (e.g. blocks).
+    kind
+        Window, one of :data:`WINDOWS`.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(..., H, W)`` float32, the windowed zero-(weighted-)mean images (a new array).
     """
     if x.ndim == 2 and kind != "none":
         return _window_separable(x, window_1d(x.shape[0], kind), window_1d(x.shape[1], kind))
@@ -329,18 +413,6 @@ def band_size(n: int, band_limit: float) -> int:
     return int(max(2, min(n // 2 - 1, np.floor(band_limit * (n / 2.0 - 1.0)))))
 
 
-def band_limited_poc(f_ref: np.ndarray, f_mov: np.ndarray, shape: tuple[int, int], k: tuple[int, int],
-                     upsample: float) -> tuple[np.ndarray, tuple[int, int], tuple[int, int]]:
-    """Band-limited POC function from half spectra (``rfft2``) of windowed images (Takita et al. 2003).
-
-    ``f_ref``, ``f_mov`` are ``(..., N0, N1 // 2 + 1)``.  Returns ``r`` of shape ``(..., M0, M1)``
-    with ``M`` the first fast FFT length ``>= upsample * L`` and ``L = 2 K + 1``, normalised so
-    that a perfect match peaks at 1, and the tuples ``L`` and ``M``.  The cross-phase spectrum is
-    the conjugate of paper Eq. (3), ``G F* / |G F*|``, so that the peak is at ``+d * M / N``.
-    """
-    return _band_poc(_take_band(f_ref, shape[0], k), _take_band(f_mov, shape[0], k), k, upsample)
-
-
 def _take_band(f: np.ndarray, n0: int, k: tuple[int, int]) -> np.ndarray:
     """Rows ``0..K0`` and ``N0-K0..N0-1``, columns ``0..K1`` of half spectra ``(..., N0, N1 // 2 + 1)``."""
     k0, k1 = k
@@ -352,7 +424,7 @@ def _band_spectrum(x: np.ndarray, k: tuple[int, int], overwrite: bool = False) -
 
     A single image goes through OpenCV's real DFT, whose packed ("CCS") output is unpacked here: on the
     2-core machine it took 2.4-3.6 ms for 1024 x 1024 float32 against 9-11 ms for ``scipy.fft.rfft2``
-    of 1000 x 1000 (one or two workers) when the cores were busy (docs/benchmarks.md, issue 17).  Batches (block
+    of 1000 x 1000 (one or two workers) when the cores were busy (docs/benchmarks.md).  Batches (block
     disparity) go through ``scipy.fft.rfft2``.  Layout of the packed output (OpenCV ``dft``): columns
     ``j = 1 .. N1/2 - 1`` hold ``Re, Im`` of ``F[r, j]`` at ``2j - 1, 2j`` for every row ``r``; column 0
     holds ``F[0, 0]`` and then ``Re, Im`` of ``F[m, 0]`` at rows ``2m - 1, 2m``, with
@@ -377,9 +449,48 @@ def _band_spectrum(x: np.ndarray, k: tuple[int, int], overwrite: bool = False) -
     return out
 
 
-def _band_poc(b_ref: np.ndarray, b_mov: np.ndarray, k: tuple[int, int],
-              upsample: float) -> tuple[np.ndarray, tuple[int, int], tuple[int, int]]:
-    """:func:`band_limited_poc` from the bands (:func:`_take_band` / :func:`_band_spectrum`) of the spectra."""
+def band_limited_poc(b_ref: np.ndarray, b_mov: np.ndarray, k: tuple[int, int],
+                     upsample: float) -> tuple[np.ndarray, tuple[int, int], tuple[int, int]]:
+    """Band-limited POC function of two windowed images from their spectral bands (Eq. (3); Takita et al. 2003).
+
+    The normalised cross-phase spectrum of paper Eq. (3), here its conjugate so that the peak sits at
+    ``+d`` (module docstring),
+
+    .. math::  R(k_0, k_1) = \\frac{G(k_0, k_1)\\,\\overline{F}(k_0, k_1)}{|G(k_0, k_1)\\,\\overline{F}(k_0, k_1)|},
+               \\qquad |k_0| \\le K_0,\\ 0 \\le k_1 \\le K_1
+
+    (``F``, ``G``: the DFTs of the reference and the moving image; the other half of the spectrum
+    follows by Hermitian symmetry) is kept on the band only (Takita et al.'s band limitation,
+    ``L = 2 K + 1`` frequencies per axis), zero-padded to an ``M``-point grid (``M`` the first fast FFT
+    length ``>= upsample * L``) and inverse transformed.  The DC term, whose phase is undefined once the
+    means are removed, is set to 1.
+
+    Parameters
+    ----------
+    b_ref, b_mov
+        ``(..., 2 K0 + 1, K1 + 1)`` complex64 bands of the real 2-D DFTs of the windowed reference and
+        moving images (:func:`_band_spectrum`): rows ``0..K0`` then ``-K0..-1``, columns ``0..K1``.
+        Leading axes are a batch (e.g. blocks).
+    k
+        ``(K0, K1)``, the highest frequency index kept per axis (:func:`band_size`).
+    upsample
+        Oversampling ``M / L`` of the correlation grid.
+
+    Returns
+    -------
+    r : numpy.ndarray
+        ``(..., M0, M1)`` float32 band-limited POC function, normalised so that a perfect match peaks
+        at 1; a shift ``d`` (px) peaks at ``d * M / N`` (``N`` the image size) with wrap-around.
+    big_l : tuple of int
+        ``(L0, L1)``.
+    big_m : tuple of int
+        ``(M0, M1)``.
+
+    References
+    ----------
+    Kuglin & Hines 1975 (phase correlation); K. Takita et al., "High-accuracy subpixel image
+    registration based on phase-only correlation", IEICE Trans. Fundamentals E86-A(8), 1925-1934, 2003.
+    """
     k0, k1 = k
     l0, l1 = 2 * k0 + 1, 2 * k1 + 1
     m0 = sfft.next_fast_len(int(np.ceil(upsample * l0)), real=True)
@@ -421,6 +532,39 @@ def fit_peak(r: np.ndarray, big_l: tuple[int, int], big_m: tuple[int, int], radi
     wrapped to ``[-M/2, M/2)``) and the fitted height ``alpha``, each of shape ``r.shape[:-2]``.
     Gauss-Newton on ``alpha * D(n0 - d0) * D(n1 - d1)`` over the ``(2 radius + 1)^2`` samples,
     started from a 3-point parabola; sub-sample offsets are kept within +-1 sample.
+
+    Parameters
+    ----------
+    r : numpy.ndarray
+        ``(..., M0, M1)`` band-limited POC functions (:func:`band_limited_poc`); leading axes are a batch.
+    big_l : tuple of int
+        ``(L0, L1)``, the number of frequencies kept per axis (``2 K + 1``), the width of the Dirichlet kernel.
+    big_m : tuple of int
+        ``(M0, M1)``, the size of the correlation grid.
+    radius : int
+        The model is fitted to the ``(2 radius + 1)^2`` samples around the integer maximum (wrapped).
+    iterations : int
+        Gauss-Newton steps.
+
+    Returns
+    -------
+    p0, p1 : numpy.ndarray
+        The peak position in samples of the ``M`` grid (rows, columns; signed, wrapped to ``[-M/2, M/2)``),
+        shape ``r.shape[:-2]`` (float64).  A shift ``d`` px of an ``N``-pixel image peaks at ``d * M / N``.
+    alpha : numpy.ndarray
+        The fitted peak height (the confidence: 1 for identical structure), shape ``r.shape[:-2]``.
+        Where the fit is not finite the parabola's position and the sampled maximum are returned.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 4.3, Eq. (3) (the displacement at the maximum of the inverse
+       transform of the cross-phase spectrum).
+    .. [2] C. D. Kuglin, D. C. Hines, "The phase correlation image alignment method", Proc. IEEE Int. Conf. on
+       Cybernetics and Society, 163-165, 1975.
+    .. [3] K. Takita, T. Aoki, Y. Sasaki, T. Higuchi, K. Kobayashi, "High-accuracy subpixel image registration
+       based on phase-only correlation", IEICE Trans. Fundamentals E86-A(8), 1925-1934, 2003,
+       Eq. (13) (the peak model and its least-squares fit).
     """
     m0, m1 = big_m
     batch = r.shape[:-2]
@@ -469,14 +613,48 @@ def fit_peak(r: np.ndarray, big_l: tuple[int, int], big_m: tuple[int, int], radi
     return p0.reshape(batch), p1.reshape(batch), alpha.reshape(batch)
 
 
-def _poc_shift(ref_w: np.ndarray, mov_w: np.ndarray, band_limit: float, upsample: float,
-               fit_radius: int, overwrite: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Windowed images (..., H, W) → (dx, dy, alpha) arrays over the leading axes (``overwrite``: the
-    inputs are temporaries the transforms may overwrite)."""
+def poc_shift(ref_w: np.ndarray, mov_w: np.ndarray, band_limit: float, upsample: float,
+              fit_radius: int, overwrite: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Translation between windowed images by band-limited POC and the peak model (Eq. (3) + Takita 2003).
+
+    The spectral bands (:func:`_band_spectrum`), the band-limited POC function
+    (:func:`band_limited_poc`) and the Dirichlet peak fit (:func:`fit_peak`), converted from the
+    correlation grid to pixels.  No refinement (see :func:`phase_correlate`).
+
+    Parameters
+    ----------
+    ref_w, mov_w
+        ``(..., H, W)`` float32 windowed images (:func:`apply_window`), same shape; leading axes are a
+        batch (block-wise POC).
+    band_limit
+        Fraction of Nyquist kept in each axis.
+    upsample
+        Oversampling of the band-limited correlation grid.
+    fit_radius
+        The peak model is fitted to ``(2 fit_radius + 1)^2`` samples.
+    overwrite
+        The inputs are temporaries that the transforms may overwrite.
+
+    Returns
+    -------
+    dx_px, dy_px, alpha : numpy.ndarray
+        Arrays over the leading axes (0-d for single images): the shift of the moving image's content
+        (module convention) in pixels, and the fitted peak height (the confidence).
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 4.3, Eq. (3).
+    .. [2] C. D. Kuglin, D. C. Hines, "The phase correlation image alignment method", Proc. IEEE Int. Conf. on
+       Cybernetics and Society, 163-165, 1975.
+    .. [3] K. Takita, T. Aoki, Y. Sasaki, T. Higuchi, K. Kobayashi, "High-accuracy subpixel image registration
+       based on phase-only correlation", IEICE Trans. Fundamentals E86-A(8), 1925-1934, 2003
+       (band limitation and peak model).
+    """
     shape = ref_w.shape[-2:]
     k = (band_size(shape[0], band_limit), band_size(shape[1], band_limit))
-    r, big_l, big_m = _band_poc(_band_spectrum(ref_w, k, overwrite), _band_spectrum(mov_w, k, overwrite), k,
-                                upsample)
+    r, big_l, big_m = band_limited_poc(_band_spectrum(ref_w, k, overwrite), _band_spectrum(mov_w, k, overwrite), k,
+                                       upsample)
     p0, p1, alpha = fit_peak(r, big_l, big_m, fit_radius)
     return p1 * (shape[1] / big_m[1]), p0 * (shape[0] / big_m[0]), alpha
 
@@ -499,11 +677,11 @@ def _window_at(n: int, kind: str, shift: float) -> np.ndarray:
 
 
 def _window_separable(x: np.ndarray, wy: np.ndarray, wx: np.ndarray) -> np.ndarray:
-    """:func:`_apply_window` for one image and a separable window ``wy wx^T``: ``(x - mean_w) * wy * wx``.
+    """:func:`apply_window` for one image and a separable window ``wy wx^T``: ``(x - mean_w) * wy * wx``.
 
     The weighted mean is two matrix-vector products (one thread), the rest one new array and two
     in-place products: no 2-D window is built and fewer large temporaries are touched (the time of
-    this step doubled when other work had just evicted the caches; docs/benchmarks.md, issue 17).
+    this step doubled when other work had just evicted the caches; docs/benchmarks.md).
     """
     x = np.ascontiguousarray(x, dtype=np.float32)
     wy32, wx32 = np.asarray(wy, dtype=np.float32), np.asarray(wx, dtype=np.float32)
@@ -566,7 +744,7 @@ def _refine(a: np.ndarray, b: np.ndarray, dx: float, dy: float, window: str, ban
         shape = ra.shape
         k = (band_size(shape[0], band_limit), band_size(shape[1], band_limit))
         if cache is None or cache[0] != (sx, sy):
-            cache = ((sx, sy), _band_spectrum(_apply_window(ra, window), k, overwrite=True))
+            cache = ((sx, sy), _band_spectrum(apply_window(ra, window), k, overwrite=True))
         moved = _window_separable(rb, _window_at(rb.shape[0], window, dy - sy),
                                   _window_at(rb.shape[1], window, dx - sx))
         rx, ry = _weighted_peak(cache[1], _band_spectrum(moved, k, overwrite=True), shape, k, dx - sx, dy - sy,
@@ -671,21 +849,37 @@ def phase_correlate(reference, moving, *, window: str = DEFAULT_WINDOW, band_lim
         ``dx, dy`` with ``moving(x, y) ~= reference(x - dx, y - dy)``, and the peak height of the
         first pass as ``confidence``.  Shifts are found up to half the image size; accuracy is best
         below a tenth of it (the overlap shrinks with the shift).
+
+    Raises
+    ------
+    ConfigurationError
+        For invalid options, ``refine`` outside 0-4, images of different sizes, or a validity mask of
+        another shape than the images.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 4.3, Eq. (3), Fig. 6 (registration of camera B to camera A by POC).
+    .. [2] C. D. Kuglin, D. C. Hines, "The phase correlation image alignment method", Proc. IEEE Int. Conf. on
+       Cybernetics and Society, 163-165, 1975.
+    .. [3] K. Takita, T. Aoki, Y. Sasaki, T. Higuchi, K. Kobayashi, "High-accuracy subpixel image registration
+       based on phase-only correlation", IEICE Trans. Fundamentals E86-A(8), 1925-1934, 2003
+       (window, band limitation and peak model).
     """
-    _check_options(window, band_limit, upsample, preprocess, fit_radius)
+    check_poc_options(window, band_limit, upsample, preprocess, fit_radius)
     if int(refine) != refine or not 0 <= refine <= 4:
         raise ConfigurationError(f"refine must be an integer in 0..4, got {refine}")
-    ref, mov = _check_pair(reference, moving)
-    a, sat_a = _prepare(ref, "reference", preprocess, saturation)
-    b, sat_b = _prepare(mov, "moving", preprocess, saturation)
+    ref, mov = check_image_pair(reference, moving)
+    a, sat_a = prepare_for_poc(ref, "reference", preprocess, saturation)
+    b, sat_b = prepare_for_poc(mov, "moving", preprocess, saturation)
     bad_a = _union(sat_a, _invalid(reference_valid, a.shape, "reference_valid"))
     bad_b = _union(sat_b, _invalid(moving_valid, b.shape, "moving_valid"))
-    fa = a if bad_a is None else _fade_saturated(a, bad_a)
-    fb = b if bad_b is None else _fade_saturated(b, bad_b)
+    fa = a if bad_a is None else fade_saturated(a, bad_a)
+    fb = b if bad_b is None else fade_saturated(b, bad_b)
     # Pass 1 (integer-level accuracy is enough for the refinement): on 2x2-binned images when large.
     binned = refine > 0 and min(a.shape) >= COARSE_MIN_SIZE_PX
     pa, pb = (_bin2(fa), _bin2(fb)) if binned else (fa, fb)
-    dx, dy, alpha = _poc_shift(_apply_window(pa, window), _apply_window(pb, window), band_limit, upsample, fit_radius,
+    dx, dy, alpha = poc_shift(apply_window(pa, window), apply_window(pb, window), band_limit, upsample, fit_radius,
                                overwrite=True)
     dx, dy = (2.0 * float(dx), 2.0 * float(dy)) if binned else (float(dx), float(dy))
     if refine:
@@ -695,7 +889,7 @@ def phase_correlate(reference, moving, *, window: str = DEFAULT_WINDOW, band_lim
             # faded regions move with the content (the images may clip differently).
             union_a = _union(bad_a, None if bad_b is None else _shift_mask(bad_b, -dx, -dy))
             union_b = _union(bad_b, None if bad_a is None else _shift_mask(bad_a, dx, dy))
-            fa, fb = _fade_saturated(a, union_a), _fade_saturated(b, union_b)
+            fa, fb = fade_saturated(a, union_a), fade_saturated(b, union_b)
         rdx, rdy = _refine(fa, fb, dx, dy, window, band_limit, refine)
         # The refinement corrects sub-pixel bias; it must not move a (possibly wrong) first estimate far.
         if np.isfinite(rdx) and np.isfinite(rdy) and np.hypot(rdx - dx, rdy - dy) <= _MAX_REFINE_CORRECTION_PX:

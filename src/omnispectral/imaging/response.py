@@ -23,7 +23,10 @@ from pathlib import Path
 import numpy as np
 
 from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.imaging.weights import triangle_weight
 from omnispectral.io import atomic_write_json
+
+__all__ = ["CameraResponse", "recover_response", "select_samples", "solve_debevec", "varying_pixels"]
 
 
 @dataclass(frozen=True)
@@ -83,12 +86,6 @@ class CameraResponse:
         if np.any(np.diff(lin, axis=0) < 0):
             raise InputFileError(path, "response is not monotonic (exposure must not fall as the code rises)")
         return cls(lin, str(data.get("kind", "table")), tuple(data.get("notes", ())))
-
-
-def hat_weight(n_codes: int) -> np.ndarray:
-    """Debevec–Malik hat ``w(z) = min(z - Zmin, Zmax - z)`` (the paper's Eq. (2) for ``n_codes`` codes)."""
-    z = np.arange(n_codes, dtype=np.float64)
-    return np.minimum(z, n_codes - 1 - z)
 
 
 def varying_pixels(frames: Sequence[np.ndarray]) -> np.ndarray:
@@ -154,7 +151,10 @@ def solve_debevec(codes: np.ndarray, log_exposure_s: np.ndarray, n_codes: int = 
     ``(n_codes,)`` log exposure per code, with ``g(mid) = 0``.
     """
     n, p = codes.shape
-    wz = hat_weight(n_codes) + 1.0  # +1 keeps the end codes weakly constrained rather than free
+    if n_codes < 2 or n_codes & (n_codes - 1):
+        raise ConfigurationError(f"n_codes must be a power of two (the codes of a bit depth), got {n_codes}")
+    # Eq. (2) over the codes; +1 keeps the end codes weakly constrained rather than free
+    wz = triangle_weight(np.arange(n_codes), (n_codes - 1).bit_length()).astype(np.float64) + 1.0
     rows = n * p + 1 + (n_codes - 2)
     a = np.zeros((rows, n_codes + n))
     b = np.zeros(rows)

@@ -29,7 +29,11 @@ import math
 import numpy as np
 
 from omnispectral.errors import ConfigurationError
-from omnispectral.imaging.geometry import CameraModel, lonlat_to_equirect_pixel, lonlat_to_ray, ray_to_lonlat
+from omnispectral.imaging.geometry import CameraModel, lonlat_to_equirect_pixel, ray_to_lonlat
+
+__all__ = ["CELLS_PER_UNIT_RING", "COVERAGE_GAUSS_NODES", "DEFAULT_N_RADIAL", "GOLDEN_FRACTION",
+           "cap_solid_angle_sr", "disk_samples", "equirect_disk_coverage", "equirect_pixel_solid_angle_sr",
+           "n_radial_for_pixel", "pixel_solid_angles_sr", "splat_camera", "splat_equirect"]
 
 #: Azimuth cells of the innermost ring of :func:`disk_samples`; ring ``i`` has ``(2i + 1)`` times as many,
 #: so that every cell has the same solid angle and an aspect ratio close to 1 (``π / 3`` : 1).
@@ -418,8 +422,3 @@ def _column_overlap(cap: _Cap, phi: np.ndarray, col_lo: np.ndarray, dlon: float)
         c0 = col_lo[None, :] + shift
         out += np.maximum(0.0, np.minimum(hi, c0 + dlon) - np.maximum(lo, c0))
     return np.where(h >= 0, out, 0.0)
-
-
-def cap_direction(lon_deg: float, lat_deg: float) -> np.ndarray:
-    """Unit world direction ``(3,)`` of a cap centre (:func:`~omnispectral.imaging.geometry.lonlat_to_ray`)."""
-    return lonlat_to_ray(lon_deg, lat_deg)

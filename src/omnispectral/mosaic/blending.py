@@ -24,13 +24,18 @@ agree) and no dark halo leaks in from uncovered areas.  It runs per output tile 
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+
 import cv2
 import numpy as np
 
+from omnispectral.choices import BLEND_NAMES, DEFAULT_MULTIBAND_LEVELS, method_from
 from omnispectral.mosaic.kernels import compiled_kernels
 
-BLENDS = ("linear", "multiband")
-DEFAULT_MULTIBAND_LEVELS = 4
+__all__ = ["BLENDS", "CONSISTENCY_TOL", "DEFAULT_MULTIBAND_LEVELS", "Blend", "LinearBlend", "blend_method",
+           "collapse", "feather_weight", "gaussian_pyramid", "laplacian_pyramid", "multiband_blend",
+           "multiband_halo_px", "reject_inconsistent", "seam_masks"]
 
 
 def feather_weight(u: np.ndarray, v: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -57,6 +62,29 @@ class LinearBlend:
 
     The sums run in a compiled loop (Numba) when available: the same float32 products and sums as
     the NumPy expressions (bit for bit), without NumPy's slow broadcast over a 3-long last axis.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        The tile's ``(h, w)`` in output pixels.
+    n_bands : int
+        Bands of the output (e.g. 6: camera A's three, then camera B's).
+
+    Attributes
+    ----------
+    numerator : numpy.ndarray
+        ``(h, w, n_bands)`` float32, ``Σ w x`` (in the sources' radiance units).
+    denominator : dict
+        ``Σ w`` per group of bands that the sources added together: tuple of band indices → ``(h, w)`` float32
+        (each camera's sources carry their own weights).
+    shape : tuple of int
+        ``(h, w)``.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 4.5 (the overlapping regions are blended linearly), Fig. 8.
+    .. [2] R. Szeliski, "Image alignment and stitching: a tutorial", 2006, Sec. 6.3.2 (feathering).
     """
 
     def __init__(self, shape: tuple[int, int], n_bands: int):
@@ -211,3 +239,57 @@ def multiband_blend(values: list[np.ndarray], weights: list[np.ndarray], levels:
 def multiband_halo_px(levels: int) -> int:
     """Halo around a tile for ``levels`` pyramid levels (5-tap kernels: support ≈ 4 · 2^levels)."""
     return 4 * 2 ** levels
+
+
+def _no_halo_px(levels: int) -> int:
+    """Linear blending needs no pixels beyond the tile."""
+    return 0
+
+
+@dataclass(frozen=True)
+class Blend:
+    """What a blending method (module docstring) asks of the tile renderer.
+
+    Attributes
+    ----------
+    halo_px
+        ``halo_px(levels) -> px``: pixels around a tile the method needs (``levels``: multi-band levels).
+    uses_levels
+        Whether the method has pyramid levels (recorded in the panorama's metadata only then).
+    quality_layer
+        Whether the method also blends the registration-quality layer (confidence, occlusion) of camera B.
+    """
+
+    halo_px: Callable[[int], int]
+    uses_levels: bool
+    quality_layer: bool
+
+
+#: The blending methods by name (the valid names are its keys, :data:`~omnispectral.choices.BLEND_NAMES` in that
+#: order; the tile renderers of :mod:`omnispectral.mosaic.tile` are keyed alike): ``linear`` (the paper's) and
+#: ``multiband``.
+BLENDS: dict[str, Blend] = dict(zip(BLEND_NAMES, (
+    Blend(_no_halo_px, uses_levels=False, quality_layer=True),  # linear
+    Blend(multiband_halo_px, uses_levels=True, quality_layer=False),  # multiband
+), strict=True))
+
+
+def blend_method(name: str) -> Blend:
+    """The :class:`Blend` called ``name``.
+
+    Parameters
+    ----------
+    name
+        A key of :data:`BLENDS`.
+
+    Returns
+    -------
+    Blend
+        The method's entry.
+
+    Raises
+    ------
+    ConfigurationError
+        For an unknown name (the message lists the valid ones).
+    """
+    return method_from(BLENDS, name, "blend")

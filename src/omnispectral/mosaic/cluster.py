@@ -1,7 +1,7 @@
 """A Dask cluster of separate processes on this machine: ``dask scheduler`` and ``dask worker`` commands.
 
 The mosaic's tiles and pyramid chunks run on any Dask distributed cluster
-(:func:`omnispectral.mosaic.engine.run_tasks`; ``omnispectral process --scheduler ADDRESS``).  This
+(:func:`omnispectral.mosaic.run.run_tasks`; ``omnispectral process --scheduler ADDRESS``).  This
 module starts one the way a cluster runs it — a scheduler process and worker processes (each behind
 its nanny) that share nothing with the caller but the file system — for the tests, the scaling
 benchmark (``benchmarks/bench_cluster.py``) and trying ``--scheduler`` on one machine.  On a real
@@ -27,6 +27,8 @@ from pathlib import Path
 
 import omnispectral
 from omnispectral.errors import ConfigurationError
+
+__all__ = ["NANNY_ENVIRON", "process_cluster", "worker_environment"]
 
 #: Dask configuration for the nanny (as an environment variable): keep its one-thread BLAS/OpenMP variables,
 #: drop its ``MALLOC_TRIM_THRESHOLD_=65536``: with it glibc returns freed memory to the system at once and

@@ -30,6 +30,9 @@ from omnispectral.mosaic.interp import remap
 from omnispectral.mosaic.maps import Canvas, Rect, SourceGeometry, source_map
 from omnispectral.mosaic.sources import MergedDirections, SourceImage, npy_shape, read_npy_rows
 
+__all__ = ["SIGMA_G", "SIGMA_N", "coarse_width", "estimate_gains", "overlap_statistics", "read_decimated",
+           "solve_gains", "source_samples"]
+
 SIGMA_N = 0.1
 SIGMA_G = 1.0
 

@@ -40,17 +40,20 @@ pixel; the mosaic's feathering weight is zero at the sensor border, so they neve
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 from scipy.ndimage import spline_filter1d
 
-from omnispectral.errors import ConfigurationError
+from omnispectral.choices import INTERP_NAMES, method_from
 from omnispectral.mosaic.kernels import compiled_kernels
 
-METHODS = ("linear", "cubic", "spline", "lanczos", "cubic-clamped")
-#: Taps on each side of the sample position a method reads (crop margins).
-KERNEL_RADIUS_PX = {"linear": 1, "cubic": 2, "spline": 2, "lanczos": 3, "cubic-clamped": 2}
+__all__ = ["CUBIC_A", "KERNEL_RADIUS_PX", "LANCZOS_A", "METHODS", "SPLINE_PREFILTER_MARGIN_PX", "Interpolation",
+           "bspline3_kernel", "check_method", "clamp_to_neighbours", "cubic_kernel", "interpolation",
+           "lanczos_kernel", "linear_kernel", "opencv_is_exact", "remap", "remap_reference", "spline_prefilter"]
+
 #: Extra source pixels prefiltered around a crop for ``spline``: the recursive filter's impulse response
 #: decays as ``|√3 - 2|^k``, below 2e-8 at 14 px.
 SPLINE_PREFILTER_MARGIN_PX = 14
@@ -59,12 +62,6 @@ LANCZOS_A = 3
 _SPLINE_POLE = np.sqrt(3.0) - 2.0
 _SPLINE_FIR = (np.sqrt(3.0) * _SPLINE_POLE ** np.abs(np.arange(-SPLINE_PREFILTER_MARGIN_PX,
                                                                 SPLINE_PREFILTER_MARGIN_PX + 1))).astype(np.float32)
-
-
-def check_method(method: str) -> str:
-    if method not in METHODS:
-        raise ConfigurationError(f"unknown interpolation {method!r}; expected one of {', '.join(METHODS)}")
-    return method
 
 
 # ------------------------------------------------------------------------------------------ kernels
@@ -90,10 +87,6 @@ def bspline3_kernel(t) -> np.ndarray:
     """Cubic B-spline ``β³(t)``."""
     t = np.abs(np.asarray(t, dtype=np.float64))
     return np.where(t < 1.0, 2.0 / 3.0 - t * t + 0.5 * t ** 3, np.where(t < 2.0, (2.0 - t) ** 3 / 6.0, 0.0))
-
-
-_KERNELS = {"linear": (linear_kernel, 1), "cubic": (cubic_kernel, 2), "lanczos": (lanczos_kernel, LANCZOS_A),
-            "spline": (bspline3_kernel, 2)}
 
 
 # ------------------------------------------------------------------------------------------ prefilter
@@ -193,17 +186,16 @@ def remap_reference(src: np.ndarray, u, v, method: str) -> np.ndarray:
 
     ``spline`` expects ``src`` to be the raw image and prefilters it here.
     """
-    check_method(method)
+    m = interpolation(method)
     src = np.asarray(src, dtype=np.float32)
     squeeze = src.ndim == 2
     if squeeze:
         src = src[..., None]
     raw = src
-    if method == "spline":
+    if m.prefilter:
         src = spline_prefilter(src)
-    kernel, radius = _KERNELS[method.removesuffix("-clamped")]
-    out = _gather_remap(src, u, v, kernel, radius, normalise=method == "lanczos")
-    if method.endswith("-clamped"):
+    out = _gather_remap(src, u, v, m.kernel, m.radius_px, normalise=m.normalise)
+    if m.clamped:
         out = clamp_to_neighbours(out, raw, u, v)
     return out[..., 0] if squeeze else out
 
@@ -269,6 +261,108 @@ def _separable_fetches(src: np.ndarray, taps_u, taps_v, exact_linear: bool) -> n
     return out
 
 
+def _remap_linear(src: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Bilinear: OpenCV where it interpolates at the exact position, else the NumPy gather."""
+    if opencv_is_exact("linear"):
+        return _cv_remap(src, u, v, "linear")
+    return _gather_remap(src, u, v, linear_kernel, 1, normalise=False)
+
+
+def _remap_cubic(src: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Keys cubic as nine bilinear fetches."""
+    return _separable_fetches(src, _keys_taps(u), _keys_taps(v), opencv_is_exact("linear"))
+
+
+def _remap_cubic_clamped(src: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Keys cubic clipped to the range of the 2 × 2 neighbours."""
+    return clamp_to_neighbours(_remap_cubic(src, u, v), src, u, v)
+
+
+def _remap_spline(coef: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Cubic B-spline of the coefficients ``coef``: the compiled kernel, else four bilinear fetches."""
+    kernels = compiled_kernels()
+    if kernels is not None:
+        out = np.empty((*u.shape, coef.shape[2]), np.float32)
+        kernels.spline(coef, u, v, out)
+        return out
+    return _separable_fetches(coef, _spline_taps(u), _spline_taps(v), opencv_is_exact("linear"))
+
+
+def _remap_lanczos(src: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Lanczos-3 by the NumPy gather, weights normalised."""
+    return _gather_remap(src, u, v, lanczos_kernel, LANCZOS_A, normalise=True)
+
+
+@dataclass(frozen=True)
+class Interpolation:
+    """One interpolation method (module docstring): its definition, its reach and its fast evaluation.
+
+    Attributes
+    ----------
+    remap
+        ``remap(src, u, v) -> (*u.shape, C)`` float32: the fast evaluation on a contiguous float32
+        ``(H, W, C)`` source (B-spline coefficients when ``prefilter``) at float32 positions.
+    kernel
+        The separable 1-D kernel ``k(t)`` that defines the method (:func:`remap_reference`).
+    radius_px
+        Taps on each side of the sample position the method reads (crop margins).
+    prefilter
+        The source must first be turned into B-spline coefficients (:func:`spline_prefilter`); a crop then
+        needs :data:`SPLINE_PREFILTER_MARGIN_PX` more source pixels.
+    normalise
+        The kernel's weights are normalised to sum 1 at each position.
+    clamped
+        The result is clipped to the range of the 2 × 2 source pixels around the position.
+    """
+
+    remap: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+    kernel: Callable
+    radius_px: int
+    prefilter: bool = False
+    normalise: bool = False
+    clamped: bool = False
+
+
+#: The interpolation methods by name (the valid names are its keys, :data:`~omnispectral.choices.INTERP_NAMES` in
+#: that order): one lookup, :func:`interpolation`.
+METHODS: dict[str, Interpolation] = dict(zip(INTERP_NAMES, (
+    Interpolation(_remap_linear, linear_kernel, 1),  # linear
+    Interpolation(_remap_cubic, cubic_kernel, 2),  # cubic
+    Interpolation(_remap_spline, bspline3_kernel, 2, prefilter=True),  # spline
+    Interpolation(_remap_lanczos, lanczos_kernel, LANCZOS_A, normalise=True),  # lanczos
+    Interpolation(_remap_cubic_clamped, cubic_kernel, 2, clamped=True),  # cubic-clamped
+), strict=True))
+#: Taps on each side of the sample position a method reads (crop margins), by method name.
+KERNEL_RADIUS_PX = {name: m.radius_px for name, m in METHODS.items()}
+
+
+def interpolation(method: str) -> Interpolation:
+    """The :class:`Interpolation` called ``method``.
+
+    Parameters
+    ----------
+    method
+        A key of :data:`METHODS`.
+
+    Returns
+    -------
+    Interpolation
+        The method's entry.
+
+    Raises
+    ------
+    ConfigurationError
+        For an unknown name (the message lists the valid ones).
+    """
+    return method_from(METHODS, method, "interpolation")
+
+
+def check_method(method: str) -> str:
+    """``method`` if it names an interpolation of :data:`METHODS`, else :class:`ConfigurationError`."""
+    interpolation(method)
+    return method
+
+
 def remap(src: np.ndarray, u: np.ndarray, v: np.ndarray, method: str = "cubic",
           prefiltered: bool = False) -> np.ndarray:
     """Interpolate ``src`` (H, W[, C]) float32 at positions ``u`` (column) and ``v`` (row), float32 maps.
@@ -277,28 +371,14 @@ def remap(src: np.ndarray, u: np.ndarray, v: np.ndarray, method: str = "cubic",
     float32 (or ``u.shape`` for a 2-D ``src``).  For ``spline``, ``prefiltered=True`` says ``src``
     already holds B-spline coefficients (:func:`spline_prefilter`).
     """
-    check_method(method)
+    m = interpolation(method)
     src = np.ascontiguousarray(src, dtype=np.float32)
     squeeze = src.ndim == 2
     if squeeze:
         src = src[..., None]
     u = np.ascontiguousarray(u, dtype=np.float32)
     v = np.ascontiguousarray(v, dtype=np.float32)
-    if method == "spline":
-        coef = src if prefiltered else spline_prefilter(src)
-        kernels = compiled_kernels()
-        if kernels is not None:
-            out = np.empty((*u.shape, coef.shape[2]), np.float32)
-            kernels.spline(coef, u, v, out)
-        else:
-            out = _separable_fetches(coef, _spline_taps(u), _spline_taps(v), opencv_is_exact("linear"))
-    elif method in ("cubic", "cubic-clamped"):
-        out = _separable_fetches(src, _keys_taps(u), _keys_taps(v), opencv_is_exact("linear"))
-        if method == "cubic-clamped":
-            out = clamp_to_neighbours(out, src, u, v)
-    elif method == "linear" and opencv_is_exact("linear"):
-        out = _cv_remap(src, u, v, method)
-    else:
-        kernel, radius = _KERNELS[method]
-        out = _gather_remap(src, u, v, kernel, radius, normalise=method == "lanczos")
+    if m.prefilter and not prefiltered:
+        src = spline_prefilter(src)
+    out = m.remap(src, u, v)
     return out[..., 0] if squeeze else out

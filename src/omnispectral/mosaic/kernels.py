@@ -32,6 +32,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
+__all__ = ["compiled_kernels"]
+
 _CACHE: dict = {}
 
 

@@ -29,6 +29,9 @@ import numpy as np
 from omnispectral.imaging.geometry import CameraModel, equirect_pixel_to_lonlat, lonlat_to_ray
 from omnispectral.mosaic.kernels import compiled_kernels
 
+__all__ = ["MAP_STEP_PX", "MAP_TOL_PX", "Canvas", "Rect", "SourceGeometry", "SourceMap", "catmull_rom_weights",
+           "exact_map", "interpolate_nodes", "source_map", "tile_cone"]
+
 #: Node spacing (output pixels) of the first attempt.
 MAP_STEP_PX = 8
 #: Largest accepted interpolation error of the map, in source pixels.
@@ -140,16 +143,6 @@ def tile_cone(canvas: Canvas, rect: Rect) -> tuple[np.ndarray, float]:
     return centre, float(min(np.pi, angles.max() + step))
 
 
-def overlapping(sources: list[SourceGeometry], cone: tuple[np.ndarray, float]) -> list[int]:
-    """Indices of the sources whose cone meets ``cone``."""
-    centre, radius = cone
-    out = []
-    for i, s in enumerate(sources):
-        if np.arccos(np.clip(float(centre @ s.axis), -1.0, 1.0)) <= radius + s.radius_rad:
-            out.append(i)
-    return out
-
-
 # ------------------------------------------------------------------------------------------ interpolation
 def catmull_rom_weights(positions_px: np.ndarray, step: int) -> tuple[np.ndarray, np.ndarray]:
     """Catmull–Rom weights for pixel positions (≥ 0) between nodes at ``(j - 1) step``, ``j = 0, 1, …``.
@@ -207,6 +200,38 @@ def source_map(source: SourceGeometry, canvas: Canvas, rect: Rect, margin_px: fl
 
     Returns ``None`` if no pixel of ``rect`` lands on the image.  ``u``/``v`` are float32 with NaN
     where the ray has no image point.
+
+    Parameters
+    ----------
+    source : SourceGeometry
+        The source image: its camera model (lens with distortion, mounting), head pan and tilt (deg) and
+        registration offset (source px).
+    canvas : Canvas
+        The equirectangular output grid.
+    rect : Rect
+        The output pixels to map (rows may extend beyond the canvas by a halo).
+    margin_px : float
+        Margin (source px) around the image within which output pixels are kept.
+    step : int
+        Node spacing (output px) of the first attempt; halved until the interpolation error is below
+        ``tol_px`` (down to 1: exact evaluation at every pixel).
+    tol_px : float
+        Largest accepted interpolation error of the map (source px).
+
+    Returns
+    -------
+    SourceMap or None
+        The map cut to the part of ``rect`` that lands on the image: its first row and column (canvas
+        coordinates), ``u``, ``v`` (float32 sensor positions in source px, offset included), the node
+        step used and the largest interpolation error found (px; 0 when evaluated exactly).
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 4.4, Eq. (4) (polar coordinates of a directional image; here composed
+       with the lens model of Sec. 4.2 and the head direction, per output pixel), Sec. 4.5.
+    .. [2] R. G. Keys, "Cubic convolution interpolation for digital image processing", IEEE TASSP 29(6), 1981
+       (the Catmull–Rom weights between nodes: cubic convolution with ``a = -1/2``).
     """
     h, w = rect.shape
     while True:

@@ -9,7 +9,7 @@ coordinates
 ``θ`` is the longitude and ``-φ`` the latitude of the pixel's ray for a camera looking at
 longitude 0, latitude 0 (``φ`` grows downwards like ``y``), so the polar-coordinate image is a
 piece of an equirectangular panorama, flipped vertically.  The mosaic engine does not build these
-images (it composes the whole geometry into one resampling, see :mod:`omnispectral.mosaic.engine`);
+images (it composes the whole geometry into one resampling, see :mod:`omnispectral.mosaic.tile`);
 this module keeps Eq. (4) as a function because the paper and its users speak in those terms, and
 the tests check that the engine's single-direction output agrees with it.
 """
@@ -22,6 +22,8 @@ import numpy as np
 
 from omnispectral.errors import ConfigurationError
 from omnispectral.mosaic.interp import remap
+
+__all__ = ["PolarImage", "polar_angles_rad", "polar_image", "polar_to_image_px"]
 
 
 def polar_angles_rad(x_px, y_px, f_px: float) -> tuple[np.ndarray, np.ndarray]:

@@ -51,6 +51,10 @@ from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.imaging.geometry import CameraModel
 from omnispectral.io import atomic_path, atomic_write_json
 
+__all__ = ["BAND_NAMES", "CAMERAS", "CAMERA_BANDS", "DTYPES", "FLOAT16_TARGET_MAX", "FORMAT", "FORMAT_VERSION",
+           "UNITS", "MergedDirections", "MergedDirectionsWriter", "SourceImage", "encode_image", "float16_scale",
+           "image_filename", "npy_shape", "read_npy_rows", "read_npy_window"]
+
 FORMAT = "omnispectral-merged-directions"
 FORMAT_VERSION = 1
 CAMERAS = ("A", "B")
@@ -152,7 +156,7 @@ class SourceImage:
     scale: float = 1.0
     offset_px: tuple[float, float] = (0.0, 0.0)
     #: camera B only: per-pixel parallax on camera A's grid of the same direction, ``(H_A, W_A, 3)``
-    #: float16 (inverse depth 1/m, registration confidence 0..1, occluded 0/1); see ``product.align``
+    #: float16 (inverse depth 1/m, registration confidence 0..1, occluded 0/1); see ``product.direction_parallax``
     parallax: Path | None = None
 
     @property

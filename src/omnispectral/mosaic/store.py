@@ -41,8 +41,12 @@ from pathlib import Path
 import numpy as np
 
 from omnispectral.errors import InputFileError
-from omnispectral.io import TEMP_MARK, atomic_write_json, follow_umask
+from omnispectral.io import TEMP_MARK, atomic_write_json, follow_umask, jsonable
 from omnispectral.mosaic.kernels import compiled_kernels
+
+__all__ = ["BAND_COLOURS", "DIMENSIONS", "DONE_DIR", "FORMAT", "FORMAT_VERSION", "MARKER_NAME", "METADATA",
+           "OME_VERSION", "QUALITY", "QUALITY_LAYERS", "SUMMARY_KEYS", "ChannelLast", "PanoramaStore",
+           "box_average_2x2", "multiscales_attr", "omero_attr", "pyramid_shapes"]
 
 FORMAT = "omnispectral-panorama"
 #: 2: OME-Zarr 0.5, arrays (c, y, x), metadata in ``omnispectral.json``; 1: arrays (y, x, band), all in zarr.json.
@@ -164,7 +168,7 @@ def _compressors(name: str):
 
 #: Name of the registration-quality array (level 0 only).
 QUALITY = "quality"
-#: The quality array's layers, in order (``mosaic.engine.N_QUALITY``; older products hold a prefix).
+#: The quality array's layers, in order (``mosaic.tile.N_QUALITY``; older products hold a prefix).
 QUALITY_LAYERS = ("registration_confidence", "occluded", "sun", "b_predicted")
 #: Entries of the metadata also kept in the (small) group attributes, for readers that look only there.
 SUMMARY_KEYS = ("bands", "units", "camera_bands")
@@ -188,7 +192,7 @@ class PanoramaStore:
         """Create the store, or reopen it for resuming if it was made with the same ``fingerprint``.
 
         ``quality_bands > 0`` adds the array ``quality`` (level 0 only, ``(y, x, quality_bands)``
-        float32): the registration-quality layer (see ``mosaic.engine.N_QUALITY``).
+        float32): the registration-quality layer (see ``mosaic.tile.N_QUALITY``).
         """
         import zarr
 
@@ -207,7 +211,7 @@ class PanoramaStore:
                     raise InputFileError(path, f"was written by an older omnispectral (panorama format "
                                                f"{existing.format_version}: channel-last, not OME-Zarr); it can "
                                                f"still be read, but to resume or rebuild it rerun with --overwrite")
-                if existing.attrs().get("fingerprint") != _jsonable(fingerprint):
+                if existing.attrs().get("fingerprint") != jsonable(fingerprint):
                     raise InputFileError(path, "holds a panorama made with other inputs or parameters; rerun with "
                                                "--overwrite or choose another output")
                 return existing
@@ -243,7 +247,7 @@ class PanoramaStore:
         ome = {"version": OME_VERSION, "multiscales": multiscales_attr(shapes, final.name)}
         if attrs.get("bands"):
             ome["omero"] = omero_attr(list(attrs["bands"]))
-        group.attrs.update(_jsonable({"ome": ome, "omnispectral": summary}))
+        group.attrs.update(jsonable({"ome": ome, "omnispectral": summary}))
         _write_metadata(path, {"omnispectral": {**attrs, **summary}, "fingerprint": fingerprint})
         os.replace(path, final)
         return cls(final, tile, shapes, n_bands, FORMAT_VERSION)
@@ -285,7 +289,7 @@ class PanoramaStore:
         import zarr
 
         if self.format_version < 2:
-            zarr.open_group(str(self.path), mode="r+", zarr_format=3).attrs.update(_jsonable(values))
+            zarr.open_group(str(self.path), mode="r+", zarr_format=3).attrs.update(jsonable(values))
             return
         _write_metadata(self.path, {**_read_metadata(self.path), **values})
 
@@ -455,8 +459,4 @@ def _write_metadata(store: Path, attributes: dict) -> None:
     """Write the metadata group's ``zarr.json`` (a Zarr v3 group, no arrays) atomically."""
     (store / METADATA).mkdir(exist_ok=True)
     atomic_write_json(store / METADATA / "zarr.json", {"zarr_format": 3, "node_type": "group",
-                                                       "attributes": _jsonable(attributes)})
-
-
-def _jsonable(x):
-    return json.loads(json.dumps(x, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
+                                                       "attributes": jsonable(attributes)})

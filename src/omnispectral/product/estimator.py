@@ -21,6 +21,8 @@ from omnispectral.spectral.library import load_reflectances
 from omnispectral.spectral.noise import SensorNoiseModel
 from omnispectral.spectral.wiener import WienerEstimator
 
+__all__ = ["HELD_OUT", "b_predictor", "estimator_from_params", "estimator_params", "rig_estimator"]
+
 HELD_OUT = "colorchecker"
 
 
@@ -58,7 +60,31 @@ def estimator_from_params(params: dict) -> tuple[WienerEstimator, dict]:
 
 
 def rig_estimator(rig: Rig, mixture: bool = True) -> tuple[WienerEstimator, dict]:
-    """The estimator for a rig's bands, with its parameters and fit information."""
+    """The estimator for a rig's bands, with its parameters and fit information.
+
+    Parameters
+    ----------
+    rig : Rig
+        The rig: each camera's sensitivity and filter (its bands), and camera A's sensor noise (full well and
+        read noise in electrons, bit depth) for the σ² tuning.
+    mixture : bool
+        One prior component per light source (:meth:`WienerEstimator.fit`); the paper pools them.
+
+    Returns
+    -------
+    estimator : WienerEstimator
+        The normalized-form estimator of the rig's six (or three) bands, σ² tuned on the calibration chart
+        with the ColorChecker held out (fitted once per process for the same parameters).
+    info : dict
+        ``params`` (:func:`estimator_params`, JSON-able, stored with the product), ``sigma2`` and ``prior``
+        (the prior's description).
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 4.6, Eqs. (6)-(7) (the Wiener estimator of the system's bands; σ²
+       determined by minimising the estimation error on a chart under various light sources).
+    """
     params = estimator_params(rig, mixture)
     est, info = estimator_from_params(params)
     return est, {"params": params, **info}

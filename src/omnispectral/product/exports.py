@@ -34,6 +34,7 @@ import numpy as np
 import OpenEXR
 import spectral.io.envi as envi
 
+from omnispectral.choices import FORMATS
 from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.bracket import FLOAT_IMAGE_SUFFIXES, write_float_image
 from omnispectral.io import atomic_path
@@ -41,6 +42,12 @@ from omnispectral.product.layout import open_product
 from omnispectral.product.saturation import recovered_sun_mask, saturated_mask, saturation_level_dn_s
 from omnispectral.product.spectra import SunOverlay, bands_to_linear_srgb, estimate_image, predicted_b_rel_std
 from omnispectral.spectral.colour import spectra_to_linear_srgb, srgb_encode
+
+__all__ = ["CLIPPED_ESTIMATE_FRACTION", "ENVI_IGNORE_VALUE", "EXPORT_SUFFIXES", "FICHET_EMISSIVE_UNITS", "FORMATS",
+           "HALF_MAX", "RADIANCE_PRIMARIES", "REC709_CHROMATICITIES", "SPECTRAL_LAYOUT_VERSION",
+           "check_export_output", "export_product", "light_values", "reinhard_srgb8", "spectral_channel_name",
+           "tone_map_srgb", "validity_layers", "with_radiance_primaries", "write_envi", "write_preview",
+           "write_radiance_hdr", "write_rgb_exr", "write_spectral_exr"]
 
 SPECTRAL_LAYOUT_VERSION = "1.0"
 #: The one ``emissiveUnits`` value the Fichet 2021 layout defines (spectral radiance per nm, written per channel).
@@ -230,9 +237,6 @@ def write_radiance_hdr(path: str | Path, rgb_linear: np.ndarray) -> Path:
         for piece in with_radiance_primaries(memoryview(encoded).cast("B")):
             fh.write(piece)
     return path
-
-
-FORMATS = ("spectral-exr", "envi", "rgb-exr", "hdr", "png", "jpg", "uncertainty")
 
 
 def check_export_output(fmt: str, output: str | Path, product: str | Path) -> None:

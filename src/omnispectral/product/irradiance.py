@@ -70,6 +70,11 @@ from omnispectral.product.estimator import estimator_from_params
 from omnispectral.product.layout import open_product, product_paths
 from omnispectral.product.sun import SUN_FILE, sun_lower_bound_note
 from omnispectral.spectral.colour import spectrum_cct_K
+from omnispectral.spectral.curves import resample_spectra
+
+__all__ = ["BLOCK_PIXELS", "HORIZONTAL_NORMAL", "IRRADIANCE_UNITS", "SPECTRAL_IRRADIANCE_UNITS", "PlaneIrradiance",
+           "column_moments", "cosine_weights", "irradiance", "painted_sun_irradiance", "row_moments", "safe_cct_K",
+           "sun_sky_irradiance", "unit_normal"]
 
 #: The normal of a horizontal plane facing up (world +Y).
 HORIZONTAL_NORMAL = (0.0, 1.0, 0.0)
@@ -312,8 +317,9 @@ def _sun_part(store: PanoramaStore, sun: dict, n: np.ndarray, wl: np.ndarray, n_
     sun_wl = np.asarray(sun["wavelength_nm"], np.float64)
     scale = float(sun["solid_angle_sr"]) * cos_i
     radiance = np.asarray(sun["spectral_radiance"], np.float64)
-    spd = np.interp(wl, sun_wl, radiance) * scale
-    std = np.interp(wl, sun_wl, np.asarray(sun.get("spectral_radiance_std", np.zeros_like(radiance)))) * scale
+    spd = resample_spectra(radiance, sun_wl, wl, outside="edge") * scale
+    radiance_std = np.asarray(sun.get("spectral_radiance_std", np.zeros_like(radiance)))
+    std = resample_spectra(radiance_std, sun_wl, wl, outside="edge") * scale
     painted = painted_sun_irradiance(store, sun["pixels"], n) if sun.get("pixels") else None
     return {"band_irradiance": band.tolist(), "cos_incidence": cos_i,
             "painted_band_irradiance": None if painted is None else painted.tolist(),

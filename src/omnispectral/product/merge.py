@@ -27,8 +27,12 @@ from omnispectral.imaging.bayer import correct_raw, demosaic
 from omnispectral.imaging.geometry import CameraModel
 from omnispectral.imaging.response import CameraResponse
 from omnispectral.mosaic.sources import MergedDirections, MergedDirectionsWriter
+from omnispectral.progress import ProgressCallback, report_progress
 from omnispectral.rig import RawSpec, rig_toml
 from omnispectral.spectral.colour import srgb_decode
+
+__all__ = ["RAW_ORDERS", "Bracket", "RawSettings", "RegisterFn", "calibrated_offset", "merge_direction",
+           "merge_session", "read_bracket", "srgb_response"]
 
 #: ``register(direction, image_a, image_b) -> (dx, dy)``: camera B's offset for one direction; it may also
 #: return ``(dx, dy, extra)`` with a dict recorded in the direction's entry of ``merged.json``.
@@ -134,29 +138,78 @@ def read_bracket(session, direction: int, camera: str, indices, raw: RawSettings
                    merge_options, filt)
 
 
+def _merged_radiance(b: Bracket, frames: list[np.ndarray]) -> np.ndarray:
+    """Eq. (1) over ``frames`` of the bracket ``b``: radiance ``(H, W, C)`` (C = 1 for a mosaic)."""
+    result = merge_exposures(frames, b.times, b.bit_depth, **b.merge_options)
+    return result.radiance if result.radiance.ndim == 3 else result.radiance[..., None]
+
+
+def _merge_then_demosaic(b: Bracket, spec: RawSpec) -> np.ndarray:
+    """``order = "merge-first"``: the mosaics merged, then the merged mosaic demosaiced once."""
+    return demosaic(_merged_radiance(b, b.frames)[..., 0], b.pattern, spec.demosaic)
+
+
+def _demosaic_then_merge(b: Bracket, spec: RawSpec) -> np.ndarray:
+    """``order = "demosaic-first"``: every frame demosaiced (:func:`_demosaic_frames`), then merged."""
+    return _merged_radiance(b, _demosaic_frames(b.frames, b.times, b.pattern, spec, b.bit_depth))
+
+
+#: How a raw Bayer bracket is merged, by the rig's ``[cameras.X.raw] order`` (its valid values are the keys,
+#: as :data:`omnispectral.imaging.bayer.ORDERS`): ``merge(bracket, spec) -> radiance (H, W, 3)``.
+RAW_ORDERS: dict[str, Callable[[Bracket, RawSpec], np.ndarray]] = {
+    "merge-first": _merge_then_demosaic,
+    "demosaic-first": _demosaic_then_merge,
+}
+
+
 def merge_direction(session, direction: int, camera: str, n_exposures: int, raw: RawSettings | None = None,
                     **merge_options) -> tuple[np.ndarray, tuple[float, float]]:
     """HDR merge (Eqs. (1)-(2)) of one camera's bracket; returns radiance (H, W, 3) and the reported pan/tilt.
 
     Frames are read and corrected by :func:`read_bracket`; Bayer mosaics are merged and then demosaiced once,
     or demosaiced frame by frame and then merged, as the rig's ``[cameras.X.raw] order`` says
-    (:mod:`omnispectral.imaging.bayer`).
+    (:data:`RAW_ORDERS`, :mod:`omnispectral.imaging.bayer`).
+
+    Parameters
+    ----------
+    session : Session
+        The open capture session.
+    direction : int
+        The direction's index in the plan.
+    camera : str
+        ``"A"`` or ``"B"``.
+    n_exposures : int
+        Exposures of the bracket (indices ``0 .. n_exposures - 1``).
+    raw : RawSettings, optional
+        The camera's black level (DN), dark frames and raw layout (default: no correction, RGB frames).
+    **merge_options
+        Keyword arguments of :func:`~omnispectral.imaging.hdr.merge_exposures` (``weight``, ``noise``,
+        ``deghost``, ...); imported sRGB images add their ``response``.
+
+    Returns
+    -------
+    radiance : numpy.ndarray
+        ``(H, W, 3)`` float32 HDR radiance in DN/s (Eq. (1)).
+    pose : tuple of float
+        The head's mean reported ``(pan, tilt)`` over the bracket (degrees).
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 4.1, Eqs. (1)-(2) (the HDR merge of each direction's bracket).
+    .. [2] D. Menon, S. Andriani, G. Calvagno, "Demosaicing with directional filtering and a posteriori
+       decision", IEEE TIP 16(1), 2007 (the default demosaicing of raw mosaics).
     """
     raw = raw or RawSettings()
     b = read_bracket(session, direction, camera, range(n_exposures), raw, **merge_options)
-    frames, pattern = b.frames, b.pattern
+    if b.pattern is None:  # RGB frames
+        return _merged_radiance(b, b.frames), b.pose
     spec = raw.raw or RawSpec()
-    if pattern is not None and spec.order == "demosaic-first":
-        frames = _demosaic_frames(frames, b.times, pattern, spec, b.bit_depth)
-    result = merge_exposures(frames, b.times, b.bit_depth, **b.merge_options)
-    radiance = result.radiance if result.radiance.ndim == 3 else result.radiance[..., None]
-    if pattern is not None and spec.order == "merge-first":
-        radiance = demosaic(radiance[..., 0], pattern, spec.demosaic)
-    return radiance, b.pose
+    return RAW_ORDERS[spec.order](b, spec), b.pose
 
 
 def merge_session(session: Session | str | Path, output: str | Path, *, register: RegisterFn | None = None,
-                  dtype: str = "float16", progress: Callable[[int, int], None] | None = None,
+                  dtype: str = "float16", progress: ProgressCallback | None = None,
                   skip: Collection[int] = (), cameras: dict[str, CameraModel] | None = None,
                   **merge_options) -> MergedDirections:
     """Stream a raw capture session into a merged-directions directory, one direction at a time.
@@ -168,7 +221,40 @@ def merge_session(session: Session | str | Path, output: str | Path, *, register
     direction is read, so memory holds one direction.  Directions already written are skipped, and
     so are the planned directions in ``skip`` (e.g. ones with damaged frames), which are not planned here.
     ``session`` is an open :class:`Session` or its directory; ``cameras`` the rig's camera models when the
-    caller has them already (default: built from the session's rig).
+    caller has them already (default: built from the session's rig).  ``progress("merge", done, total)`` after
+    each direction.
+
+    Parameters
+    ----------
+    session : Session or str or pathlib.Path
+        The capture session, open or its directory.
+    output : str or pathlib.Path
+        The merged-directions directory (``merged.json`` and the images); a partial one is resumed.
+    register : RegisterFn, optional
+        ``register(direction, image_a, image_b) -> (dx, dy[, extra])``: camera B's sensor offset (px) per
+        direction; default :func:`calibrated_offset` (0, 0).
+    dtype : str
+        Storage type of the merged images (``"float16"`` or ``"float32"``).
+    progress : ProgressCallback, optional
+        ``progress("merge", done, total)`` after each direction.
+    skip : collection of int
+        Direction indices left out (not planned in the output).
+    cameras : dict of str to CameraModel, optional
+        The rig's camera models (default: built from the session's rig).
+    **merge_options
+        Keyword arguments of :func:`~omnispectral.imaging.hdr.merge_exposures`, for every bracket.
+
+    Returns
+    -------
+    MergedDirections
+        The merged directions, open: per direction and camera the HDR radiance (DN/s), the reported pan and
+        tilt, camera B's offset, plus the camera models, the bands' sensitivities and the rig snapshot.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 4.1, Eqs. (1)-(2) (HDR synthesis), Sec. 4.3 (camera B's
+       registration, plugged in as ``register``), Fig. 5 (the processing flow).
     """
     session = session if isinstance(session, Session) else Session.open(session)
     rig = session.rig()
@@ -196,8 +282,7 @@ def merge_session(session: Session | str | Path, output: str | Path, *, register
             writer.add(d.index, pan, tilt, images, {"B": (dx, dy)} if "B" in images else {},
                        {"pan_deg_commanded": d.pan_deg, "tilt_deg_commanded": d.tilt_deg, **(rest[0] if rest else {})})
             del images
-        if progress is not None:
-            progress(i + 1, n)
+        report_progress(progress, "merge", i + 1, n)
     return MergedDirections.open(output)
 
 

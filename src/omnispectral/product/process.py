@@ -27,56 +27,54 @@ Stages (each timed, with progress; the whole run is resumable):
    panorama's attributes and in ``product.json``: spectra are computed on demand from the bands.
 
 ``PRODUCT/product.json`` indexes it all (see docs/product.md).
+
+Every choice of a run is one :class:`ProcessOptions` (validated once; :func:`process` builds it from its
+keywords); camera B's registration is looked up by name in :data:`REGISTRATIONS`.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from omnispectral.capture.session import Session, verify_session
+from omnispectral.choices import DEFAULT_INTERP, method_from, options_or_keywords
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.fingerprint import check_merged
 from omnispectral.imaging.geometry import CameraModel
+from omnispectral.imaging.hdr import WEIGHTS
 from omnispectral.imaging.registration import DEFAULT_MIN_CONFIDENCE
 from omnispectral.io import atomic_write_json, clean_temp_files
 from omnispectral.limits import guard_product_output
 from omnispectral.locking import directory_lock
-from omnispectral.mosaic import engine
+from omnispectral.mosaic.engine import mosaic
+from omnispectral.mosaic.options import DEFAULT_TILE, MosaicOptions
 from omnispectral.mosaic.sources import MergedDirections, MergedDirectionsWriter
 from omnispectral.mosaic.store import PanoramaStore
-from omnispectral.product.align import FAR_OFFSET_MIN_STD_PX, align_direction, off_model_warnings, parallax_direction
+from omnispectral.product.align import align_direction
+from omnispectral.product.direction_parallax import FAR_OFFSET_MIN_STD_PX, off_model_warnings, parallax_direction
 from omnispectral.product.estimator import b_predictor, rig_estimator
+from omnispectral.product.far_content import far_content_errors, far_content_warning
 from omnispectral.product.fingerprint import product_fingerprint
 from omnispectral.product.layout import MERGED, PANORAMA, PRODUCT_FORMAT, RIG_CALIBRATION, product_paths
 from omnispectral.product.merge import merge_session
 from omnispectral.product.report import write_report
-from omnispectral.product.rigcal import RigCalibration, calibrate_from_merged
-from omnispectral.product.rigsource import (
-    CalibrationSource,
-    choose_rig_calibration,
-    far_content_errors,
-    far_content_warning,
-)
+from omnispectral.product.rigfile import RigCalibration
+from omnispectral.product.rigsession import calibrate_from_merged
+from omnispectral.product.rigsource import CalibrationSource, choose_rig_calibration
 from omnispectral.product.sun import SUN_FILE, paint_sun, sun_summary
-from omnispectral.product.sun_methods import recover_sun
+from omnispectral.product.sun_methods import recover_sun, sun_method
+from omnispectral.product.sun_reference import SunReference
+from omnispectral.progress import ProgressCallback, optional_progress, report_progress, under_stage
 from omnispectral.threads import ordered_thread_map
 
-#: ``progress(stage, done, total)``: how far a named stage of a long run is (the command line draws it).
-ProgressCallback = Callable[[str, int, int], None]
-
-
-#: Interpolation of ``process`` and of the ``mosaic`` command: Keys cubic clamped to the 2 × 2 neighbours' range
-#: (``mosaic.interp``): sharper than bilinear on texture and edges, and like it never overshoots.
-DEFAULT_INTERP = "cubic-clamped"
-
-
-def _stage(progress: ProgressCallback | None, name: str) -> Callable[[int, int], None] | None:
-    """A ``(done, total)`` callback reporting as stage ``name`` (``None`` when there is no progress)."""
-    return None if progress is None else (lambda done, total: progress(name, done, total))
+__all__ = ["DEFAULT_INTERP", "REGISTRATIONS", "ProcessOptions", "Registration", "bad_directions",
+           "calibration_source_of", "merge_and_register", "merge_only", "parallax_registration", "process",
+           "register_parallax", "registration_method"]
 
 
 def bad_directions(report: dict) -> dict[int, list[str]]:
@@ -106,12 +104,13 @@ def _check_session(session_path: Path, skip_bad: bool, verify_checksums: bool) -
     return report, bad
 
 
-def merge_and_register(session: Session, out: Path, skip: set[int], min_confidence: float, progress=None,
-                       timings: dict | None = None, hdr_weight: str = "noise",
-                       models: dict | None = None) -> tuple[object, list[dict]]:
+def merge_and_register(session: Session, out: Path, skip: set[int], min_confidence: float,
+                       progress: ProgressCallback | None = None, timings: dict | None = None,
+                       hdr_weight: str = "noise", models: dict | None = None) -> tuple[object, list[dict]]:
     """Stage 2: :func:`omnispectral.product.merge.merge_session` (streamed per direction) with camera B
     registered to A by :func:`~omnispectral.product.align.align_direction`; returns the merged directions
-    and the alignment of every direction.  ``models``: the rig's camera models (default: built here)."""
+    and the alignment of every direction.  ``models``: the rig's camera models (default: built here);
+    ``progress("merge", done, total)`` per direction."""
     models = models or {c: session.rig().camera_model(c) for c in session.cameras()}
     t_reg, n_merged = 0.0, 0
 
@@ -119,7 +118,7 @@ def merge_and_register(session: Session, out: Path, skip: set[int], min_confiden
         nonlocal t_reg, n_merged
         n_merged += 1
         t0 = time.perf_counter()
-        # for points at infinity the A-to-B relation does not depend on the head direction (product.align)
+        # for points at infinity the A-to-B relation does not depend on the head direction (product.pairgeometry)
         al = align_direction(direction, img_a, img_b, models["A"], models["B"], 0.0, 0.0, min_confidence)
         t_reg += time.perf_counter() - t0
         return (*al.offset_px, {"alignment": al.to_dict()})
@@ -134,14 +133,10 @@ def merge_and_register(session: Session, out: Path, skip: set[int], min_confiden
     return merged, [d["alignment"] for d in merged.directions if "alignment" in d]
 
 
-#: Registration methods: ``parallax`` (default: rig calibration of camera B + per-pixel parallax) and
-#: ``paper`` (one POC offset per direction, Sec. 4.3 of the paper).
-REGISTRATIONS = ("parallax", "paper")
-
-
-def merge_only(session: Session, out: Path, skip: set[int], progress=None, timings: dict | None = None,
-               hdr_weight: str = "noise", models: dict | None = None):
-    """Stage 2 without registration: the HDR merge of every direction (camera B at the rig file's mounting)."""
+def merge_only(session: Session, out: Path, skip: set[int], progress: ProgressCallback | None = None,
+               timings: dict | None = None, hdr_weight: str = "noise", models: dict | None = None):
+    """Stage 2 without registration: the HDR merge of every direction (camera B at the rig file's mounting);
+    ``progress("merge", done, total)`` per direction."""
     t0 = time.perf_counter()
     if (out / "merged.json").is_file():  # a resumed run: nothing to merge when the directory is complete
         try:
@@ -157,10 +152,12 @@ def merge_only(session: Session, out: Path, skip: set[int], progress=None, timin
     return merged
 
 
-def register_parallax(merged, calibration=None, progress=None, timings: dict | None = None):
+def register_parallax(merged, calibration=None, progress: ProgressCallback | None = None,
+                      timings: dict | None = None):
     """Stage 2b: camera B's mounting (``calibration``, or fitted now from every direction,
-    :mod:`omnispectral.product.rigcal`), then every direction's per-pixel parallax
-    (:func:`~omnispectral.product.align.parallax_direction`) saved beside the merged images.
+    :mod:`omnispectral.product.rigfit`), then every direction's per-pixel parallax
+    (:func:`~omnispectral.product.direction_parallax.parallax_direction`) saved beside the merged images
+    (``progress("parallax", done, total)`` per direction).
 
     Resumes: directions whose parallax was computed with the same calibration are kept.  Returns the
     calibration and the per-direction parallax statistics.
@@ -204,8 +201,7 @@ def register_parallax(merged, calibration=None, progress=None, timings: dict | N
         par = reg.parallax
         data = np.stack([par.inv_depth_per_m, par.confidence, par.occluded.astype(np.float32)], axis=-1)
         writer.save_parallax(i, data, reg.stats(), offset_px=reg.offset_px)
-        if progress is not None:
-            progress(n_done + k + 1, n_total)
+        report_progress(progress, "parallax", n_done + k + 1, n_total)
     stats = [{"direction": int(d["index"]), **{k: v for k, v in d["images"]["B"]["parallax"].items() if k != "file"}}
              for d in writer.meta["directions"]]
     if timings is not None:
@@ -213,53 +209,12 @@ def register_parallax(merged, calibration=None, progress=None, timings: dict | N
     return MergedDirections.open(merged.path), calibration, stats
 
 
-def process(session: str | Path, output: str | Path, *, width: int | None = None, tile: int | None = None,
-            interp: str | None = None, scheduler=None, workers: int | None = None, skip_bad: bool = False,
-            min_confidence: float | None = None, hdr_weight: str = "noise", report: bool = True,
-            progress: ProgressCallback | None = None, verify_checksums: bool = True, registration: str = "parallax",
-            rig_calibration: str | Path | None = None, overwrite: bool = False, sun: str = "auto",
-            sun_reference=None, calibration_views: bool = True) -> dict:
-    """Run stages 1-4 (module docstring) and write ``product.json`` and, by default, the report.
-
-    ``hdr_weight`` defaults to the inverse-variance weight: the paper's triangle weight lets 1-DN
-    values of the shortest exposures bias dark regions upwards (+36 % at 360 DN in the longest
-    exposure on the simulated rig; docs/benchmarks.md), which would show in the spectra.
-
-    ``sun`` chooses how the saturated sun is recovered (:mod:`omnispectral.product.sun_methods`: ``auto``,
-    ``nd-bracket``, ``diffuse-reference`` with ``sun_reference`` (a
-    :class:`~omnispectral.product.sun_reference.SunReference`), ``sky-model``, ``none``); the product records
-    the method and ``sun.json``.
-
-    ``progress(stage, done, total)`` is called as each stage advances (``merge``, ``parallax`` or
-    ``merge + register``, then the mosaic's ``tiles`` and ``pyramid``); the command line draws it.
-
-    Camera B's mounting (parallax registration): ``rig_calibration``, else the chessboard views recorded for
-    the session (``SESSION/calibration/``, or the series' for a time-lapse slot; fitted once and cached there)
-    unless ``calibration_views`` is false, else fitted from the session's own images
-    (:mod:`omnispectral.product.rigsource`); ``product.json`` says which (``registration.rig_calibration_source``)
-    and how far off far content may be in each direction (``far_content_error_px``).
-    """
-
-    if registration not in REGISTRATIONS:
-        raise ConfigurationError(f"registration must be one of {', '.join(REGISTRATIONS)}, got {registration!r}")
-    session_path = Path(session)
-    paths = product_paths(output)
-    guard_product_output(session_path, paths["root"], width)
-    with directory_lock(paths["root"], "process"):
-        return _process_locked(session_path, paths, width=width, tile=tile, interp=interp,
-                               scheduler=scheduler, workers=workers, skip_bad=skip_bad,
-                               min_confidence=min_confidence, hdr_weight=hdr_weight, report=report,
-                               progress=progress, verify_checksums=verify_checksums, registration=registration,
-                               rig_calibration=rig_calibration, overwrite=overwrite, sun_method=sun,
-                               sun_reference=sun_reference, calibration_views=calibration_views)
-
-
 def calibration_source_of(session_path: Path, registration: str, rig_calibration: str | Path | None,
                           use_views: bool = True) -> CalibrationSource | None:
     """Camera B's calibration for the parallax registration: ``rig_calibration``, else the chessboard views that
     apply to the session, else its own images (:func:`~omnispectral.product.rigsource.choose_rig_calibration`);
     ``None`` when B is not registered through a rig model (one camera, or the paper's method)."""
-    if registration != "parallax":
+    if not registration_method(registration).rig_model:
         return CalibrationSource("file", str(rig_calibration), RigCalibration.load(rig_calibration)) \
             if rig_calibration is not None else None
     rig = Session.open(session_path).rig()
@@ -272,7 +227,7 @@ def parallax_registration(calibration: RigCalibration, source: CalibrationSource
                           model_a: CameraModel, model_b: CameraModel) -> dict:
     """The index's ``registration`` for the parallax method: the calibration and where it came from, every
     direction's statistics with how far off its far content may be (``far_content_error_px``,
-    :func:`~omnispectral.product.rigsource.far_content_errors`) and the warnings."""
+    :func:`~omnispectral.product.far_content.far_content_errors`) and the warnings."""
     far = far_content_errors(calibration, stats, model_a, model_b)
     for d in stats:
         d["far_content_error_px"] = far["per_direction"].get(int(d["direction"]))
@@ -286,59 +241,365 @@ def parallax_registration(calibration: RigCalibration, source: CalibrationSource
             "directions": stats}
 
 
-def _process_locked(session_path: Path, paths: dict, *, width, tile, interp, scheduler, workers,
-                    skip_bad, min_confidence, hdr_weight, report, progress, verify_checksums, registration,
-                    rig_calibration, overwrite, sun_method="auto", sun_reference=None,
-                    calibration_views: bool = True) -> dict:
+# ------------------------------------------------------------------------------------------ registration methods
+@dataclass
+class _Run:
+    """One ``process`` run as its registration method sees it: the session, the product's paths, the directions
+    left out, the options, the rig's camera models, camera B's calibration source, the timings, the progress."""
+
+    session: Session
+    paths: dict
+    bad: dict[int, list[str]]
+    options: ProcessOptions
+    models: dict
+    calibration_source: CalibrationSource | None
+    timings: dict
+    progress: ProgressCallback | None
+
+
+def _register_one_camera(run: _Run) -> tuple[MergedDirections, dict]:
+    """One camera (three bands): the merge alone, nothing to register."""
+    merged = merge_only(run.session, run.paths["merged"], set(run.bad), run.progress, run.timings,
+                        run.options.hdr_weight, run.models)
+    return merged, {"method": "none", "note": "one camera: nothing to register", "directions": []}
+
+
+def _register_paper(run: _Run) -> tuple[MergedDirections, dict]:
+    """The paper's registration (Sec. 4.3): one POC offset per direction during the merge
+    (:func:`merge_and_register`, reported as stage ``"merge + register"``)."""
+    min_confidence = run.options.min_confidence_or_default
+    merged, alignments = merge_and_register(run.session, run.paths["merged"], set(run.bad), min_confidence,
+                                            under_stage(run.progress, "merge + register"), run.timings,
+                                            run.options.hdr_weight, run.models)
+    return merged, {"method": "paper", "min_confidence": min_confidence, "directions": alignments}
+
+
+def _register_parallax(run: _Run) -> tuple[MergedDirections, dict]:
+    """The default registration: the merge, camera B's mounting (its calibration source), then every direction's
+    per-pixel parallax (:func:`register_parallax`); the index's entry by :func:`parallax_registration`."""
+    source = run.calibration_source
+    merged = merge_only(run.session, run.paths["merged"], set(run.bad), run.progress, run.timings,
+                        run.options.hdr_weight, run.models)
+    merged, calibration, stats = register_parallax(merged, source.calibration, run.progress, run.timings)
+    run.timings["rig_calibration"] = run.timings.get("rig_calibration", 0.0) + source.fit_s  # views' fit
+    return merged, parallax_registration(calibration, source, stats, merged.cameras["A"], merged.cameras["B"])
+
+
+@dataclass(frozen=True)
+class Registration:
+    """One registration method of camera B to camera A.
+
+    Attributes
+    ----------
+    register
+        ``register(run) -> (merged directions, the index's "registration" entry)``: stage 2 of the run.
+    rig_model
+        Whether camera B is registered through a calibrated model of the rig (its calibration source is chosen
+        before the run: :func:`calibration_source_of`).
+    """
+
+    register: Callable[[_Run], tuple[MergedDirections, dict]]
+    rig_model: bool
+
+
+#: Registration methods by name (the valid names are its keys): ``parallax`` (default: rig calibration of
+#: camera B + per-pixel parallax) and ``paper`` (one POC offset per direction, Sec. 4.3 of the paper).
+REGISTRATIONS: dict[str, Registration] = {
+    "parallax": Registration(_register_parallax, rig_model=True),
+    "paper": Registration(_register_paper, rig_model=False),
+}
+#: What a one-camera rig runs whatever the registration asked for: the merge alone (``"method": "none"``).
+ONE_CAMERA = Registration(_register_one_camera, rig_model=False)
+
+
+def registration_method(name: str) -> Registration:
+    """The :class:`Registration` called ``name``.
+
+    Parameters
+    ----------
+    name
+        A key of :data:`REGISTRATIONS`.
+
+    Returns
+    -------
+    Registration
+        The method's entry.
+
+    Raises
+    ------
+    ConfigurationError
+        For an unknown name (the message lists the valid ones).
+    """
+    return method_from(REGISTRATIONS, name, "registration")
+
+
+# ------------------------------------------------------------------------------------------ options
+@dataclass(frozen=True)
+class ProcessOptions:
+    """Every choice of a :func:`process` run, validated once when built (unknown method names list the valid
+    ones).
+
+    Attributes
+    ----------
+    width, tile
+        Panorama width in px (default: camera A's native width) and the store's tile side in px (default
+        :data:`omnispectral.mosaic.options.DEFAULT_TILE`).
+    interp
+        Interpolation, a key of :data:`omnispectral.mosaic.interp.METHODS` (``None``: :data:`DEFAULT_INTERP`).
+    scheduler, workers
+        The mosaic's Dask scheduler (``None``: local threads) and local threads.
+    skip_bad
+        Leave out the directions with missing or damaged frames instead of stopping.
+    min_confidence
+        The paper's registration: the POC confidence below which the calibrated offset is kept (``None``:
+        :data:`omnispectral.imaging.registration.DEFAULT_MIN_CONFIDENCE`).
+    hdr_weight
+        The HDR merge's weight, a key of :data:`omnispectral.imaging.hdr.WEIGHTS` (default the inverse variance,
+        ``"noise"``).
+    report
+        Write the report.
+    verify_checksums
+        Check every frame's SHA-256 and decode it (else sizes only).
+    registration
+        Camera B's registration, a key of :data:`REGISTRATIONS`.
+    rig_calibration
+        Camera B's calibration file for the parallax registration.
+    overwrite
+        Replace a product made with other settings instead of refusing.
+    sun
+        The sun's recovery, a key of :data:`omnispectral.product.sun_methods.SUN_METHODS`.
+    sun_reference
+        The diffuse reference ``sun="diffuse-reference"`` needs.
+    calibration_views
+        Use the chessboard views recorded for the session.
+    truth
+        A simulated session's ground truth for the report's accuracy section.
+    """
+
+    width: int | None = None
+    tile: int | None = None
+    interp: str | None = None
+    scheduler: object = None
+    workers: int | None = None
+    skip_bad: bool = False
+    min_confidence: float | None = None
+    hdr_weight: str = "noise"
+    report: bool = True
+    verify_checksums: bool = True
+    registration: str = "parallax"
+    rig_calibration: str | Path | None = None
+    overwrite: bool = False
+    sun: str = "auto"
+    sun_reference: SunReference | None = None
+    calibration_views: bool = True
+    truth: object = None
+
+    def __post_init__(self):
+        registration_method(self.registration)
+        if self.interp is None:
+            object.__setattr__(self, "interp", DEFAULT_INTERP)
+        if self.hdr_weight not in WEIGHTS:
+            raise ConfigurationError(f"unknown weight {self.hdr_weight!r}; expected one of {', '.join(WEIGHTS)}")
+        sun_method(self.sun)
+        self.mosaic_options()  # width, tile, interpolation
+
+    @property
+    def min_confidence_or_default(self) -> float:
+        """``min_confidence``, or the default when it is ``None``."""
+        return DEFAULT_MIN_CONFIDENCE if self.min_confidence is None else self.min_confidence
+
+    def mosaic_options(self, b_predictor=None, overwrite: bool | None = None) -> MosaicOptions:
+        """The mosaic's options of this run.
+
+        Parameters
+        ----------
+        b_predictor
+            The prior's predictor of camera B's bands from A's (:func:`omnispectral.product.estimator.b_predictor`).
+        overwrite
+            Replace the panorama (default: the options' ``overwrite``).
+
+        Returns
+        -------
+        MosaicOptions
+            Width, tile, interpolation, scheduler, workers, overwrite and the predictor; the rest at their
+            defaults.
+        """
+        return MosaicOptions(width=self.width, tile=DEFAULT_TILE if self.tile is None else self.tile,
+                             interp=self.interp, scheduler=self.scheduler, workers=self.workers,
+                             overwrite=self.overwrite if overwrite is None else overwrite, b_predictor=b_predictor)
+
+    @classmethod
+    def from_keywords(cls, options: ProcessOptions | None = None, **keywords) -> ProcessOptions:
+        """``options``, or the options the keywords of :func:`process` describe.
+
+        Parameters
+        ----------
+        options
+            Options built by the caller, or ``None``.
+        **keywords
+            :func:`process`'s keywords (one per field).  With ``options`` given, each must be left at its
+            default: the two ways of choosing do not mix.
+
+        Returns
+        -------
+        ProcessOptions
+            The validated options.
+        """
+        return options_or_keywords(cls, options, keywords)
+
+
+# ------------------------------------------------------------------------------------------ the run
+def process(session: str | Path, output: str | Path, *, options: ProcessOptions | None = None,
+            width: int | None = None, tile: int | None = None, interp: str | None = None, scheduler=None,
+            workers: int | None = None, skip_bad: bool = False, min_confidence: float | None = None,
+            hdr_weight: str = "noise", report: bool = True, progress: ProgressCallback | None = None,
+            verify_checksums: bool = True, registration: str = "parallax", rig_calibration: str | Path | None = None,
+            overwrite: bool = False, sun: str = "auto", sun_reference: SunReference | None = None,
+            calibration_views: bool = True, truth=None) -> dict:
+    """Run stages 1-4 (module docstring) and write ``product.json`` and, by default, the report.
+
+    Every keyword but ``progress`` is a field of :class:`ProcessOptions` (documented there); ``options`` gives
+    them as one object instead (then leave the keywords at their defaults).
+
+    ``hdr_weight`` defaults to the inverse-variance weight: the paper's triangle weight lets 1-DN
+    values of the shortest exposures bias dark regions upwards (+36 % at 360 DN in the longest
+    exposure on the simulated rig; docs/benchmarks.md), which would show in the spectra.
+
+    ``sun`` chooses how the saturated sun is recovered (:mod:`omnispectral.product.sun_methods`: ``auto``,
+    ``nd-bracket``, ``diffuse-reference`` with ``sun_reference`` (a
+    :class:`~omnispectral.product.sun_reference.SunReference`), ``sky-model``, ``none``); the product records
+    the method and ``sun.json``.
+
+    ``progress(stage, done, total)`` (:data:`omnispectral.progress.ProgressCallback`) is called as each stage
+    advances (``merge``, ``parallax`` or ``merge + register``, then the mosaic's ``tiles`` and ``pyramid``,
+    then ``sun``); the command line draws it.
+
+    Camera B's mounting (parallax registration): ``rig_calibration``, else the chessboard views recorded for
+    the session (``SESSION/calibration/``, or the series' for a time-lapse slot; fitted once and cached there)
+    unless ``calibration_views`` is false, else fitted from the session's own images
+    (:mod:`omnispectral.product.rigsource`); ``product.json`` says which (``registration.rig_calibration_source``)
+    and how far off far content may be in each direction (``far_content_error_px``).
+
+    ``truth``: a simulated session's ground truth for the report's accuracy section
+    (:meth:`omnispectral.sim.truth.GroundTruth.of_session`; processing itself never reads it).
+
+    Parameters
+    ----------
+    session : str or pathlib.Path
+        The capture session's directory.
+    output : str or pathlib.Path
+        The product directory (``product.json``, ``merged/``, ``panorama.zarr``, ``sun.json``, the report);
+        the run holds its lock and resumes a run with the same settings.
+    options : ProcessOptions, optional
+        Every choice below as one object.
+    width, tile : int, optional
+        Panorama width in px (default: camera A's native width; height = width / 2) and tile side in px.
+    interp : str, optional
+        Interpolation of the mosaic (default :data:`DEFAULT_INTERP`, ``"cubic-clamped"``).
+    scheduler, workers
+        The mosaic's Dask scheduler (address or ``Client``; ``None``: local threads) and local threads (int).
+    skip_bad : bool
+        Leave out the directions with missing or damaged frames instead of stopping.
+    min_confidence : float, optional
+        The paper's registration: POC confidence (peak height, 0-1) below which the calibrated offset is kept.
+    hdr_weight : str
+        ``"noise"`` (inverse variance, default) or ``"triangle"`` (the paper's Eq. (2)).
+    report : bool
+        Write the report.
+    progress : ProgressCallback, optional
+        ``progress(stage, done, total)`` as each stage advances (above).
+    verify_checksums : bool
+        Check every frame's SHA-256 and decode it (else file sizes only).
+    registration : str
+        Camera B's registration: ``"parallax"`` (default, per pixel) or ``"paper"`` (one POC offset per
+        direction).
+    rig_calibration : str or pathlib.Path, optional
+        Camera B's calibration file for the parallax registration.
+    overwrite : bool
+        Replace a product made with other settings instead of refusing.
+    sun : str
+        The sun's recovery: ``"auto"``, ``"nd-bracket"``, ``"diffuse-reference"``, ``"sky-model"`` or ``"none"``.
+    sun_reference : SunReference, optional
+        The diffuse reference ``sun="diffuse-reference"`` needs.
+    calibration_views : bool
+        Use the chessboard views recorded for the session (or its series).
+    truth : GroundTruth, optional
+        A simulated session's ground truth for the report's accuracy section.
+
+    Returns
+    -------
+    dict
+        The product's index (``product.json``).
+
+    Raises
+    ------
+    ConfigurationError
+        For invalid options (unknown method names list the valid ones).
+    InputFileError
+        For a session with missing or damaged frames (without ``skip_bad``).
+    LockedError
+        When another run holds the product's lock.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 4, Fig. 5 (the processing flow): Sec. 4.1, Eqs. (1)-(2) (HDR
+       synthesis), Sec. 4.2 (lens distortion), Sec. 4.3, Eq. (3) (registration), Sec. 4.4-4.5, Eq. (4),
+       Fig. 8 (omnidirectional synthesis), Sec. 4.6, Eqs. (5)-(7) (the spectral estimator).
+    .. [2] M. Granados et al., "Optimal HDR reconstruction with linear digital cameras", CVPR 2010 (the default
+       inverse-variance HDR weight).
+    .. [3] K. Takita, T. Aoki, Y. Sasaki, T. Higuchi, K. Kobayashi, "High-accuracy subpixel image registration
+       based on phase-only correlation", IEICE Trans. Fundamentals E86-A(8), 1925-1934, 2003 (the POC of
+       both registrations).
+    .. [4] R. G. Keys, "Cubic convolution interpolation for digital image processing", IEEE TASSP 29(6), 1981
+       (the default interpolation, clamped).
+    """
+    options = ProcessOptions.from_keywords(
+        options, width=width, tile=tile, interp=interp, scheduler=scheduler, workers=workers, skip_bad=skip_bad,
+        min_confidence=min_confidence, hdr_weight=hdr_weight, report=report, verify_checksums=verify_checksums,
+        registration=registration, rig_calibration=rig_calibration, overwrite=overwrite, sun=sun,
+        sun_reference=sun_reference, calibration_views=calibration_views, truth=truth)
+    session_path = Path(session)
+    paths = product_paths(output)
+    guard_product_output(session_path, paths["root"], options.width)
+    with directory_lock(paths["root"], "process"):
+        return _process_locked(session_path, paths, options, optional_progress(progress))
+
+
+def _process_locked(session_path: Path, paths: dict, options: ProcessOptions,
+                    progress: ProgressCallback | None) -> dict:
     """:func:`process` while holding the product's lock."""
     clean_temp_files(paths["root"])
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    check, bad = _check_session(session_path, skip_bad, verify_checksums)
+    check, bad = _check_session(session_path, options.skip_bad, options.verify_checksums)
     timings["check"] = time.perf_counter() - t0
     s = Session.open(session_path)  # opened once for the run: the merge reads its frames through it
     rig = s.rig()
     models = {c: rig.camera_model(c) for c in rig.camera_names}
-    progress = progress or None  # False (no progress) is accepted too
-    calibration_source = calibration_source_of(session_path, registration, rig_calibration, calibration_views)
-    calibration = calibration_source.calibration if calibration_source is not None else None
-    fingerprint = product_fingerprint(session_path, hdr_weight=hdr_weight, registration=registration,
-                                      min_confidence=min_confidence, rig_calibration=rig_calibration,
+    calibration_source = calibration_source_of(session_path, options.registration, options.rig_calibration,
+                                               options.calibration_views)
+    fingerprint = product_fingerprint(session_path, hdr_weight=options.hdr_weight, registration=options.registration,
+                                      min_confidence=options.min_confidence, rig_calibration=options.rig_calibration,
                                       calibration_views_sha256=getattr(calibration_source, "views_sha256", None),
                                       skipped_directions=bad)
-    state = check_merged(paths["merged"], fingerprint, overwrite,
+    state = check_merged(paths["merged"], fingerprint, options.overwrite,
                          dependents=(paths["panorama"], paths["rig_calibration"], paths["index"]))
-    parallax_stats = None
-    if "B" not in models:  # one camera (three bands): nothing to register
-        merged = merge_only(s, paths["merged"], set(bad), _stage(progress, "merge"), timings, hdr_weight, models)
-        alignments = []
-    elif registration == "paper":
-        merged, alignments = merge_and_register(s, paths["merged"], set(bad),
-                                                DEFAULT_MIN_CONFIDENCE if min_confidence is None
-                                                else min_confidence,
-                                                _stage(progress, "merge + register"), timings, hdr_weight, models)
-    else:
-        merged = merge_only(s, paths["merged"], set(bad), _stage(progress, "merge"), timings, hdr_weight, models)
-        merged, calibration, parallax_stats = register_parallax(merged, calibration, _stage(progress, "parallax"),
-                                                                timings)
-        timings["rig_calibration"] = timings.get("rig_calibration", 0.0) + calibration_source.fit_s  # views' fit
-        alignments = []
+    registration = ONE_CAMERA if "B" not in models else registration_method(options.registration)
+    run = _Run(s, paths, bad, options, models, calibration_source, timings, progress)
+    merged, registration_entry = registration.register(run)
     t2 = time.perf_counter()
     est, est_info = rig_estimator(rig)
     timings["estimator"] = time.perf_counter() - t2
     t1 = time.perf_counter()
-    kwargs = {k: v for k, v in (("width", width), ("tile", tile)) if v is not None}
-    kwargs["interp"] = interp or DEFAULT_INTERP
-    kwargs["b_predictor"] = b_predictor(est)  # B's bands where B saw nothing (mosaic.predict)
-    summary = engine.mosaic(merged, paths["panorama"], scheduler=scheduler, workers=workers,
-                            progress=None if progress is None else
-                            (lambda stage, _result, done, total: progress(stage, done, total)),
-                            overwrite=overwrite or state == "overwritten", **kwargs)
+    # B's bands where B saw nothing (mosaic.predict)
+    mosaic_options = options.mosaic_options(b_predictor(est), overwrite=options.overwrite or state == "overwritten")
+    summary = mosaic(merged, paths["panorama"], options=mosaic_options, progress=progress)
     timings["mosaic"] = time.perf_counter() - t1
     t_sun = time.perf_counter()
     store = PanoramaStore.open(paths["panorama"])
-    sun = recover_sun(s, {**models, **merged.cameras}, rig, list(merged.meta["band_names"]), sun_method,
-                      _stage(progress, "sun"), store, sun_reference, merged)
+    sun = recover_sun(s, {**models, **merged.cameras}, rig, list(merged.meta["band_names"]), options.sun,
+                      progress, store, options.sun_reference, merged)
     if sun.get("recovered"):
         sun["pixels"] = paint_sun(store, sun)
     store.update_attrs({"omnispectral": {**store.attrs()["omnispectral"], "sun": sun}})
@@ -353,23 +614,17 @@ def _process_locked(session_path: Path, paths: dict, *, width, tile, interp, sch
     index = {"format": PRODUCT_FORMAT, "format_version": 1, "session": str(session_path.resolve()),
              "session_kind": s.metadata().get("kind"), "rig": rig.name, "panorama": PANORAMA, "merged": MERGED,
              "width": summary["width"], "height": summary["height"], "bands": list(merged.meta["band_names"]),
-             "units": merged.meta["units"], "hdr_weight": hdr_weight,
+             "units": merged.meta["units"], "hdr_weight": options.hdr_weight,
              "estimator": {k: estimator[k] for k in ("params", "sigma2", "prior")},
-             "registration": ({"method": "none", "note": "one camera: nothing to register", "directions": []}
-                              if "B" not in models else
-                              {"method": "paper",
-                               "min_confidence": DEFAULT_MIN_CONFIDENCE if min_confidence is None else min_confidence,
-                               "directions": alignments} if registration == "paper" else
-                              parallax_registration(calibration, calibration_source, parallax_stats,
-                                                    merged.cameras["A"], merged.cameras["B"])),
+             "registration": registration_entry,
              "skipped_directions": [{"direction": d, "problems": p} for d, p in sorted(bad.items())],
              "session_check": {k: check[k] for k in ("n_planned", "n_ok", "n_missing", "n_damaged")},
              "mosaic": {k: v for k, v in summary.items() if k not in ("output",)},
              "sun": sun_summary(sun), "timings_s": timings, "fingerprint": fingerprint}
     atomic_write_json(paths["index"], index)
-    if report:
+    if options.report:
         t3 = time.perf_counter()
-        rep = write_report(paths["root"])
+        rep = write_report(paths["root"], truth=options.truth)
         index["timings_s"]["report"] = time.perf_counter() - t3
         index["report"] = rep["files"]
         atomic_write_json(paths["index"], index)

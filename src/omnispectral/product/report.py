@@ -30,7 +30,6 @@ integral of ``ground_truth/bands.npy``), ``ratio_to_truth`` = panorama / truth p
 from __future__ import annotations
 
 import html
-import json
 from pathlib import Path
 
 import cv2
@@ -58,9 +57,12 @@ from omnispectral.product.report_edges import (
     worst_pixels,
 )
 from omnispectral.product.report_maps import mark_worst_pixels, plot_error_maps, plot_quality
-from omnispectral.product.rigcal import DIRECTION_WARNING_PX
+from omnispectral.product.rigfile import DIRECTION_WARNING_PX
 from omnispectral.product.spectra import bands_to_linear_srgb
 from omnispectral.spectral.metrics import colour_differences, nrmse
+
+__all__ = ["MAX_PATCH_RADIANCE_SPREAD", "accuracy", "accuracy_and_pixel_errors", "chart_scores", "irradiance_report",
+           "patch_bands", "pixel_error_report", "psnr_db", "store_holes", "write_report"]
 
 #: A chart patch whose radiance varies more than this over its central 80 % (``(max − min) / mean``) is
 #: crossed by a shadow edge and is not scored (module docstring).  Sky light varies < 1 % over a patch.
@@ -113,55 +115,92 @@ def patch_bands(bands: np.ndarray, lon_deg: float, lat_deg: float, radius_deg: f
     return sel.mean(axis=0) if sel.size else np.full(bands.shape[2], np.nan)
 
 
-def accuracy(bands: np.ndarray, estimator, gt_dir: Path, shortest_s: float, max_dn: int,
+def accuracy(bands: np.ndarray, estimator, truth, shortest_s: float, max_dn: int,
              band_names: list[str] | None = None) -> dict:
     """Accuracy of a panorama against the simulator's ground truth (module docstring).
 
-    ``band_names``: the panorama's bands; when the truth holds more (a one-camera product compared with the
-    truth of a two-camera simulation), the truth's bands of those names are compared."""
-    return accuracy_and_pixel_errors(bands, estimator, gt_dir, shortest_s, max_dn, band_names)[0]
+    ``truth``: the interface of :class:`omnispectral.sim.truth.GroundTruth`.  ``band_names``: the panorama's bands;
+    when the truth holds more (a one-camera product compared with the truth of a two-camera simulation), the
+    truth's bands of those names are compared.
+
+    Parameters
+    ----------
+    bands : numpy.ndarray
+        ``(H, W, m)`` panorama bands in DN/s (NaN where nothing covers a pixel).
+    estimator : WienerEstimator
+        The product's estimator.
+    truth : GroundTruth
+        The simulated session's ground truth: bands (DN/s), spectral radiance, the ColorChecker's patches.
+    shortest_s : float
+        The bracket's shortest exposure (s): truth values at or above ``max_dn / shortest_s`` saturate every
+        exposure and are not measured.
+    max_dn : int
+        The largest code (DN).
+    band_names : list of str, optional
+        The panorama's band names.
+
+    Returns
+    -------
+    dict
+        ``band_psnr_db`` (dB), ``n_bands`` (and ``six_band_psnr_db`` for six bands), ``pixels_compared_fraction``,
+        ``uncovered_fraction``, ``pixel_errors``, ``spectral_nrmse`` and ``spectral_pixels``, and ``colorchecker``
+        (per-patch and mean NRMSE and ΔE*ab, estimated and true spectra; ``None`` with a note when the chart
+        is not covered).
+
+    Raises
+    ------
+    ConfigurationError
+        When the truth's bands do not include the panorama's.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 5.2, Fig. 9 (ColorChecker spectra: normalized RMSE and ΔE*ab), Fig. 11
+       (spectra at points of the scene).
+    .. [2] CIE 015:2018, Colorimetry, 4th ed. (CIELAB, ΔE*ab).
+    """
+    return accuracy_and_pixel_errors(bands, estimator, truth, shortest_s, max_dn, band_names)[0]
 
 
-def accuracy_and_pixel_errors(bands: np.ndarray, estimator, gt_dir: Path, shortest_s: float, max_dn: int,
+def accuracy_and_pixel_errors(bands: np.ndarray, estimator, truth, shortest_s: float, max_dn: int,
                               band_names: list[str] | None = None) -> tuple[dict, PixelErrors]:
     """:func:`accuracy` and the per-pixel errors behind its ``pixel_errors`` section (for the report's maps)."""
 
-    meta = json.loads((gt_dir / "ground_truth.json").read_text())
     h, w = bands.shape[:2]
-    gt_bands = np.load(gt_dir / "bands.npy")
+    gt_bands = truth.bands()
     saturated = gt_bands.max(axis=2) >= max_dn / shortest_s  # read and reduced once
     if gt_bands.shape[2] != bands.shape[2]:
-        gt_names = list(meta["bands"]["names"])
+        gt_names = truth.band_names
         missing = [n for n in band_names or [] if n not in gt_names]
         if band_names is None or missing or len(band_names) != bands.shape[2]:
-            raise ConfigurationError(f"{gt_dir}: the ground truth has bands {gt_names}, the panorama "
+            raise ConfigurationError(f"{truth.directory}: the ground truth has bands {gt_names}, the panorama "
                                      f"{band_names or bands.shape[2]}")
         gt_bands = gt_bands[..., [gt_names.index(n) for n in band_names]]
-    truth = _resize_to(gt_bands, h, w)
+    on_grid = _resize_to(gt_bands, h, w)
     del gt_bands
     unsaturated = ~_saturated_mask(saturated, h, w)
     covered = np.isfinite(bands).all(axis=2)
     valid = covered & unsaturated
-    out: dict = {"band_psnr_db": psnr_db(bands, truth, valid), "n_bands": int(bands.shape[2]),
+    out: dict = {"band_psnr_db": psnr_db(bands, on_grid, valid), "n_bands": int(bands.shape[2]),
                  "pixels_compared_fraction": float(valid.mean()), "uncovered_fraction": float(1 - covered.mean())}
     if bands.shape[2] == 6:
         out["six_band_psnr_db"] = out["band_psnr_db"]
-    edge, edge_note = truth_edge_band(gt_dir, h, w)
-    white, white_name = reference_white(gt_dir)
-    errors = pixel_errors(bands, truth, valid, estimator, white, edge, band_names)
-    del truth
+    edge, edge_note = truth_edge_band(truth, h, w)
+    white, white_name = reference_white(truth)
+    errors = pixel_errors(bands, on_grid, valid, estimator, white, edge, band_names)
+    del on_grid
     out["pixel_errors"] = pixel_error_report(errors, white_name, edge_note)
-    spectral = np.load(gt_dir / "spectral.npy")
+    spectral = truth.spectral()
     sh, sw = spectral.shape[:2]
     small = _resize_to(np.where(covered[..., None], bands, np.nan).astype(np.float32), sh, sw)
     ok = np.isfinite(small).all(axis=2) & ~_saturated_mask(saturated, sh, sw)
     est = estimator.estimate(small[ok])
     out["spectral_nrmse"] = float(np.mean(nrmse(est, spectral[ok])))
     out["spectral_pixels"] = int(ok.sum())
-    patches = meta.get("colorchecker_patches") or []
-    if patches and (gt_dir / "colorchecker_radiance.npy").exists():
-        true = np.load(gt_dir / "colorchecker_radiance.npy")
-        white = np.load(gt_dir / "colorchecker_white.npy")
+    patches = truth.colorchecker_patches
+    true = truth.colorchecker_radiance()
+    if patches and true is not None:
+        white = truth.colorchecker_white()
         measured = np.array([patch_bands(bands, p["lon_deg"], p["lat_deg"], 0.5 * p["half_size_deg"])
                              for p in patches])
         seen = np.isfinite(measured).all(axis=1)
@@ -200,7 +239,7 @@ def pixel_error_report(errors: PixelErrors, white_name: str, edge_note: str | No
 
 
 def irradiance_report(store, estimator, band_names: list[str], bands: np.ndarray | None = None,
-                      gt_dir: Path | None = None) -> dict:
+                      truth=None) -> dict:
     """The report's ``irradiance`` section (module docstring): horizontal irradiance, sun/sky split, truth.
 
     Parameters
@@ -213,8 +252,8 @@ def irradiance_report(store, estimator, band_names: list[str], bands: np.ndarray
         The panorama's bands (a one-camera product compared with a two-camera truth takes these of its bands).
     bands : ndarray (H, W, m), optional
         Level 0 already in memory; else the store is streamed.
-    gt_dir : Path, optional
-        ``SESSION/ground_truth`` of a simulation.
+    truth : GroundTruth, optional
+        The ground truth of a simulation (the interface of :class:`omnispectral.sim.truth.GroundTruth`).
     """
     split = sun_sky_irradiance(store, HORIZONTAL_NORMAL, estimator=estimator, bands=bands)
     horizontal = np.asarray(split["panorama"]["band_irradiance"])
@@ -227,23 +266,22 @@ def irradiance_report(store, estimator, band_names: list[str], bands: np.ndarray
            "total_cct_K": split["total"]["cct_K"]}
     if "note" in split:
         out["note"] = split["note"]
-    if gt_dir is not None and (gt_dir / "bands.npy").is_file():
-        truth = _truth_irradiance(gt_dir, band_names)
-        ratio = horizontal / truth
+    if truth is not None:
+        truth_e = _truth_irradiance(truth, band_names)
+        ratio = horizontal / truth_e
         worst = int(np.argmax(np.abs(ratio - 1.0)))
-        out.update({"truth": truth.tolist(), "ratio_to_truth": ratio.tolist(),
+        out.update({"truth": truth_e.tolist(), "ratio_to_truth": ratio.tolist(),
                     "worst_band": {"name": band_names[worst], "ratio_to_truth": float(ratio[worst])}})
     return out
 
 
-def _truth_irradiance(gt_dir: Path, band_names: list[str]) -> np.ndarray:
+def _truth_irradiance(truth, band_names: list[str]) -> np.ndarray:
     """Horizontal irradiance of the ground truth's bands (memory-mapped, streamed), those named ``band_names``."""
-    gt = np.load(gt_dir / "bands.npy", mmap_mode="r")
-    truth = irradiance(gt, HORIZONTAL_NORMAL).band_irradiance_dn_s_sr
-    if gt.shape[2] == len(band_names):
-        return truth
-    names = list(json.loads((gt_dir / "ground_truth.json").read_text())["bands"]["names"])
-    return truth[[names.index(n) for n in band_names]]
+    values = irradiance(truth.bands(mmap=True), HORIZONTAL_NORMAL).band_irradiance_dn_s_sr
+    if values.shape[0] == len(band_names):
+        return values
+    names = truth.band_names
+    return values[[names.index(n) for n in band_names]]
 
 
 def chart_scores(patches: list[dict], nrmse_per_patch: np.ndarray, delta_e_ab: np.ndarray, seen: np.ndarray) -> dict:
@@ -330,8 +368,25 @@ def _plot_chart(chart: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def write_report(product: str | Path, preview_width: int = 2048) -> dict:
-    """Write ``report/report.json``, ``report.html`` and its PNGs for a processed product."""
+def write_report(product: str | Path, preview_width: int = 2048, truth=None) -> dict:
+    """Write ``report/report.json``, ``report.html`` and its PNGs for a processed product.
+
+    Parameters
+    ----------
+    product : str or Path
+        The product folder.
+    preview_width : int
+        Largest width of the preview and maps (the pyramid level at or below it).
+    truth : GroundTruth, optional
+        The ground truth of a simulated session (the interface of :class:`omnispectral.sim.truth.GroundTruth`,
+        which the caller opens: processing never imports the simulator); with it the report gains the
+        ``accuracy`` section, the error maps and the truth's irradiance.
+
+    Returns
+    -------
+    dict
+        ``{"report": the report.json content, "files": the files written}``.
+    """
 
     paths = product_paths(product)
     index, store, estimator = open_product(product)
@@ -354,19 +409,17 @@ def write_report(product: str | Path, preview_width: int = 2048) -> dict:
               "registration_method": reg.get("method", "paper"), "registration": alignments,
               "rig_calibration": reg.get("rig_calibration"), "registration_warnings": reg.get("warnings", []),
               "skipped_directions": index["skipped_directions"], "accuracy": None}
-    gt_dir = Path(index["session"]) / "ground_truth"
     bands = errors = None
-    simulated = (gt_dir / "ground_truth.json").exists()
-    if simulated:
+    if truth is not None:
         s = Session.open(index["session"])
         rig = s.rig()
         bands = store.read(0)
-        report["accuracy"], errors = accuracy_and_pixel_errors(bands, estimator, gt_dir, min(s.plan().exposures_s),
+        report["accuracy"], errors = accuracy_and_pixel_errors(bands, estimator, truth, min(s.plan().exposures_s),
                                                                rig.camera_a.max_dn, index["bands"])
         if report["accuracy"].get("colorchecker"):
             _plot_chart(report["accuracy"]["colorchecker"], out_dir / "colorchecker.png")
             files["colorchecker_plot"] = str(out_dir / "colorchecker.png")
-    report["irradiance"] = irradiance_report(store, estimator, index["bands"], bands, gt_dir if simulated else None)
+    report["irradiance"] = irradiance_report(store, estimator, index["bands"], bands, truth)
     report["holes"], holes_px = store_holes(store, index["bands"], bands)
     files.update(_write_maps(store, out_dir, level, errors, holes_px))
     report["files"] = files

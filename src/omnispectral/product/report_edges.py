@@ -64,11 +64,9 @@ CIE 015:2018 Colorimetry, 4th ed. (CIELAB, ΔE*ab).  Hartley & Zisserman, Multip
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from functools import cached_property
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -76,6 +74,13 @@ from scipy import ndimage
 
 from omnispectral.imaging.geometry import equirect_pixel_to_lonlat
 from omnispectral.spectral.colour import signal_to_Lab
+
+__all__ = ["EDGE_RADIUS_PX", "ESTIMATE_BLOCK_PX", "MAX_WORST_LISTED", "REGION_FIGURES", "RELATIVE_JUMP",
+           "WORST_FRACTION", "PixelErrors", "camera_a_bands", "camera_a_covered", "camera_groups",
+           "delta_e_ab_same_estimator", "depth_discontinuities", "depth_edge_figures", "edge_band", "edge_to_smooth",
+           "hole_figures", "hole_mask", "inverse_depth", "marks_on_grid", "pixel_errors", "reference_white",
+           "region_figures", "squared_sums", "truth_edge_band", "worst_pixel_indices", "worst_pixel_summary",
+           "worst_pixels"]
 
 #: A jump in inverse depth larger than this fraction of the nearer side's (and not explained by the surface's
 #: slope) is a depth discontinuity (module docstring).
@@ -179,15 +184,13 @@ def edge_band(marks: np.ndarray, radius_px: float = EDGE_RADIUS_PX) -> np.ndarra
     return distance_px <= radius_px - 0.5
 
 
-def truth_edge_band(gt_dir: Path, height: int, width: int) -> tuple[np.ndarray | None, str | None]:
-    """The depth-edge band on the product's grid from ``gt_dir/depth_m.npy``, or ``(None, why not)``."""
-    meta = json.loads((gt_dir / "ground_truth.json").read_text())
-    depth = meta.get("depth")
-    if not depth or not (gt_dir / depth["file"]).is_file():
-        return None, meta.get("depth_note") or ("the ground truth has no depth map (simulated before depth was "
-                                                "recorded; simulate the session again to measure depth edges)")
-    marks = depth_discontinuities(np.load(gt_dir / depth["file"]))
-    return edge_band(marks_on_grid(marks, height, width)), None
+def truth_edge_band(truth, height: int, width: int) -> tuple[np.ndarray | None, str | None]:
+    """The depth-edge band on the product's grid from the ground truth's depth map, or ``(None, why not)``
+    (``truth``: the interface of :class:`omnispectral.sim.truth.GroundTruth`)."""
+    depth_m, note = truth.depth_m()
+    if depth_m is None:
+        return None, note
+    return edge_band(marks_on_grid(depth_discontinuities(depth_m), height, width)), None
 
 
 # ---------------------------------------------------------------------------------------- pixel errors
@@ -217,16 +220,17 @@ def delta_e_ab_same_estimator(bands: np.ndarray, truth: np.ndarray, estimator, w
     return np.linalg.norm(lab_b - lab_t, axis=-1).astype(np.float32)
 
 
-def reference_white(gt_dir: Path) -> tuple[np.ndarray, str]:
+def reference_white(truth) -> tuple[np.ndarray, str]:
     """The white of the per-pixel ΔE*ab (module docstring): ``(spectrum (n,) in the truth's units, which)``.
 
     The perfect diffuser at the ColorChecker when the truth has one (``colorchecker_white.npy``), else a perfect
     diffuser facing up under the truth's spectral radiance: ``E/π`` with ``E = Σ L cos θ ΔΩ`` over the upper
     hemisphere of ``spectral.npy``.
     """
-    if (gt_dir / "colorchecker_white.npy").is_file():
-        return np.load(gt_dir / "colorchecker_white.npy").astype(np.float64), "perfect diffuser at the ColorChecker"
-    spectral = np.load(gt_dir / "spectral.npy", mmap_mode="r")
+    white = truth.colorchecker_white()
+    if white is not None:
+        return white.astype(np.float64), "perfect diffuser at the ColorChecker"
+    spectral = truth.spectral(mmap=True)
     h, w = spectral.shape[:2]
     rows = np.arange(h // 2)
     _, lat = equirect_pixel_to_lonlat(np.zeros_like(rows), rows, w, h)

@@ -23,6 +23,9 @@ from PIL import Image
 from omnispectral.io import atomic_path
 from omnispectral.product.report_edges import PixelErrors
 
+__all__ = ["BAND_NRMSE_RANGE", "DELTA_E_RANGE", "FIGURE_DPI", "QUALITY_RANGES", "mark_worst_pixels",
+           "plot_error_maps", "plot_quality", "shrink_nanmean"]
+
 #: Colour range of quality layers whose meaning fixes it (others: 0 to their 99.5th percentile).
 QUALITY_RANGES = {"registration_confidence": (0.0, 1.0), "occluded": (0.0, 1.0), "sun": (0.0, 1.0)}
 #: Colour range of the band NRMSE map (log scale) and of the ΔE*ab map.

@@ -1,4 +1,4 @@
-"""Which calibration of camera B ``process`` uses, and how far off it may leave content at infinity.
+"""Which calibration of camera B ``process`` uses: a file, the session's chessboard views, or the session.
 
 Order (:func:`choose_rig_calibration`):
 
@@ -7,29 +7,11 @@ Order (:func:`choose_rig_calibration`):
    slot of a time-lapse: :func:`~omnispectral.capture.calviews.find_calibration_views`), fitted once
    (:mod:`omnispectral.product.rigboard`) and cached beside them in ``rig-calibration.json``, fingerprinted
    by the views (:func:`views_sha256`): a changed folder is fitted again;
-3. the session's own images (:mod:`omnispectral.product.rigcal`, fitted during the registration).
+3. the session's own images (:mod:`omnispectral.product.rigfit`, fitted during the registration).
 
-How far off content at infinity may be, per direction (:func:`far_content_errors`).  A chessboard fit states
-its own standard deviation at infinity (:meth:`~omnispectral.product.rigcal.RigCalibration.infinity_std_px`),
-the same for every direction.  A fit on the session's images states none: it puts the scene's farthest dense
-content at infinity, so B's model misses true infinity by that content's parallax.  Each direction measures,
-on what it finds at infinity, the offset the model leaves there (``far_offset_measured_a_px``,
-:mod:`omnispectral.product.align`), and applies it.  For points at infinity the A-to-B relation does not
-depend on the head's direction, yet along the epipolar line ``ĝ`` (where the fit's yaw is uncertain; across
-it the fit is good to hundredths of a pixel) the measurements range from about 0 (content as far as the fit's
-anchor: the hills) to the model's whole error (sky, clouds, the sun).  The model's offset at infinity is
-taken at that far end, ``E = e ĝ`` with ``e`` the along-line measurement at the
-:data:`MODEL_ERROR_PERCENTILE` th percentile of their lengths (one false peak does not set it); the
-measurements' median part across the line, ``s`` (at least :data:`MEASUREMENT_FLOOR_PX`), is their noise.  A
-direction that applied its own measurement ``v`` may be off by ``|v − E| + s``, one that measured nothing by
-``|e| + s``.  Against the simulator's truth (the median over the sensor of each direction's error at infinity,
-docs/benchmarks.md): on the demo's session (small rig) 0.13–0.74 px stated where the product is 0.13–0.55 px
-off, 0.64 where a direction measured nothing and is 0.45 off; at full scale 0.09–2.45 px stated where it is
-0.11–2.26 px off, 1.91 where it is 1.73 (the median of the measurements said 0.01: most directions' far content
-is the anchor's).  The sensor's corners may be a few tenths of a pixel further off than the median (B's roll
-error is not one offset).  With fewer than :data:`MIN_MEASURED_DIRECTIONS` measurements,
-:data:`SCENE_FIT_YAW_DEG` at the sensor's focal length is stated instead (what the benchmarks found such a
-fit's yaw to miss by).
+Every source gives a :class:`~omnispectral.product.rigfile.RigCalibration`; how far off it may leave content at
+infinity is :mod:`omnispectral.product.far_content`'s.  The paper (Hirai et al. 2018, Sec. 4.3) has no
+calibration of camera B: it registers B to A by one POC offset per direction.
 """
 
 from __future__ import annotations
@@ -39,8 +21,6 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
 from omnispectral.capture.calviews import (
     BOARD_FILE,
     IMAGE_SUFFIXES,
@@ -48,24 +28,15 @@ from omnispectral.capture.calviews import (
     read_board_description,
 )
 from omnispectral.errors import InputFileError, OmnispectralError
-from omnispectral.imaging.geometry import CameraModel
 from omnispectral.product.rigboard import calibrate_rig_from_boards
-from omnispectral.product.rigcal import RigCalibration, predict_b_px
+from omnispectral.product.rigfile import RigCalibration
 from omnispectral.rig import Rig, load_rig
+
+__all__ = ["CACHE_FILE", "CalibrationSource", "cached_views_calibration", "choose_rig_calibration", "fit_views",
+           "view_files", "views_rig", "views_sha256"]
 
 #: The cached fit beside the views.
 CACHE_FILE = "rig-calibration.json"
-#: B at infinity the product aims at (px): a product whose far content may be off by more says so.
-FAR_CONTENT_TARGET_PX = 0.1
-#: Fewest directions with a measured offset at infinity that give the session fit's per-direction estimate.
-MIN_MEASURED_DIRECTIONS = 3
-#: What a fit on a session's images leaves of B's yaw when nothing measures it (deg; docs/benchmarks.md).
-SCENE_FIT_YAW_DEG = 0.15
-#: The directions' measured offsets at infinity along the epipolar line (lengths) at this percentile stand for
-#: the model's offset there.
-MODEL_ERROR_PERCENTILE = 90
-#: What POC on a direction's far pixels measures at best (px; ``product.align.FAR_OFFSET_MIN_STD_PX``).
-MEASUREMENT_FLOOR_PX = 0.05
 
 
 @dataclass
@@ -96,19 +67,42 @@ class CalibrationSource:
         return f"camera B's mounting fitted from this session's own images ({self.why})"
 
     def to_dict(self) -> dict:
+        """The source as written in ``product.json`` (``registration.rig_calibration_source``)."""
         return {"kind": self.kind, "path": self.path, "views_sha256": self.views_sha256, "cached": self.cached,
                 "fit_s": self.fit_s, "description": self.describe(), "notes": list(self.notes)}
 
 
 def view_files(folder: Path) -> list[Path]:
-    """The views' files that determine the fit: ``rig.toml``, ``board.json`` and every image of ``A/`` and ``B/``."""
+    """The views' files that determine the fit: ``rig.toml``, ``board.json`` and every image of ``A/`` and ``B/``.
+
+    Parameters
+    ----------
+    folder
+        The calibration views' folder.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The files present, ``rig.toml`` and ``board.json`` first, then the images sorted.
+    """
     images = sorted(p for c in ("A", "B") if (folder / c).is_dir() for p in (folder / c).iterdir()
                     if p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith("."))
     return [p for p in (folder / "rig.toml", folder / BOARD_FILE) if p.is_file()] + images
 
 
 def views_sha256(folder: str | Path) -> str:
-    """SHA-256 over the views' files (:func:`view_files`): their paths in the folder and their contents."""
+    """SHA-256 over the views' files (:func:`view_files`): their paths in the folder and their contents.
+
+    Parameters
+    ----------
+    folder
+        The calibration views' folder.
+
+    Returns
+    -------
+    str
+        The hex digest.
+    """
     folder = Path(folder)
     h = hashlib.sha256()
     for p in view_files(folder):
@@ -120,7 +114,20 @@ def views_sha256(folder: str | Path) -> str:
 
 
 def cached_views_calibration(folder: Path, sha: str) -> RigCalibration | None:
-    """The cached fit of the views, if it was made from exactly these views (``None`` otherwise)."""
+    """The cached fit of the views, if it was made from exactly these views (``None`` otherwise).
+
+    Parameters
+    ----------
+    folder
+        The calibration views' folder (the cache is ``folder/rig-calibration.json``).
+    sha
+        The views' :func:`views_sha256`.
+
+    Returns
+    -------
+    RigCalibration or None
+        The cached fit; ``None`` when missing, damaged or made from other views.
+    """
     path = folder / CACHE_FILE
     if not path.is_file():
         return None
@@ -132,13 +139,46 @@ def cached_views_calibration(folder: Path, sha: str) -> RigCalibration | None:
 
 
 def views_rig(folder: Path, session_rig: Rig) -> Rig:
-    """The rig the views were taken with (``folder/rig.toml``), else the session's."""
+    """The rig the views were taken with (``folder/rig.toml``), else the session's.
+
+    Parameters
+    ----------
+    folder
+        The calibration views' folder.
+    session_rig
+        The session's rig.
+
+    Returns
+    -------
+    Rig
+        The views' rig.
+    """
     return load_rig(folder / "rig.toml") if (folder / "rig.toml").is_file() else session_rig
 
 
 def fit_views(folder: Path, session_rig: Rig, sha: str) -> RigCalibration:
     """Fit camera B's mounting to the views (:func:`~omnispectral.product.rigboard.calibrate_rig_from_boards`)
-    and cache it in ``folder/rig-calibration.json`` (not cached on a read-only folder)."""
+    and cache it in ``folder/rig-calibration.json`` (not cached on a read-only folder).
+
+    Parameters
+    ----------
+    folder
+        The calibration views' folder (``A/``, ``B/``, ``board.json``, optionally ``rig.toml``).
+    session_rig
+        The session's rig (used when the folder has no ``rig.toml``).
+    sha
+        The views' :func:`views_sha256`, recorded in the fit's ``chessboard.views_sha256``.
+
+    Returns
+    -------
+    RigCalibration
+        The chessboard fit.
+
+    Raises
+    ------
+    OmnispectralError
+        A bad board description, a one-camera rig, or no board to fit.
+    """
     board, square_mm = read_board_description(folder)
     rig = views_rig(folder, session_rig)
     if "B" not in rig.camera_names:
@@ -158,7 +198,24 @@ def choose_rig_calibration(session: str | Path, rig: Rig, rig_calibration: str |
     """Camera B's calibration for a session (module docstring: file > chessboard views > the session's fit).
 
     Views that cannot be fitted (no board found, a bad ``board.json``) leave the session's fit, with a note
-    naming the folder and why; ``use_views=False`` ignores them (``process --no-calibration-views``)."""
+    naming the folder and why; ``use_views=False`` ignores them (``process --no-calibration-views``).
+
+    Parameters
+    ----------
+    session
+        The session directory.
+    rig
+        The session's rig.
+    rig_calibration
+        ``--rig-calibration FILE``, or ``None``.
+    use_views
+        Use the chessboard views that apply to the session.
+
+    Returns
+    -------
+    CalibrationSource
+        The choice; its ``calibration`` is ``None`` for ``"session"`` (fitted during the registration).
+    """
     if rig_calibration is not None:
         return CalibrationSource("file", str(rig_calibration), RigCalibration.load(rig_calibration))
     folder = find_calibration_views(session)
@@ -182,69 +239,3 @@ def choose_rig_calibration(session: str | Path, rig: Rig, rig_calibration: str |
         source.notes.append(f"the views in {folder} were taken with rig {cal.rig_name!r}, the session with "
                             f"{rig.name!r}")
     return source
-
-
-# ------------------------------------------------------------------------------------------ far content
-def epipolar_direction(model_a: CameraModel, model_b: CameraModel) -> np.ndarray:
-    """Unit vector along which depth moves B's image at the centre of A's sensor (the epipolar line there)."""
-    centre = np.array([[(model_a.width - 1) / 2.0, (model_a.height - 1) / 2.0]])
-    g = (predict_b_px(model_a, model_b, centre, 0.01) - predict_b_px(model_a, model_b, centre, 0.0))[0]
-    return g / max(float(np.linalg.norm(g)), 1e-12)
-
-
-def model_offset_at_infinity_px(directions: list[dict], along: np.ndarray) -> tuple[np.ndarray, float, int] | None:
-    """``(E, s, n)``: the model's offset at infinity as the directions measured it on their far content, their
-    noise across the epipolar line ``along`` and how many measured one (module docstring); ``None`` with fewer
-    than :data:`MIN_MEASURED_DIRECTIONS`."""
-    measured = np.array([d["far_offset_measured_a_px"] for d in directions
-                         if any(abs(x) > 0 for x in d.get("far_offset_measured_a_px") or (0.0, 0.0))], np.float64)
-    n = measured.shape[0]
-    if n < MIN_MEASURED_DIRECTIONS:
-        return None
-    e = measured @ along
-    across = measured @ np.array([-along[1], along[0]])
-    far_end = e[np.argsort(np.abs(e))[round(MODEL_ERROR_PERCENTILE / 100.0 * (n - 1))]]
-    return far_end * along, max(float(np.median(np.abs(across))), MEASUREMENT_FLOOR_PX), int(n)
-
-
-def far_content_errors(calibration: RigCalibration, directions: list[dict], model_a: CameraModel,
-                       model_b: CameraModel) -> dict:
-    """Per direction, how far off (px) content at infinity may be in the product (module docstring; ``model_b``
-    the calibrated camera B); returns ``{"per_direction": {direction: px}, "basis": text, ...}``."""
-    std = calibration.infinity_std_px(model_b)
-    if std is not None:
-        return {"per_direction": {int(d["direction"]): std for d in directions}, "stated_std_px": std,
-                "basis": "the chessboard fit's standard deviation at infinity"}
-    measured = model_offset_at_infinity_px(directions, epipolar_direction(model_a, model_b))
-    if measured is None:
-        guess = float(np.radians(SCENE_FIT_YAW_DEG) * model_b.fx)
-        return {"per_direction": {int(d["direction"]): guess for d in directions},
-                "basis": f"too few directions measured their offset at infinity: what a fit on a session's own "
-                         f"images typically leaves ({SCENE_FIT_YAW_DEG}° of yaw)"}
-    e, s, n = measured
-    per = {}
-    for d in directions:
-        applied = any(abs(x) > 0 for x in d.get("far_offset_px") or (0.0, 0.0))
-        v = np.asarray(d.get("far_offset_measured_a_px") or (0.0, 0.0), np.float64)
-        per[int(d["direction"])] = float(np.linalg.norm(v - e if applied else e) + s)
-    return {"per_direction": per, "model_offset_at_infinity_px": [float(x) for x in e], "noise_px": s,
-            "n_measured": n, "basis": f"the model's offset at infinity along the epipolar lines as the farthest "
-                                      f"content of {n} directions measured it ({MODEL_ERROR_PERCENTILE}th "
-                                      f"percentile), less what each direction applied, plus their noise"}
-
-
-def far_content_warning(source: CalibrationSource, far: dict) -> str | None:
-    """One line when far content may be off by more than :data:`FAR_CONTENT_TARGET_PX` in some direction."""
-    per = far["per_direction"]
-    if not per:
-        return None
-    worst = max(per, key=per.get)
-    if per[worst] <= FAR_CONTENT_TARGET_PX:
-        return None
-    values = np.array(list(per.values()))
-    fix = ("" if source.kind == "chessboard-views" else
-           ". Record chessboard views once per mounting of the cameras ('omnispectral capture calibration-views "
-           "-o SESSION') or pass --rig-calibration FILE")
-    return (f"far content may be off by up to {per[worst]:.2f} px (direction {worst}; {values.min():.2f}-"
-            f"{values.max():.2f} px per direction, median {np.median(values):.2f}: product.json "
-            f"registration.directions[].far_content_error_px): {source.describe()}{fix}")

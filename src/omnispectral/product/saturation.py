@@ -18,6 +18,8 @@ import numpy as np
 
 from omnispectral.rig import rig_from_dict
 
+__all__ = ["SATURATION_FRACTION", "clipped_mask", "recovered_sun_mask", "saturated_mask", "saturation_level_dn_s"]
+
 #: A level-0 pixel counts as saturated from this fraction of the shortest exposure's clipping level.
 SATURATION_FRACTION = 0.95
 

@@ -24,7 +24,11 @@ from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.io import atomic_path, atomic_write_json
 from omnispectral.product.irradiance import HORIZONTAL_NORMAL, IRRADIANCE_UNITS, sun_sky_irradiance
 from omnispectral.product.layout import open_product, product_paths, read_index
-from omnispectral.product.process import process
+from omnispectral.product.process import ProcessOptions, process
+from omnispectral.progress import ProgressCallback, report_progress
+
+__all__ = ["DEFAULT_REGIONS", "parse_region", "process_series", "region_pixels", "series_products",
+           "slot_calibrations"]
 
 #: Default regions: the sky high above the horizon and the ground near the rig.
 DEFAULT_REGIONS = {"sky": (-180.0, 180.0, 45.0, 75.0), "ground": (-180.0, 180.0, -75.0, -45.0)}
@@ -64,7 +68,8 @@ def region_pixels(box, height: int, width: int) -> tuple[slice, slice]:
 
 
 def process_series(series: str | Path, output: str | Path, regions: dict | None = None, stack_width: int = 1024,
-                   progress=None, rig_calibration: str | Path | None = None) -> dict:
+                   progress: ProgressCallback | None = None, rig_calibration: str | Path | None = None,
+                   truth_of=None) -> dict:
     """Process every complete slot of a series, stack the panoramas and analyse region spectra over time.
 
     Camera B's mounting comes from ``rig_calibration`` (e.g. ``calibrate rig --chessboard``) for every slot,
@@ -72,6 +77,51 @@ def process_series(series: str | Path, output: str | Path, regions: dict | None 
     slot finds them, fitted once and cached there), else it is fitted on the first slot and reused for the
     others.  ``progress(stage, done, total)`` follows the slots (stage ``slots``) and each slot's processing.
     The summary names the calibration (``rig_calibration_source``) and each slot's far-content warning.
+    ``truth_of(session folder)``: a simulated slot's ground truth for its report, or None
+    (:meth:`omnispectral.sim.truth.GroundTruth.of_session`).
+
+    Parameters
+    ----------
+    series : str or pathlib.Path
+        The time-lapse series directory (``series.json`` and one session per slot); only complete slots
+        are processed.
+    output : str or pathlib.Path
+        The output directory: a product per slot, ``timestack.zarr``, ``region_spectra.json/.png``,
+        ``irradiance.png`` and ``series_product.json``.
+    regions : dict, optional
+        Region name → ``(lon0, lon1, lat0, lat1)`` box in degrees (:func:`parse_region`); default
+        :data:`DEFAULT_REGIONS` (sky and ground).
+    stack_width : int
+        Width (px) of the time stack: the first pyramid level at most this wide (else the coarsest).
+    progress : ProgressCallback, optional
+        ``progress("slots", done, total)`` after each slot, and each slot's processing stages.
+    rig_calibration : str or pathlib.Path, optional
+        Camera B's calibration file for every slot.
+    truth_of : callable, optional
+        ``truth_of(session_dir)`` → a simulated slot's ground truth (or ``None``).
+
+    Returns
+    -------
+    dict
+        ``output``, ``n_slots``, ``timestack`` (path), ``stack_shape``, ``region_spectra``, ``plot`` and
+        ``irradiance_plot`` (paths), ``regions`` (names) and the calibration the slots used
+        (:func:`slot_calibrations`); also written to ``series_product.json``.
+
+    Raises
+    ------
+    InputFileError
+        For a directory without ``series.json``, a series without a complete slot, or slots whose panoramas
+        differ in size.
+    ConfigurationError
+        For a region that holds no pixel.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 5.3, Fig. 12 (time-lapse omnidirectional sequence), Fig. 13 (spectral
+       power distributions of fixed regions over the day), Eq. (7) (their Wiener estimates).
+    .. [2] CIE 015:2018, Colorimetry, 4th ed. (the correlated colour temperatures of sun and sky; Ohno 2013's
+       method).
     """
     import zarr  # lazy: zarr costs ~0.25 s to import; only the time stack needs it here
 
@@ -91,9 +141,10 @@ def process_series(series: str | Path, output: str | Path, regions: dict | None 
     for i, e in enumerate(slots):
         prod = out / e["session"]
         if not (prod / "product.json").exists():
-            process(series / e["session"], prod, progress=progress, report=True, rig_calibration=calibration)
-        if progress:
-            progress("slots", i + 1, len(slots))
+            options = ProcessOptions(report=True, rig_calibration=calibration,
+                                     truth=truth_of(series / e["session"]) if truth_of else None)
+            process(series / e["session"], prod, options=options, progress=progress)
+        report_progress(progress or None, "slots", i + 1, len(slots))
         if calibration is None and not series_views and product_paths(prod)["rig_calibration"].is_file():
             calibration = product_paths(prod)["rig_calibration"]
         products.append(prod)
@@ -132,7 +183,7 @@ def process_series(series: str | Path, output: str | Path, regions: dict | None 
     _plot_region_spectra(analysis, out / "region_spectra.png")
     _plot_irradiance(analysis, out / "irradiance.png")
     summary = {"output": str(out), "n_slots": len(products), "timestack": str(stack_path),
-               "stack_shape": [len(products), h, w, 6], "region_spectra": str(out / "region_spectra.json"),
+               "stack_shape": [len(products), h, w, nb], "region_spectra": str(out / "region_spectra.json"),
                "plot": str(out / "region_spectra.png"), "irradiance_plot": str(out / "irradiance.png"),
                "regions": list(regions), **slot_calibrations(products)}
     atomic_write_json(out / "series_product.json", summary)

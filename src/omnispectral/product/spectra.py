@@ -25,6 +25,10 @@ from omnispectral.product.layout import open_product
 from omnispectral.product.saturation import recovered_sun_mask, saturated_mask, saturation_level_dn_s
 from omnispectral.spectral.colour import spectra_to_linear_srgb, spectra_to_xyz, xyz_to_linear_srgb
 
+__all__ = ["B_PREDICTED_LAYER", "SunOverlay", "bands_to_linear_srgb", "estimate_image", "linear_srgb_map",
+           "predicted_b_rel_std", "predicted_noise_variance", "region_weights", "spectrum_at", "spectrum_in_store",
+           "sun_state"]
+
 
 def region_weights(bands: np.ndarray, estimator, n_sample: int = 20000, seed: int = 0) -> np.ndarray | None:
     """Mean posterior component weights over (a sample of) the finite pixels; ``None`` for a single Gaussian."""
@@ -144,7 +148,36 @@ def estimate_image(bands: np.ndarray, estimator, with_std: bool = False, sun: Su
     """Per-pixel mixture estimate of an image ``(H, W, 6)`` → ``(H, W, n)`` (NaN where bands are not finite);
     ``sun`` replaces the prior's guess at the recovered sun's pixels (module docstring).  ``b_rel_std``
     ``(H, W)`` (the quality layer's b_predicted, NaN or 0 where B measured the pixel) adds the error of B's
-    predicted bands to their noise variance there, so estimate and posterior std weigh them accordingly."""
+    predicted bands to their noise variance there, so estimate and posterior std weigh them accordingly.
+
+    Parameters
+    ----------
+    bands : numpy.ndarray
+        ``(H, W, m)`` bands in DN/s (six; B's noise term applies to six bands only).
+    estimator : WienerEstimator
+        The product's estimator.
+    with_std : bool
+        Also return the posterior standard deviation.
+    sun : SunOverlay, optional
+        The recovered sun's pixels, band and spectral radiance.
+    b_rel_std : numpy.ndarray, optional
+        ``(H, W)`` relative error of camera B's predicted bands (NaN or 0 where B measured the pixel).
+
+    Returns
+    -------
+    spectra : numpy.ndarray
+        ``(H, W, n)`` float32 spectra on ``estimator.wavelength_nm``, in DN/s per unit of the system matrix
+        (relative spectral radiance); NaN where the bands are not finite.
+    std : numpy.ndarray
+        ``(H, W, n)`` posterior standard deviations in the same units; only with ``with_std``.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 4.6, Eq. (7) (the Wiener estimate of each pixel's colour signal).
+    .. [2] S. M. Kay, Fundamentals of Statistical Signal Processing: Estimation Theory, Prentice Hall, 1993,
+       Ch. 11-12 (the linear MMSE estimate and its posterior covariance under a per-pixel noise covariance).
+    """
     h, w, c = bands.shape
     flat = bands.reshape(-1, c)
     ok = np.isfinite(flat).all(axis=1)
@@ -195,7 +228,44 @@ def spectrum_at(product: str | Path, lon_deg: float, lat_deg: float, level: int 
 
 
 def spectrum_in_store(index: dict, store, estimator, lon_deg: float, lat_deg: float, level: int = 0) -> dict:
-    """:func:`spectrum_at` for a product already opened with :func:`open_product` (index, store, estimator)."""
+    """:func:`spectrum_at` for a product already opened with :func:`open_product` (index, store, estimator).
+
+    Parameters
+    ----------
+    index : dict
+        The product's ``product.json`` (its ``units`` and ``bands``).
+    store : PanoramaStore
+        The product's panorama.
+    estimator : WienerEstimator
+        The product's estimator.
+    lon_deg, lat_deg : float
+        The direction in degrees (longitude wrapped to [-180, 180), latitude in [-90, 90]).
+    level : int
+        The pyramid level read (0: full resolution).
+
+    Returns
+    -------
+    dict
+        ``lon_deg``, ``lat_deg``, ``level``, ``pixel`` (column, row on the level), the ``bands`` (bilinear in
+        the four nearest pixels, DN/s), ``wavelength_nm``, ``spectrum`` and its posterior ``std`` (DN/s per
+        unit of the system matrix, ``units``), its CIE ``XYZ`` and ``linear_srgb``, and the sun's state and
+        ``b_predicted_rel_std`` where they apply.
+
+    Raises
+    ------
+    ConfigurationError
+        For a direction that is not finite or a latitude beyond ±90°, a level that does not exist, or a
+        direction the panorama does not cover.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 4.6, Eq. (7) (the Wiener estimate), Fig. 11 (spectra at points of
+       the scene).
+    .. [2] S. M. Kay, Fundamentals of Statistical Signal Processing: Estimation Theory, Prentice Hall, 1993,
+       Ch. 11-12 (the posterior covariance of the linear MMSE estimator).
+    .. [3] CIE 015:2018, Colorimetry, 4th ed. (the CIE 1931 observer of ``XYZ`` and ``linear_srgb``).
+    """
 
     if not (np.isfinite(lon_deg) and np.isfinite(lat_deg)) or abs(lat_deg) > 90:
         raise ConfigurationError(f"no direction at lon {lon_deg}, lat {lat_deg} (latitude must be in [-90, 90])")

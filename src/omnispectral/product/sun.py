@@ -49,8 +49,16 @@ from omnispectral.imaging.hdr import merge_exposures
 from omnispectral.imaging.sundisk import cap_solid_angle_sr, equirect_disk_coverage, pixel_solid_angles_sr
 from omnispectral.product.merge import RawSettings, read_bracket
 from omnispectral.product.saturation import SATURATION_FRACTION, clipped_mask, saturation_level_dn_s
+from omnispectral.progress import ProgressCallback, report_progress
 from omnispectral.rig import SUN_EXPOSURE_BASE
+from omnispectral.spectral.curves import resample_spectra
 from omnispectral.spectral.library import daylight_spd, load_filter
+
+__all__ = ["APERTURE_MIN_PX", "APERTURE_RADII", "SUN_DIAMETER_DEG", "SUN_FILE", "SunImage", "best_images",
+           "clipped_sun_direction", "daylight_basis", "daylight_prior", "daylight_set", "filter_matrix",
+           "fit_spectrum", "measure_sun_image", "merge_sun_bracket", "paint_sun", "recover_sun_nd",
+           "refine_clipped_direction", "sun_directions", "sun_from_images", "sun_lower_bound_note",
+           "sun_radiance_fields", "sun_summary"]
 
 #: Mean angular diameter of the sun (degrees).
 SUN_DIAMETER_DEG = 0.533
@@ -69,10 +77,10 @@ def daylight_set(wavelength_nm) -> np.ndarray:
     rows = []
     for cct in np.geomspace(4000.0, 24900.0, 24):
         sd = daylight_spd(float(cct))
-        rows.append(np.interp(wl, sd.wavelengths, sd.values))
+        rows.append(resample_spectra(sd.values, sd.wavelengths, wl, outside="edge"))
     for cct in np.linspace(2000.0, 4000.0, 9):
         sd = colour.sd_blackbody(float(cct), colour.SpectralShape(float(wl.min()), float(wl.max()), 1.0))
-        rows.append(np.interp(wl, sd.wavelengths, sd.values))
+        rows.append(resample_spectra(sd.values, sd.wavelengths, wl, outside="edge"))
     a = np.array(rows)
     return a / np.linalg.norm(a, axis=1, keepdims=True)
 
@@ -285,8 +293,9 @@ def sun_radiance_fields(band_names: list[str], band_irradiance, band_irradiance_
 
 
 def recover_sun_nd(session, models: dict[str, CameraModel], system, band_names: list[str],
-                   progress=None) -> dict | None:
-    """The sun from the session's attenuated brackets (module docstring), or ``None`` without any."""
+                   progress: ProgressCallback | None = None) -> dict | None:
+    """The sun from the session's attenuated brackets (module docstring), or ``None`` without any;
+    ``progress("sun", done, total)`` over the bracket's (direction, camera) pairs."""
     found = sun_directions(session)
     if not found:
         return None
@@ -300,8 +309,7 @@ def recover_sun_nd(session, models: dict[str, CameraModel], system, band_names: 
         im = measure_sun_image(res.radiance, res.variance, res.saturated, models[c], pan, tilt, d, c, radius)
         if im is not None:
             images.append(im)
-        if progress is not None:
-            progress(i + 1, len(todo))
+        report_progress(progress, "sun", i + 1, len(todo))
     if filt is None:
         return None
     record = sun_from_images(images, system, filt, band_names, radius)

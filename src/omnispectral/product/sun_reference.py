@@ -79,8 +79,13 @@ from omnispectral.product.sun import (
     fit_spectrum,
     sun_radiance_fields,
 )
-from omnispectral.spectral.curves import read_spectral_csv
+from omnispectral.spectral.curves import read_spectral_csv, resample_spectra
 from omnispectral.spectral.library import load_reflectances
+
+__all__ = ["DEFAULT_NORMAL", "DEFAULT_RADIUS_DEG", "DEFAULT_REFLECTANCE", "MARGIN_PX", "METHOD", "MIN_COS_INCIDENCE",
+           "MIN_SUN_SNR", "N_PASSES", "PATCH_SPREAD_WARN", "RING_PX", "SKY_REL_STD", "SunReference",
+           "effective_reflectance", "load_reflectance_spec", "parse_sun_reference", "recover_sun_reference",
+           "sun_free_irradiance", "target_radiance"]
 
 #: The method's name in the sun's record.
 METHOD = "diffuse-reference"
@@ -161,7 +166,7 @@ class SunReference:
                 if wl.min() < src_wl.min() - 1e-9 or wl.max() > src_wl.max() + 1e-9:
                     raise ConfigurationError(f"the reference's reflectance covers {src_wl.min():g}-{src_wl.max():g} "
                                              f"nm, not {wl.min():g}-{wl.max():g} nm")
-                curve = np.interp(wl, src_wl, values)
+                curve = resample_spectra(values, src_wl, wl, outside="edge")
             else:
                 curve = load_reflectance_spec(self.reflectance).resample(wl).values[0]
             if not (np.all(np.isfinite(curve)) and curve.max() > 0 and curve.min() >= 0 and curve.max() <= 1.5):

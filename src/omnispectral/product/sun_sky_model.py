@@ -83,7 +83,17 @@ from omnispectral.product.sun import (
     sun_radiance_fields,
 )
 from omnispectral.spectral.colour import cmfs_xyz, spectrum_cct_K
+from omnispectral.spectral.curves import resample_spectra
 from omnispectral.spectral.library import daylight_spd
+
+__all__ = ["ANGSTROM_ALPHA", "CCT_SPREAD_K", "CIRCUMSOLAR_EXCLUSION_DEG", "CLEARNESS_BIN_EDGES", "LINKE_RANGE",
+           "MAX_LOG_RESIDUAL", "METHOD", "MIN_CLEARNESS", "MIN_ELEVATION_DEG", "MIN_SKY_SAMPLES",
+           "MIN_SUN_ELEVATION_DEG", "MODEL_RELATIVE_STD", "PEREZ_1990_DIFFUSE_EFFICACY", "PEREZ_1990_DIRECT_EFFICACY",
+           "PEREZ_1993_LUMINANCE", "PRECIPITABLE_WATER_CM", "PYRHELIOMETER_HALF_ANGLE_DEG", "SAMPLE_WIDTH_PX",
+           "SUN_EFFECTIVE_TEMPERATURE_K", "aerosol_optical_depth_550", "clear_sky_state", "clearness_bin",
+           "daylight_shape", "direct_beam_spectrum", "fit_sky", "hemisphere_integrals", "ineichen_perez",
+           "perez_clearness", "perez_coefficients", "perez_efficacies", "perez_relative_luminance",
+           "recover_sun_sky_model", "refuse", "relative_air_mass", "sky_samples"]
 
 METHOD = "sky-model"
 #: Sky samples used in the fit: at least this high (degrees) ...
@@ -278,7 +288,7 @@ def daylight_shape(wavelength_nm, cct_K: float) -> np.ndarray:
         sd = daylight_spd(float(min(cct_K, 25000.0)))
     else:
         sd = colour.sd_blackbody(float(max(cct_K, 1000.0)), colour.SpectralShape(float(wl.min()), float(wl.max()), 1.0))
-    s = np.interp(wl, sd.wavelengths, sd.values)
+    s = resample_spectra(sd.values, sd.wavelengths, wl, outside="edge")
     return s / s.max()
 
 

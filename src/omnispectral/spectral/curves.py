@@ -8,6 +8,15 @@ power distributions (:math:`E(\\lambda)`) or surface reflectances.  The default 
 User curves come from CSV files with a header row ``wavelength_nm,<name>,<name>...`` and one
 row per wavelength.  Lines starting with ``#`` are comments.  Malformed files raise
 :class:`~omnispectral.errors.InputFileError` naming the file, the line and the problem.
+
+Resampling over wavelength is linear interpolation between the two neighbouring samples, written once
+(:func:`resample_spectra`, NumPy's ``np.interp`` arithmetic, which colour-science's ``LinearInterpolator``
+also uses) and, for applying it to many spectra at once, as a matrix (:func:`resample_matrix`, one matrix
+product; its weights ``1 - w, w`` round differently from ``np.interp``'s slope form by at most one unit in
+the last place, so each caller keeps the form whose numbers it was built on).  Both check the grids the
+same way.  Two other interpolations are used on purpose: ``SpectralSet.resample(method="sprague")`` (CIE
+167:2005's interpolator for smooth uniformly sampled data) and :meth:`SpectralSet.from_colour`, which
+aligns colour-science distributions on different grids with colour-science's own interpolation.
 """
 
 from __future__ import annotations
@@ -25,11 +34,17 @@ import numpy as np
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.io import atomic_write_text, read_text_file
 
+__all__ = ["DEFAULT_WAVELENGTH_NM", "INTERPOLATIONS", "KINDS", "SpectralSet", "concatenate", "read_spectral_csv",
+           "resample_matrix", "resample_spectra", "write_spectral_csv"]
+
 DEFAULT_WAVELENGTH_NM = np.arange(400.0, 700.0 + 1e-9, 5.0)
 """The default wavelength grid: 400-700 nm every 5 nm (61 samples)."""
 
 KINDS = ("sensitivity", "transmittance", "illuminant", "reflectance", "signal")
 """What a curve measures.  Transmittances and reflectances are fractions in [0, 1]."""
+
+#: The interpolations of :meth:`SpectralSet.resample`.
+INTERPOLATIONS = ("linear", "sprague")
 
 _FRACTION_KINDS = ("transmittance", "reflectance")
 _WAVELENGTH_HEADERS = ("wavelength_nm", "wavelength", "nm", "lambda_nm", "wl_nm")
@@ -86,17 +101,47 @@ class SpectralSet:
         return self.values.shape[0]
 
     def covers(self, wavelength_nm: np.ndarray) -> bool:
-        """Whether this set's wavelength range contains all of ``wavelength_nm``."""
+        """Whether this set's wavelength range contains all of ``wavelength_nm``.
+
+        Parameters
+        ----------
+        wavelength_nm
+            Wavelengths (nm), any shape.
+
+        Returns
+        -------
+        bool
+            True when every wavelength lies within the set's first and last sample (± 1e-6 nm).
+        """
         wl = np.asarray(wavelength_nm, dtype=np.float64)
         return bool(wl.min() >= self.wavelength_nm[0] - 1e-6 and wl.max() <= self.wavelength_nm[-1] + 1e-6)
 
     def resample(self, wavelength_nm: np.ndarray | None = None, method: str = "linear") -> SpectralSet:
         """Resample every curve onto ``wavelength_nm`` (default: 400-700 nm / 5 nm).
 
-        Interpolation uses colour-science's interpolators: ``"linear"`` (no overshoot on the
-        sharp edges of filter curves, the default) or ``"sprague"`` (CIE 167:2005's recommended
-        interpolator for uniformly sampled smooth data).  Extrapolation is refused: a range
-        that does not cover the grid raises :class:`InputFileError` naming the source.
+        ``"linear"`` (no overshoot on the sharp edges of filter curves, the default) is
+        :func:`resample_spectra`; ``"sprague"`` is colour-science's ``SpragueInterpolator`` (CIE
+        167:2005's recommended interpolator for uniformly sampled smooth data; linear for fewer than
+        six or unevenly spaced samples).  Curves other than ``"signal"`` are clipped at 0.
+
+        Parameters
+        ----------
+        wavelength_nm
+            The target grid (nm); ``None`` for :data:`DEFAULT_WAVELENGTH_NM`.
+        method
+            ``"linear"`` or ``"sprague"``.
+
+        Returns
+        -------
+        SpectralSet
+            The same curves on the grid (``self`` when the grid is already this set's).
+
+        Raises
+        ------
+        InputFileError
+            When the set's range does not cover the grid (extrapolation is refused), naming the source.
+        ConfigurationError
+            On an unknown ``method``.
         """
         wl = DEFAULT_WAVELENGTH_NM if wavelength_nm is None else np.asarray(wavelength_nm, dtype=np.float64)
         if not self.covers(wl):
@@ -107,23 +152,37 @@ class SpectralSet:
             )
         if self.wavelength_nm.size == wl.size and np.allclose(self.wavelength_nm, wl):
             return self
-        interpolators = {"linear": colour.LinearInterpolator, "sprague": colour.SpragueInterpolator}
-        if method not in interpolators:
-            raise ConfigurationError(f"unknown interpolation {method!r}; expected one of {list(interpolators)}")
-        interpolator = interpolators[method]
-        if method == "sprague" and (
-            self.wavelength_nm.size < 6 or not np.allclose(np.diff(self.wavelength_nm), np.diff(self.wavelength_nm)[0])
-        ):
-            interpolator = colour.LinearInterpolator
-        out = np.empty((len(self), wl.size))
-        for i, row in enumerate(self.values):
-            out[i] = interpolator(self.wavelength_nm, row)(np.clip(wl, self.wavelength_nm[0], self.wavelength_nm[-1]))
+        if method not in INTERPOLATIONS:
+            raise ConfigurationError(f"unknown interpolation {method!r}; expected one of {list(INTERPOLATIONS)}")
+        inside = np.clip(wl, self.wavelength_nm[0], self.wavelength_nm[-1])
+        if method == "sprague" and self.wavelength_nm.size >= 6 and np.allclose(
+                np.diff(self.wavelength_nm), np.diff(self.wavelength_nm)[0]):
+            out = np.empty((len(self), wl.size))
+            for i, row in enumerate(self.values):
+                out[i] = colour.SpragueInterpolator(self.wavelength_nm, row)(inside)
+        else:
+            out = resample_spectra(self.values, self.wavelength_nm, inside)
         if self.kind != "signal":
             out = np.maximum(out, 0.0)
         return SpectralSet(wl, out, self.names, self.kind, self.source, self.notes)
 
     def select(self, names: list[str] | tuple[str, ...]) -> SpectralSet:
-        """Return the curves called ``names`` (case-insensitive), in that order."""
+        """The curves called ``names`` (case-insensitive), in that order.
+
+        Parameters
+        ----------
+        names
+            Curve names.
+
+        Returns
+        -------
+        SpectralSet
+
+        Raises
+        ------
+        ConfigurationError
+            For a name the set does not have.
+        """
         lookup = {n.lower(): i for i, n in enumerate(self.names)}
         missing = [n for n in names if n.lower() not in lookup]
         if missing:
@@ -133,7 +192,17 @@ class SpectralSet:
                            self.source, self.notes)
 
     def subset(self, mask: np.ndarray) -> SpectralSet:
-        """Return the curves where boolean ``mask`` is true."""
+        """The curves where ``mask`` is true.
+
+        Parameters
+        ----------
+        mask
+            Boolean ``(m,)``.
+
+        Returns
+        -------
+        SpectralSet
+        """
         mask = np.asarray(mask, dtype=bool)
         return SpectralSet(self.wavelength_nm, self.values[mask],
                            [n for n, keep in zip(self.names, mask, strict=True) if keep],
@@ -141,7 +210,26 @@ class SpectralSet:
 
     @classmethod
     def from_colour(cls, data, kind: str, source: str, names=None) -> SpectralSet:
-        """Build from a colour-science spectral distribution, multi-distribution or mapping of them."""
+        """Build from a colour-science spectral distribution, multi-distribution or mapping of them.
+
+        Distributions of a mapping on different grids are aligned on the common range with colour-science's
+        own interpolation (``SpectralDistribution.align``).
+
+        Parameters
+        ----------
+        data
+            ``SpectralDistribution``, ``MultiSpectralDistributions`` or a mapping name → distribution.
+        kind
+            One of :data:`KINDS`.
+        source
+            Where the data came from (for messages).
+        names
+            Curve names (default: the data's).
+
+        Returns
+        -------
+        SpectralSet
+        """
         if isinstance(data, colour.MultiSpectralDistributions):
             return cls(data.wavelengths, data.values.T, names or data.labels, kind, source)
         if isinstance(data, colour.SpectralDistribution):
@@ -159,7 +247,28 @@ class SpectralSet:
 
 def concatenate(sets: list[SpectralSet], wavelength_nm: np.ndarray | None = None, source: str | None = None,
                 method: str = "linear") -> SpectralSet:
-    """Resample several sets onto one grid and stack their curves (names prefixed by source)."""
+    """Resample several sets onto one grid and stack their curves (names prefixed by source).
+
+    Parameters
+    ----------
+    sets
+        Sets of one kind.
+    wavelength_nm
+        The grid (default :data:`DEFAULT_WAVELENGTH_NM`).
+    source
+        The result's source (default the sources joined by ``+``).
+    method
+        Interpolation (:meth:`SpectralSet.resample`).
+
+    Returns
+    -------
+    SpectralSet
+
+    Raises
+    ------
+    ConfigurationError
+        Without sets, or for sets of different kinds.
+    """
     if not sets:
         raise ConfigurationError("no spectral sets to concatenate")
     wl = DEFAULT_WAVELENGTH_NM if wavelength_nm is None else np.asarray(wavelength_nm, dtype=np.float64)
@@ -211,6 +320,11 @@ def read_spectral_csv(path: str | Path, kind: str, percent: bool | None = None) 
         On a missing or unreadable file, a wrong header, a short row, a value that is not a
         number, NaN, wavelengths that are not strictly increasing, or a negative value
         (beyond 0.5 % of the curve's maximum, which is clipped as measurement noise).
+
+    Returns
+    -------
+    SpectralSet
+        The curves (transmittances and reflectances as fractions), with what was done to them in ``notes``.
     """
     path = Path(path)
     if kind not in KINDS:
@@ -290,7 +404,22 @@ def read_spectral_csv(path: str | Path, kind: str, percent: bool | None = None) 
 
 
 def write_spectral_csv(spectral_set: SpectralSet, path: str | Path, comment: str | None = None) -> Path:
-    """Write curves as ``wavelength_nm,<name>...`` CSV, atomically (temporary name, then rename)."""
+    """Write curves as ``wavelength_nm,<name>...`` CSV, atomically (temporary name, then rename).
+
+    Parameters
+    ----------
+    spectral_set
+        The curves.
+    path
+        The file.
+    comment
+        Written first as ``#`` lines.
+
+    Returns
+    -------
+    pathlib.Path
+        The written file.
+    """
 
     buf = io.StringIO()
     for c in (comment or "").splitlines():
@@ -300,3 +429,95 @@ def write_spectral_csv(spectral_set: SpectralSet, path: str | Path, comment: str
     for j, wl in enumerate(spectral_set.wavelength_nm):
         writer.writerow([f"{wl:g}", *(f"{v:.6g}" for v in spectral_set.values[:, j])])
     return atomic_write_text(path, buf.getvalue())
+
+
+def _check_grids(src: np.ndarray, dst: np.ndarray, refuse_outside: bool) -> None:
+    """The checks of both resampling forms: a strictly increasing source grid of at least 2 samples and, when
+    ``refuse_outside``, a target grid within it (± 1e-9 nm)."""
+    if src.ndim != 1 or src.size < 2 or np.any(np.diff(src) <= 0):
+        raise ConfigurationError("source wavelengths must be a strictly increasing 1-D array of at least 2 values")
+    if refuse_outside and dst.size and (dst.min() < src[0] - 1e-9 or dst.max() > src[-1] + 1e-9):
+        raise ConfigurationError(f"wavelength range {src[0]:g}-{src[-1]:g} nm does not cover {dst.min():g}-"
+                                 f"{dst.max():g} nm")
+
+
+def resample_spectra(values, from_nm, to_nm, outside: str | float = "error") -> np.ndarray:
+    """Linear interpolation of spectra over wavelength: the package's one spectral resampling.
+
+    Each spectrum is interpolated by ``np.interp`` (so the values are bit for bit those of ``np.interp``
+    and of colour-science's ``LinearInterpolator``).  For many spectra at once (images) the same
+    interpolation as one matrix is :func:`resample_matrix`.
+
+    Parameters
+    ----------
+    values
+        Spectra ``(..., len(from_nm))``, any real dtype (computed in float64).
+    from_nm
+        Their wavelengths (nm): strictly increasing, at least 2.
+    to_nm
+        The wavelengths to interpolate at (nm), any shape.
+    outside
+        What a wavelength outside ``from_nm``'s range gets: ``"error"`` (refused, the default; up to 1e-9 nm
+        outside counts as the end sample), ``"edge"`` (the nearest end sample's value) or a number.
+
+    Returns
+    -------
+    numpy.ndarray
+        float64 ``(..., *to_nm.shape)``.
+
+    Raises
+    ------
+    ConfigurationError
+        On a source grid that is not strictly increasing, spectra whose last axis does not match it, an unknown
+        ``outside``, or (``outside="error"``) target wavelengths outside the source range.
+    """
+    src = np.asarray(from_nm, dtype=np.float64)
+    dst = np.asarray(to_nm, dtype=np.float64)
+    if isinstance(outside, str) and outside not in ("error", "edge"):
+        raise ConfigurationError(f"unknown outside={outside!r}; expected 'error', 'edge' or a number")
+    _check_grids(src, dst, refuse_outside=isinstance(outside, str) and outside == "error")
+    fill = None if isinstance(outside, str) else float(outside)
+    v = np.asarray(values, dtype=np.float64)
+    if v.ndim == 0 or v.shape[-1] != src.size:
+        raise ConfigurationError(f"spectra of shape {v.shape} do not match {src.size} wavelengths")
+    flat = v.reshape(-1, src.size)
+    out = np.empty((flat.shape[0], *dst.shape))
+    for i, row in enumerate(flat):
+        out[i] = np.interp(dst, src, row, left=fill, right=fill)
+    return out.reshape(*v.shape[:-1], *dst.shape)
+
+
+def resample_matrix(from_nm: np.ndarray, to_nm: np.ndarray) -> np.ndarray:
+    """The linear interpolation of :func:`resample_spectra` as a matrix, for many spectra at once.
+
+    Row ``i`` holds ``1 - w`` and ``w`` at the two samples around ``to_nm[i]``; ``M @ spectrum`` equals
+    :func:`resample_spectra` to within one unit in the last place (the weights round differently from
+    ``np.interp``'s slope form).
+
+    Parameters
+    ----------
+    from_nm
+        Source wavelengths (nm): strictly increasing, at least 2.
+    to_nm
+        Target wavelengths (nm) within ``[from_nm[0], from_nm[-1]]`` (± 1e-9 nm).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``M`` float64 ``(len(to_nm), len(from_nm))`` with ``values_to = M @ values_from``.
+
+    Raises
+    ------
+    ConfigurationError
+        On a source grid that is not strictly increasing or a target outside it (no extrapolation).
+    """
+    src = np.asarray(from_nm, dtype=np.float64)
+    dst = np.asarray(to_nm, dtype=np.float64)
+    _check_grids(src, dst, refuse_outside=True)
+    j = np.clip(np.searchsorted(src, dst, side="right") - 1, 0, src.size - 2)
+    w = np.clip((dst - src[j]) / (src[j + 1] - src[j]), 0.0, 1.0)
+    m = np.zeros((dst.size, src.size))
+    rows = np.arange(dst.size)
+    m[rows, j] += 1.0 - w
+    m[rows, j + 1] += w
+    return m

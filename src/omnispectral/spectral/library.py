@@ -20,13 +20,14 @@ import numpy as np
 from colour.characterisation import read_training_data_rawtoaces_v1
 from colour.quality import SDS_TCS, SDS_VS
 
+from omnispectral.choices import DEFAULT_CAMERA, DEFAULT_FILTERS, DEFAULT_ILLUMINANT, DEFAULT_TARGET
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.spectral.curves import SpectralSet, read_spectral_csv
 
-DEFAULT_CAMERA = "Nikon 5100 (NPL)"
-DEFAULT_FILTERS = ("wratten-34a", "sp18-standin")
-DEFAULT_TARGET = "colorchecker"
-DEFAULT_ILLUMINANT = "D65"
+__all__ = ["CALIBRATION_ILLUMINANTS", "CALIBRATION_REFLECTANCE_SETS", "DEFAULT_CAMERA", "DEFAULT_FILTERS",
+           "DEFAULT_ILLUMINANT", "DEFAULT_TARGET", "PRIOR_ILLUMINANTS", "PRIOR_REFLECTANCE_SETS", "camera_names",
+           "daylight_spd", "denser_filter", "filter_names", "illuminant_names", "load_camera", "load_filter",
+           "load_illuminant", "load_reflectances", "reflectance_set_names", "sp18_standin_transmittance"]
 
 # Nine light sources for the prior (paper Sec. 4.6: "nine spectral power distributions of
 # different light sources"): daylight from 4000 K to 10000 K, tungsten, three fluorescents and
@@ -130,7 +131,35 @@ def denser_filter(base: SpectralSet, power: int, label: str) -> SpectralSet:
 def load_filter(name: str) -> SpectralSet:
     """Transmittance of a filter: ``wratten-34a``, ``wratten-96`` (Kodak neutral density 1.0, as tabulated),
     ``wratten-96-nd3`` (neutral density 3.0, the ND 1.0 curve cubed: :func:`denser_filter`),
-    ``sp18-standin``, ``none`` or a CSV file (one curve)."""
+    ``sp18-standin``, ``none`` or a CSV file (one curve).
+
+    Parameters
+    ----------
+    name : str
+        A built-in filter name (case-insensitive; ``sp-18`` and ``sp18`` name the stand-in too) or the path of a
+        transmittance CSV with exactly one curve.
+
+    Returns
+    -------
+    SpectralSet
+        One transmittance curve (fraction, 0-1) on its own wavelength grid (nm): the tabulated grid of a
+        shipped or CSV filter, 360-830 nm every 1 nm for the synthetic SP-18 stand-in and ``none``.
+
+    Raises
+    ------
+    InputFileError
+        For a CSV that does not hold exactly one curve, or whose transmittance is zero everywhere.
+    ConfigurationError
+        For an unknown name.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 3, Fig. 3 (transmittances of 36 colour filters; KODAK No. 34A and
+       FUJIFILM SP-18 selected), Fig. 4.
+    .. [2] Kodak, "Kodak Wratten Filters for Scientific and Technical Use" (A. C. Peed Jr.), the source of the
+       Wratten No. 34A and No. 96 tables (``omnispectral/data/README.md``).
+    """
     key = name.lower()
     if key in _DENSER_FILTERS:
         base, power = _DENSER_FILTERS[key]

@@ -18,6 +18,8 @@ import numpy as np
 
 from omnispectral.errors import ConfigurationError
 
+__all__ = ["CMV2000", "SensorNoiseModel", "exposure_scale_per_camera", "measure_patches"]
+
 
 @dataclass(frozen=True)
 class SensorNoiseModel:
@@ -97,14 +99,31 @@ def measure_patches(signal: np.ndarray, camera_of_band: np.ndarray, noise: Senso
         Camera index of each band (bands of one camera share the exposure).
     noise
         Sensor model, or ``None`` for a noise-free measurement.
+    rng : numpy.random.Generator, optional
+        The noise's random numbers (default: seeded with 0).
     patch_px
         Side of the square region averaged per patch (default 32 px, as when measuring a chart).
+    white_fraction : float
+        Each camera exposed so its brightest band value sits at this fraction of full well, in (0, 1]
+        (:func:`exposure_scale_per_camera`).
 
     Returns
     -------
     measured, variance
         Patch means in the unit of ``signal`` ``(P, m)``, and the variance of each mean in that
         unit squared (the ``sigma_i^2`` of Eq. (5) for the signal-dependent estimator).
+
+    Raises
+    ------
+    ConfigurationError
+        For ``patch_px`` below 1, ``white_fraction`` outside (0, 1], or a camera that sees no signal.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Eq. (5) (the noise ``σ_i`` of a band value), Sec. 3 (12-bit cameras).
+    .. [2] EMVA Standard 1288, "Standard for Characterization of Image Sensors and Cameras" (the linear camera
+       model: shot noise, read noise, quantisation, saturation).
     """
     signal = np.asarray(signal, dtype=np.float64)
     if noise is None:

@@ -8,6 +8,8 @@ import numpy as np
 
 from omnispectral.io import atomic_path
 
+__all__ = ["FIG9_PATCHES", "plot_estimates"]
+
 FIG9_PATCHES = (12, 13, 14, 15, 16, 18)
 """ColorChecker patches of paper Fig. 9: No. 13 blue, 14 green, 15 red, 16 yellow, 17 magenta, 19 white (0-based)."""
 
@@ -21,6 +23,28 @@ def plot_estimates(result: dict, path: str | Path, patches: tuple[int, ...] | No
 
     ``result`` is the output of :func:`omnispectral.spectral.evaluate.evaluate`.  The six-band
     estimate is drawn with its ±2σ posterior band; the RGB estimate dotted.
+
+    Parameters
+    ----------
+    result : dict
+        :func:`~omnispectral.spectral.evaluate.evaluate`'s result, with its private ``_spectra`` (not the
+        JSON-only :func:`~omnispectral.spectral.evaluate.public` part).
+    path : str or pathlib.Path
+        The image written; its suffix names the format (``.png`` when it has none).
+    patches : tuple of int, optional
+        Up to six 0-based target indices; default :data:`FIG9_PATCHES` for the 24 ColorChecker patches, else
+        six evenly spaced targets.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Fig. 9 (estimated spectral power distributions of ColorChecker No. 13, 14,
+       15, 16, 17 and 19), Sec. 5.2.
     """
     import matplotlib  # lazy: matplotlib (pyplot) is needed for this plot only, and the backend must be set first
 

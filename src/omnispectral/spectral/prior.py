@@ -28,6 +28,9 @@ from omnispectral.spectral.library import (
     load_reflectances,
 )
 
+__all__ = ["EXCLUSION_RMS", "SpectralPrior", "build_prior", "calibration_signals", "colour_signals", "exclude_near",
+           "load_illuminant_set"]
+
 EXCLUSION_RMS = 0.01
 """Prior reflectances closer than this RMS difference (reflectance units) to a held-out spectrum are dropped."""
 
@@ -130,6 +133,19 @@ def build_prior(reflectance_sets: tuple[str, ...] | list[str] = PRIOR_REFLECTANC
     held_out
         Reflectance sets that must not be in the prior (the evaluation target and the
         calibration set); near copies (RMS < :data:`EXCLUSION_RMS`) are removed.
+    wavelength_nm
+        The wavelength grid (default 400-700 nm every 5 nm).
+
+    Returns
+    -------
+    SpectralPrior
+        The colour signals (every reflectance under every light source) whose mean and covariance Eq. (7) uses.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System
+       for Omnidirectional Scene Capture", J. Imaging 4(4):53, 2018, Sec. 4
+       (the prior of Eq. (7): reflectances under nine light sources).
     """
     wl = DEFAULT_WAVELENGTH_NM if wavelength_nm is None else np.asarray(wavelength_nm, dtype=np.float64)
     refl = concatenate([load_reflectances(n) for n in reflectance_sets], wl, source="prior")

@@ -24,6 +24,7 @@ import colour
 import numpy as np
 
 from omnispectral.errors import ConfigurationError
+from omnispectral.progress import ProgressCallback, report_progress
 from omnispectral.spectral.colour import cmfs_on_grid
 from omnispectral.spectral.curves import DEFAULT_WAVELENGTH_NM, SpectralSet, read_spectral_csv
 from omnispectral.spectral.evaluate import target_signals
@@ -40,6 +41,8 @@ from omnispectral.spectral.library import (
 from omnispectral.spectral.metrics import nrmse
 from omnispectral.spectral.prior import SpectralPrior, build_prior, calibration_signals
 from omnispectral.spectral.system import _sample_widths_nm
+
+__all__ = ["SELECT_SIGMA2_GRID", "read_candidates", "score_pairs", "select_filters"]
 
 SELECT_SIGMA2_GRID = np.logspace(-8, -1, 15)
 
@@ -114,8 +117,9 @@ def read_candidates(path: str | Path) -> tuple[SpectralSet, dict]:
 
 def score_pairs(filters: np.ndarray, pairs: np.ndarray, camera: np.ndarray, prior: SpectralPrior,
                 calib: np.ndarray, target: np.ndarray, spd: np.ndarray, wl: np.ndarray, mixture: bool = False,
-                batch: int = 128, progress=None) -> dict[str, np.ndarray]:
-    """NRMSE, ΔE*ab and chosen sigma^2 for each pair of rows of ``filters`` ``(F, n)``."""
+                batch: int = 128, progress: ProgressCallback | None = None) -> dict[str, np.ndarray]:
+    """NRMSE, ΔE*ab and chosen sigma^2 for each pair of rows of ``filters`` ``(F, n)``;
+    ``progress("scoring N filter pairs", done, N)`` after each batch."""
     dl = _sample_widths_nm(wl)
     Y_prior = _channel_responses(prior.signals, camera, filters, dl)
     Y_cal = _channel_responses(calib, camera, filters, dl)
@@ -140,15 +144,14 @@ def score_pairs(filters: np.ndarray, pairs: np.ndarray, camera: np.ndarray, prio
         out["nrmse"][s:s + batch] = nrmse(est, target[None]).mean(-1)
         out["delta_e_ab"][s:s + batch] = _delta_e_ab(est, target, spd, wl)
         out["sigma2"][s:s + batch] = sigma2
-        if progress is not None:
-            progress(len(pb))
+        report_progress(progress, f"scoring {len(pairs)} filter pairs", s + len(pb), len(pairs))
     return out
 
 
 def select_filters(candidates: str | Path, top: int = 10, camera: str = DEFAULT_CAMERA,
                    target: str = DEFAULT_TARGET, illuminant: str = DEFAULT_ILLUMINANT,
                    reference: tuple[str, str] = DEFAULT_FILTERS, mixture: bool = False,
-                   progress=None, wavelength_nm: np.ndarray | None = None) -> dict:
+                   progress: ProgressCallback | None = None, wavelength_nm: np.ndarray | None = None) -> dict:
     """Score all pairs of a candidate filter table; return the ``top`` pairs and the reference pair's rank."""
     t0 = time.perf_counter()
     wl = DEFAULT_WAVELENGTH_NM if wavelength_nm is None else np.asarray(wavelength_nm, dtype=np.float64)
@@ -170,15 +173,7 @@ def select_filters(candidates: str | Path, top: int = 10, camera: str = DEFAULT_
 
     n = len(cands)
     pairs = np.array([*itertools.combinations(range(n), 2), (n, n + 1)], dtype=int)
-    tick = None
-    if progress:
-        scored = [0]
-
-        def tick(k):
-            scored[0] += k
-            progress(f"scoring {len(pairs)} filter pairs", scored[0], len(pairs))
-
-    scores = score_pairs(filters, pairs, cam, prior, calib, signals, spd, wl, mixture, progress=tick)
+    scores = score_pairs(filters, pairs, cam, prior, calib, signals, spd, wl, mixture, progress=progress or None)
     order = np.argsort(scores["nrmse"][:-1], kind="stable")
     rank_of_ref = int(np.searchsorted(np.sort(scores["nrmse"][:-1]), scores["nrmse"][-1], side="left")) + 1
 

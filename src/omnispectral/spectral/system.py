@@ -17,6 +17,8 @@ from omnispectral.errors import ConfigurationError
 from omnispectral.spectral.curves import DEFAULT_WAVELENGTH_NM, SpectralSet
 from omnispectral.spectral.library import DEFAULT_CAMERA, DEFAULT_FILTERS, load_camera, load_filter
 
+__all__ = ["MultibandSystem", "build_system", "rgb_system", "six_band_system"]
+
 
 @dataclass(frozen=True)
 class MultibandSystem:
@@ -24,17 +26,24 @@ class MultibandSystem:
 
     Attributes
     ----------
-    wavelength_nm
-        Sample wavelengths ``(n,)``.
-    sensitivity
-        Band sensitivities ``(m, n)``: camera channel times filter transmittance.
-    band_names
+    wavelength_nm : numpy.ndarray
+        Sample wavelengths ``(n,)`` in nm.
+    sensitivity : numpy.ndarray
+        Band sensitivities ``(m, n)``: camera channel times filter transmittance (without the sampling
+        interval; :attr:`matrix` folds it in).
+    band_names : tuple of str
         ``"A:R"``-style names: camera (filter slot) and channel.
-    camera_of_band
+    camera_of_band : numpy.ndarray
         Index of the physical camera behind each band ``(m,)``; bands of one camera share an
         exposure and a sensor.
-    description
+    description : str
         Camera and filters, for reports.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Eqs. (5)-(6) (the spectral sensitivity functions ``R_i(λ)`` and the
+       matrix ``R``), Sec. 3, Fig. 4 (six bands: two RGB cameras behind two colour filters).
     """
 
     wavelength_nm: np.ndarray
@@ -49,11 +58,43 @@ class MultibandSystem:
 
     @property
     def matrix(self) -> np.ndarray:
-        """R of Eq. (6) with the sampling interval folded in, so ``rho = R @ e``."""
+        """R of Eq. (6) with the sampling interval folded in, so ``rho = R @ e``.
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(m, n)`` float64: :attr:`sensitivity` times each sample's width in nm (the grid step on a
+            uniform grid, the span between midpoints otherwise), so ``R @ e`` approximates
+            ``∫ E(λ) R_i(λ) dλ`` by the rectangle rule.
+
+        References
+        ----------
+        .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+           J. Imaging 4(4):53, 2018, Eq. (6) (``ρ = R e + σ``, ``R`` of size bands × n).
+        """
         return self.sensitivity * _sample_widths_nm(self.wavelength_nm)[None, :]
 
     def response(self, spectra: np.ndarray) -> np.ndarray:
-        """Noise-free band values ``s = R e`` (Eq. (6)) for spectra ``(..., n)`` -> ``(..., m)``."""
+        """Noise-free band values ``s = R e`` (Eq. (6)) for spectra ``(..., n)`` -> ``(..., m)``.
+
+        Parameters
+        ----------
+        spectra : array_like
+            ``(..., n)`` spectra sampled on :attr:`wavelength_nm`, per nm (e.g. spectral radiance, or relative
+            spectral power).
+
+        Returns
+        -------
+        numpy.ndarray
+            ``(..., m)`` band values ``Σ_λ E(λ) R_i(λ) Δλ``: the spectra's unit times nm, times the
+            sensitivities' unit.
+
+        References
+        ----------
+        .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+           J. Imaging 4(4):53, 2018, Eq. (5) (the signal ``s_i = ∫ E(λ) R_i(λ) dλ``), Eq. (6)
+           (``s = R e``).
+        """
         return np.asarray(spectra) @ self.matrix.T
 
     def to_dict(self) -> dict:
@@ -100,7 +141,27 @@ def build_system(camera: SpectralSet, filters: list[SpectralSet] | tuple[Spectra
 
 def six_band_system(camera: str = DEFAULT_CAMERA, filters: tuple[str, str] = DEFAULT_FILTERS,
                     wavelength_nm: np.ndarray | None = None) -> MultibandSystem:
-    """The paper's six-band system: one camera model behind two filters (default 34A + SP-18 stand-in)."""
+    """The paper's six-band system: one camera model behind two filters (default 34A + SP-18 stand-in).
+
+    Parameters
+    ----------
+    camera : str
+        A camera sensitivity set of :func:`~omnispectral.spectral.library.load_camera` (name or CSV path).
+    filters : tuple of str
+        The filters in front of cameras A and B (:func:`~omnispectral.spectral.library.load_filter`).
+    wavelength_nm : ndarray, optional
+        The wavelength grid (default 400-700 nm every 5 nm).
+
+    Returns
+    -------
+    MultibandSystem
+        Six bands ``A:R A:G A:B B:R B:G B:B``; ``matrix (6, n)`` the system matrix R of Eq. (6).
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System
+       for Omnidirectional Scene Capture", J. Imaging 4(4):53, 2018, Sec. 2 and Eq. (6).
+    """
     return build_system(load_camera(camera), [load_filter(f) for f in filters], wavelength_nm)
 
 

@@ -67,6 +67,9 @@ from omnispectral.spectral.prior import SpectralPrior
 from omnispectral.spectral.system import MultibandSystem
 from omnispectral.threads import blocks, kernel_threads, single_threaded_blas
 
+__all__ = ["BLOCK_PIXELS", "DEFAULT_CHUNK_PIXELS", "NOISY_BLOCK_PIXELS", "SMALL_CALL_PIXELS", "WienerEstimator",
+           "apply_linear_map", "wiener_matrix"]
+
 DEFAULT_CHUNK_PIXELS = 1 << 15
 BLOCK_PIXELS = 4096  # pixels per block of the fast kernels: the block's temporaries stay in the L2 cache
 SMALL_CALL_PIXELS = 256  # below this no thread control: its overhead (~0.1 ms) would dominate
@@ -74,7 +77,30 @@ NOISY_BLOCK_PIXELS = 16384  # per-pixel noise: ~100 vector operations per compon
 
 
 def wiener_matrix(system_matrix: np.ndarray, covariance: np.ndarray, sigma2: float) -> np.ndarray:
-    """:math:`W = C R^t (R C R^t + \\sigma^2 I)^{-1}` of Eq. (7), shape ``(n, m)``."""
+    """:math:`W = C R^t (R C R^t + \\sigma^2 I)^{-1}` of Eq. (7), shape ``(n, m)``.
+
+    Parameters
+    ----------
+    system_matrix : array_like
+        ``R`` ``(m, n)``: the bands' sensitivities with the sampling interval folded in
+        (:attr:`MultibandSystem.matrix <omnispectral.spectral.system.MultibandSystem.matrix>`).
+    covariance : array_like
+        ``C`` ``(n, n)``: the prior covariance of the spectra (:math:`C_{ss}`), in the spectra's units squared.
+    sigma2 : float
+        The noise variance :math:`\\sigma^2`, in the band values' units squared (added to every band).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``W`` ``(n, m)`` float64: ``ê - ē = W (ρ - R ē)``.
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Eq. (7).
+    .. [2] S. M. Kay, Fundamentals of Statistical Signal Processing: Estimation Theory, Prentice Hall, 1993,
+       Ch. 12 (the linear MMSE (Wiener) estimator).
+    """
     R = np.asarray(system_matrix, dtype=np.float64)
     C = np.asarray(covariance, dtype=np.float64)
     CRt = C @ R.T
@@ -470,6 +496,38 @@ class WienerEstimator:
 
     Build with :meth:`fit`.  Attributes hold the stacked component statistics: ``means``
     ``(K, n)``, ``covariances`` ``(K, n, n)`` and ``weights`` ``(K,)`` (prior probabilities).
+
+    Attributes
+    ----------
+    wavelength_nm : numpy.ndarray
+        ``(n,)`` wavelengths of the spectra (nm).
+    system_matrix : numpy.ndarray
+        ``R`` ``(m, n)`` of Eq. (6), the sampling interval folded in.
+    means : numpy.ndarray
+        ``(K, n)`` prior mean :math:`\\bar e_j` of each component (in the normalized form: colour signals
+        scaled to unit brightness ``a^t R e = 1``; else in the prior's units).
+    covariances : numpy.ndarray
+        ``(K, n, n)`` prior covariance :math:`C_j` of each component, in the means' units squared.
+    weights : numpy.ndarray
+        ``(K,)`` prior probability of each component (its share of the prior's colour signals).
+    sigma2 : float
+        The noise variance :math:`\\sigma^2` of Eq. (7) (relative to the squared brightness in the
+        normalized form).
+    normalization : numpy.ndarray or None
+        ``a`` ``(m,)`` (the band mean, ``1/m`` each) of the normalized form; ``None`` for Eq. (7) verbatim.
+    band_names : tuple of str
+        The bands' names.
+    component_names : tuple of str
+        ``("pooled",)`` (the paper's single component) or the prior's light sources (mixture).
+
+    References
+    ----------
+    .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System for Omnidirectional Scene Capture",
+       J. Imaging 4(4):53, 2018, Sec. 4.6, Eq. (7) (the Wiener estimate with a prior from reflectances under
+       nine light sources, pooled).
+    .. [2] S. M. Kay, Fundamentals of Statistical Signal Processing: Estimation Theory, Prentice Hall, 1993,
+       Ch. 11-12 (minimum-mean-square-error estimation: the linear MMSE (Wiener) estimator and its posterior
+       covariance; with a Gaussian-mixture prior, the posterior mean).
     """
 
     wavelength_nm: np.ndarray
@@ -485,10 +543,29 @@ class WienerEstimator:
     @classmethod
     def fit(cls, system: MultibandSystem, prior: SpectralPrior, sigma2: float, normalized: bool = True,
             mixture: bool = False) -> WienerEstimator:
-        """Fit to a system and a prior.
+        """Fit Eq. (7) to a system and a prior.
 
-        ``normalized`` selects the exposure-equivariant form; ``mixture`` keeps one prior
-        component per light source instead of pooling them (the paper pools).
+        Parameters
+        ----------
+        system : MultibandSystem
+            The bands' system matrix R (:func:`~omnispectral.spectral.system.six_band_system`).
+        prior : SpectralPrior
+            The colour signals (:func:`~omnispectral.spectral.prior.build_prior`).
+        sigma2 : float
+            The noise variance :math:`\\sigma^2` of Eq. (7) (relative to the squared brightness when ``normalized``).
+        normalized : bool
+            The exposure-equivariant form (module docstring); False: Eq. (7) verbatim.
+        mixture : bool
+            One prior component per light source instead of pooling them (the paper pools).
+
+        Returns
+        -------
+        WienerEstimator
+
+        References
+        ----------
+        .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System
+           for Omnidirectional Scene Capture", J. Imaging 4(4):53, 2018, Eq. (7).
         """
         if sigma2 < 0 or not np.isfinite(sigma2):
             raise ConfigurationError(f"noise variance sigma2 must be finite and >= 0, got {sigma2}")
@@ -654,6 +731,18 @@ class WienerEstimator:
             Clip negative spectral values to zero (light is non-negative).
         chunk_pixels
             Pixels per chunk; bounds the temporary memory.
+        dtype
+            The output's float type.
+
+        Returns
+        -------
+        ndarray
+            ``(..., n)`` spectra on :attr:`wavelength_nm`, in the bands' units per unit of the system matrix.
+
+        References
+        ----------
+        .. [1] Hirai et al., "High-Dynamic-Range Spectral Imaging System
+           for Omnidirectional Scene Capture", J. Imaging 4(4):53, 2018, Eq. (7).
         """
         kernel = self._kernel
         if self.n_components == 1 and noise_variance is None:
@@ -675,6 +764,27 @@ class WienerEstimator:
 
         The square root of the diagonal of the posterior covariance (for a mixture: the
         weighted within-component covariances plus the spread of the component estimates).
+
+        Parameters
+        ----------
+        rho : ndarray
+            ``(..., m)`` band values.
+        noise_variance : ndarray or float, optional
+            Per-pixel (and per-band) noise variance of ``rho``, added to :math:`\\sigma^2` (as in :meth:`estimate`).
+        chunk_pixels : int
+            Pixels per chunk; bounds the temporary memory.
+        dtype
+            The output's float type.
+
+        Returns
+        -------
+        ndarray
+            ``(..., n)`` standard deviations in the units of :meth:`estimate`.
+
+        References
+        ----------
+        .. [1] S. M. Kay, Fundamentals of Statistical Signal Processing: Estimation Theory, Prentice Hall, 1993,
+           Ch. 11-12 (the posterior covariance of the linear MMSE estimator).
         """
         kernel = self._kernel
         if kernel is None or (self.n_components == 1 and noise_variance is None):
@@ -723,11 +833,8 @@ class WienerEstimator:
 
     def _posterior_std_reference(self, rho: np.ndarray, noise_variance: np.ndarray | float | None = None,
                       chunk_pixels: int = DEFAULT_CHUNK_PIXELS // 4, dtype=np.float32) -> np.ndarray:
-        """Per-pixel spectral standard deviation of the estimate, ``(..., n)``.
-
-        The square root of the diagonal of the posterior covariance (for a mixture: the
-        weighted within-component covariances plus the spread of the component estimates).
-        """
+        """The NumPy reference of :meth:`posterior_std` (same arguments and result; also the path for one
+        component without per-pixel noise)."""
         if self.n_components == 1 and noise_variance is None:  # constant covariance, scaled by brightness
             base = np.sqrt(np.clip(np.diag(self.posterior_covariance(0)), 0.0, None))
             if self.normalization is None:

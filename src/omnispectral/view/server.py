@@ -52,6 +52,12 @@ from omnispectral.product.series import series_products
 from omnispectral.product.spectra import spectrum_in_store
 from omnispectral.view.tiles import MODES, Display, SlotRenderer, TileCache, encode_png, viewer_levels
 
+__all__ = ["BASE_SIZE", "LOCAL_HOSTS", "PORT_RANGE", "STATIC_DIR", "TILE_PX", "BadRequest", "CannotListenError",
+           "Slot", "ViewerState", "auto_exposure", "bad_request", "base", "bound_port", "check_listen_address",
+           "check_port_number", "create_app", "host_port", "http_error", "index_page", "info", "load_static",
+           "no_icon", "probes", "probes_csv", "serve", "spectrum", "static_file", "tile", "unprocessable",
+           "view_slots"]
+
 STATIC_DIR = Path(__file__).parent / "static"
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1", "[::1]")
 BASE_SIZE = (1024, 512)

@@ -42,6 +42,10 @@ from omnispectral.product.exports import reinhard_srgb8
 from omnispectral.product.layout import open_product
 from omnispectral.product.spectra import linear_srgb_map
 
+__all__ = ["AUTO_PERCENTILE", "MODES", "OCCLUDED_RGB", "PREDICTED_RGB", "SUN_RGB", "UNCERTAINTY_STEP", "Display",
+           "SlotRenderer", "TileCache", "encode_png", "luminance", "relative_uncertainty", "viewer_levels",
+           "viridis_lut"]
+
 MODES = ("colour", "band", "uncertainty", "registration")
 #: Colour of occluded pixels in the ``registration`` mode.
 OCCLUDED_RGB = (230, 30, 30)

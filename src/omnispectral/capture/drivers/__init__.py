@@ -4,7 +4,7 @@
   heads (pyserial), on the shared :mod:`~omnispectral.capture.drivers.head_base` and
   :mod:`~omnispectral.capture.drivers.serial_link`;
 - :mod:`~omnispectral.capture.drivers.gentl`: GenICam cameras through a GenTL producer (harvesters);
-- :mod:`~omnispectral.capture.drivers.emulators`: both heads emulated on pseudo-terminals, with faults.
+- :mod:`~omnispectral.sim.emulators`: both heads emulated on pseudo-terminals, with faults.
 
 A rig's ``[head]`` table selects ``driver = "rodeon" | "merlin"`` and ``port``; each camera's
 ``device`` table ``driver = "genicam"`` with the keys in :data:`GENICAM_KEYS`.

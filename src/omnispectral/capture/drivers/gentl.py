@@ -33,6 +33,9 @@ from harvesters.core import Harvester
 from omnispectral.capture.devices import DeviceDisconnected, DeviceError, DeviceTimeout
 from omnispectral.errors import ConfigurationError
 
+__all__ = ["SIMULATOR_ALIAS", "GenICamCamera", "GenTLSystem", "bits_of_pixel_format", "cfa_pattern_of",
+           "frame_to_uint16", "producer_paths", "simulated_producer_path"]
+
 log = logging.getLogger(__name__)
 
 SIMULATOR_ALIAS = "simulator"

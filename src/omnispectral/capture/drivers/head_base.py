@@ -19,6 +19,8 @@ import time
 from omnispectral.capture.devices import DeviceError, DeviceTimeout
 from omnispectral.capture.drivers.serial_link import SerialLink
 
+__all__ = ["AXES", "SerialHead", "deg_to_steps", "steps_to_deg"]
+
 log = logging.getLogger(__name__)
 
 AXES = ("pan", "tilt")

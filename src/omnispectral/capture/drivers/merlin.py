@@ -23,6 +23,9 @@ from omnispectral.capture.devices import DeviceProtocolError
 from omnispectral.capture.drivers.head_base import SerialHead
 from omnispectral.capture.drivers.serial_link import BadReply, ErrorReply, SerialLink
 
+__all__ = ["AXIS_DIGIT", "COMMANDS", "ERROR_CODES", "ZERO", "MerlinHead", "decode_u24", "encode_u24",
+           "merlin_request", "parse_merlin_reply"]
+
 log = logging.getLogger(__name__)
 
 ZERO = 0x800000
@@ -36,14 +39,46 @@ COMMANDS = {"F": "initialise", "L": "stop", "e": "firmware version", "a": "steps
 
 
 def encode_u24(value: int) -> str:
-    """A 24-bit value as six hex digits, least significant byte first (0x123456 → ``563412``)."""
+    """A 24-bit value as six hex digits, least significant byte first (0x123456 → ``563412``).
+
+    Parameters
+    ----------
+    value
+        An integer in ``[0, 2**24)``.
+
+    Returns
+    -------
+    str
+        Six upper-case hex digits.
+
+    Raises
+    ------
+    ValueError
+        When the value does not fit in 24 bits.
+    """
     if not 0 <= value < 1 << 24:
         raise ValueError(f"{value} does not fit in 24 bits")
     return "".join(f"{(value >> s) & 0xFF:02X}" for s in (0, 8, 16))
 
 
 def decode_u24(text: str) -> int:
-    """Inverse of :func:`encode_u24`."""
+    """Inverse of :func:`encode_u24`.
+
+    Parameters
+    ----------
+    text
+        Six hex digits, least significant byte first.
+
+    Returns
+    -------
+    int
+        The 24-bit value.
+
+    Raises
+    ------
+    ValueError
+        When ``text`` is not six hex digits.
+    """
     if len(text) != 6:
         raise ValueError(f"expected six hex digits, got {text!r}")
     b = [int(text[i:i + 2], 16) for i in (0, 2, 4)]
@@ -51,11 +86,45 @@ def decode_u24(text: str) -> int:
 
 
 def merlin_request(letter: str, axis: str, params: str = "") -> bytes:
+    """One request: ``:``, the command letter, the axis digit, the parameter and CR.
+
+    Parameters
+    ----------
+    letter
+        The command letter (:data:`COMMANDS`).
+    axis
+        ``"pan"`` or ``"tilt"``.
+    params
+        The command's parameter (hex digits), if any.
+
+    Returns
+    -------
+    bytes
+        The request in ASCII.
+    """
     return f":{letter}{AXIS_DIGIT[axis]}{params}\r".encode("ascii")
 
 
 def parse_merlin_reply(reply: bytes) -> str:
-    """The data of an ``=`` reply; raises ErrorReply for ``!<code>`` and BadReply for anything else."""
+    """The data of an ``=`` reply.
+
+    Parameters
+    ----------
+    reply
+        The reply with its closing CR.
+
+    Returns
+    -------
+    str
+        The data after ``=``.
+
+    Raises
+    ------
+    ErrorReply
+        For ``!<code>`` (the code's meaning from :data:`ERROR_CODES`).
+    BadReply
+        For anything else.
+    """
     try:
         text = reply.decode("ascii")
     except UnicodeDecodeError:
@@ -128,7 +197,3 @@ class MerlinHead(SerialHead):
 
     def _axis_stop(self, axis: str) -> None:
         self._ask("L", axis)
-
-    def shutter(self, on: bool) -> None:
-        """Switch the shutter output (``O``) of the pan axis' controller."""
-        self._ask("O", "pan", "1" if on else "0")

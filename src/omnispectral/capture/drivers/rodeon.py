@@ -23,6 +23,8 @@ from omnispectral.capture.devices import DeviceProtocolError, DeviceTimeout
 from omnispectral.capture.drivers.head_base import SerialHead
 from omnispectral.capture.drivers.serial_link import BadReply, SerialLink
 
+__all__ = ["COMMANDS", "ELEMENT", "ELEMENT_NAMES", "RodeonHead", "parse_rodeon_reply", "rodeon_request"]
+
 log = logging.getLogger(__name__)
 
 TRANSCEIVER, PAN_MOTOR, TILT_MOTOR = 0, 1, 2

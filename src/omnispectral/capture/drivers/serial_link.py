@@ -21,6 +21,8 @@ import serial
 
 from omnispectral.capture.devices import DeviceDisconnected, DeviceProtocolError, DeviceTimeout
 
+__all__ = ["CR", "BadReply", "ErrorReply", "SerialLink", "T", "show_bytes"]
+
 try:  # pyserial's POSIX flush (tcdrain) raises termios.error, not an OSError, when the cable is pulled
     import termios
 

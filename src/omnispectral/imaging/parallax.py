@@ -1,0 +1,835 @@
+"""Per-pixel parallax of camera B against camera A along the rig's epipolar lines (beyond the paper).
+
+Camera B sits ``c`` (the baseline, metres, head frame) from camera A, whose optical centre is the
+head's rotation centre.  Once B's image is resampled onto A's pixel grid for points at infinity
+(:func:`omnispectral.product.pairgeometry.warp_b_onto_a` with B's calibrated mounting), a point of A's pixel
+``p`` at distance ``Z`` appears in the warped B image at
+
+.. math::  p' = \\pi_A\\big(r_A(p) - w\\, c\\big) \\approx p + w\\, e(p) + \\tfrac{1}{2} w^2 h(p),
+           \\qquad w = 1/Z,
+
+it moves along the epipolar line through ``p`` by an amount set by one unknown per pixel, the
+**inverse depth** ``w`` (1/m; 0 at infinity).  :func:`epipolar_field` gives that line's direction and
+its pixels per unit of ``w`` (``e``, px · m, and optionally ``h``); :func:`parallax_map` measures ``w``
+at every pixel:
+
+1. block-wise POC (:func:`omnispectral.imaging.blockpoc.measure_blocks`) between A and the warped B;
+   each reliable block's disparity is projected on the epipolar direction (the perpendicular part,
+   which no depth explains, must be small: otherwise the block is rejected): :func:`block_parallax`;
+2. blocks without a reliable measurement take the inverse depth of reliable neighbours (the median
+   over 5 × 5 blocks), else of the ground plane when one is known (rays below the horizon), else 0
+   (sky): :func:`fill_blocks`;
+3. every pixel sweeps the inverse depths spanned by its 5 × 5 neighbouring blocks (every 0.25 px of
+   parallax) and keeps the one whose warped-B neighbourhood matches A best
+   (:class:`~omnispectral.imaging.similarity.LocalLinearScore`: how well B's channels are a linear
+   function of A's over 11 × 11 px, which the different filters of the two cameras allow; parabolic
+   sub-step refinement; shiftable windows: a pixel takes the depth of its own surface, never a blend of
+   two); a pixel whose match is not distinctive takes its distinctive neighbours' depth, and one left
+   at infinity whose B colour plainly misfits A takes its surface's depth by colour
+   (:func:`settle_by_colour`): :func:`sweep_inverse_depth`;
+4. pixels of A that B cannot see because a nearer surface hides them (z-buffer forward warp,
+   :func:`omnispectral.imaging.blockpoc.occlusion_zbuffer`) are flagged as occluded: the mosaic takes
+   B's bands there from other directions.
+
+References
+----------
+R. T. Collins, "A space-sweep approach to true multi-image matching", CVPR 1996 (plane sweep).
+A. F. Bobick, S. S. Intille, "Large occlusion stereo", IJCV 33(3), 181-200, 1999 (shiftable windows).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy import ndimage
+
+from omnispectral.imaging.binning import analysis_factor, bin_image, binned_to_full_px
+from omnispectral.imaging.blockpoc import block_size_for, measure_blocks, occlusion_zbuffer
+from omnispectral.imaging.geometry import CameraModel
+from omnispectral.imaging.registration import as_gray
+from omnispectral.imaging.similarity import NCC_WINDOW_PX, LocalLinearScore, as_channels, local_ncc
+
+__all__ = ["COLOUR_MISFIT_MIN", "MAX_PERPENDICULAR_PX", "MIN_ALONG_WEIGHT", "MIN_BLOCK_SEEN", "OCCLUSION_TOL_PX",
+           "PARALLAX_ANALYSIS_PX", "PARALLAX_MIN_CONFIDENCE", "SAME_SURFACE_COLOUR", "SWEEP_MARGIN_STEPS",
+           "SWEEP_MAX_LEVELS", "SWEEP_MIN_NCC", "SWEEP_RANGE_BLOCKS", "SWEEP_STEP_PX", "SWEEP_ZERO_MARGIN",
+           "BlockParallax", "Parallax", "block_parallax", "colour_map_a_to_b", "epipolar_field", "fill_blocks",
+           "fill_from_neighbours", "moved_by_parallax", "neighbourhood_stack", "parallax_map", "settle_by_colour",
+           "shifted_positions", "sweep_inverse_depth"]
+
+#: A block measures parallax when its structure measures shifts along the epipolar line at least this
+#: well (``eᵀJe / |e|²`` with the normalised structure tensor J: 0 for an edge parallel to the line).
+MIN_ALONG_WEIGHT = 0.3
+#: Largest part of a block's disparity perpendicular to its epipolar line (px) that is still accepted.
+MAX_PERPENDICULAR_PX = 0.75
+#: Parallax step (px) between the levels of the per-pixel sweep, and the most levels per direction.
+SWEEP_STEP_PX = 0.25
+SWEEP_MAX_LEVELS = 48
+#: A pixel is occluded when a surface nearer by more than this parallax (px) lands on the same place in B.
+OCCLUSION_TOL_PX = 1.0
+#: Long side (px) at which the per-pixel parallax is analysed (larger images are binned).
+PARALLAX_ANALYSIS_PX = 512
+#: Smallest normalised correlation that counts as a match in the sweep (noise alone reaches ~0.3 on 11 px windows).
+SWEEP_MIN_NCC = 0.5
+#: Correlation by which a finite depth must beat infinity (and any other level far from it) in the sweep.
+SWEEP_ZERO_MARGIN = 0.03
+#: Steps searched beyond the range of a pixel's neighbouring blocks.
+SWEEP_MARGIN_STEPS = 4
+#: Neighbourhood (blocks) whose range of estimates a pixel searches: a near object narrower than a block
+#: (a post at 1.5 m) is measured mixed with its background by every block that holds it.
+SWEEP_RANGE_BLOCKS = 5
+#: An unsure pixel left at infinity takes its neighbours' depth only when B's colour at infinity misfits
+#: A's pixel by more than this (relative, :func:`settle_by_colour`): an unrelated surface, not the spectral
+#: variety one linear map between the cameras leaves (a few per cent).
+COLOUR_MISFIT_MIN = 0.3
+#: Two pixels are taken for one surface when their colours in A differ by at most this fraction of
+#: their summed magnitudes (shading within a surface moves both brightness and colour a little).
+SAME_SURFACE_COLOUR = 0.1
+#: Share of a block's pixels B must see for the block to be measured.
+MIN_BLOCK_SEEN = 0.95
+#: Minimum POC peak height of a block measurement.
+PARALLAX_MIN_CONFIDENCE = 0.3
+#: Inverse depth change (1/m) used for the finite difference of the epipolar field.
+_DW_PER_M = 0.01
+
+
+def epipolar_field(model_a: CameraModel, baseline_m: np.ndarray, pixels: np.ndarray | None = None,
+                   second_order: bool = False) -> np.ndarray:
+    """A-pixel displacement per unit inverse depth (px · m) at ``pixels`` (default: every pixel).
+
+    The content of A's pixel ``p`` at inverse depth ``w`` lies at ``p + w · e(p)`` (to first order) in
+    B's image resampled onto A's grid for points at infinity; ``e`` is the central difference of
+    ``π_A(r_A(p) ∓ δw · c)`` (``δw = 0.01`` 1/m).  With ``second_order`` the second derivative ``h`` is
+    added (``p + w e + w² h / 2``; at 1 m on the small rig the first-order position is 0.2 px off, the
+    second-order one 0.002 px).
+
+    Parameters
+    ----------
+    model_a
+        Camera A's model (pan = tilt = 0).
+    baseline_m
+        Camera B's optical centre relative to A's in the world frame at pan = tilt = 0 (m), ``(3,)``.
+    pixels
+        ``(..., 2)`` pixel positions ``(x, y)`` of A; default: every pixel, ``(H, W, 2)``.
+    second_order
+        Also return the second derivative.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(..., 2)`` ``e`` (px · m), or ``(..., 4)`` ``(e, h)`` (``h`` in px · m²) with ``second_order``.
+    """
+    if pixels is None:
+        v, u = np.mgrid[0:model_a.height, 0:model_a.width]
+        pixels = np.stack([u, v], axis=-1).astype(np.float64)
+    rays, _ = model_a.pixel_to_world(pixels, 0.0, 0.0)
+    c = np.asarray(baseline_m, np.float64)
+    plus, _ = model_a.world_to_pixel(rays - _DW_PER_M * c, 0.0, 0.0, margin_px=None)
+    minus, _ = model_a.world_to_pixel(rays + _DW_PER_M * c, 0.0, 0.0, margin_px=None)
+    e = (plus - minus) / (2 * _DW_PER_M)
+    if not second_order:
+        return e
+    h_step = 0.1  # 1/m: the second difference needs a larger step than the first to rise above rounding
+    p2, _ = model_a.world_to_pixel(rays - h_step * c, 0.0, 0.0, margin_px=None)
+    m2, _ = model_a.world_to_pixel(rays + h_step * c, 0.0, 0.0, margin_px=None)
+    centre, _ = model_a.world_to_pixel(rays, 0.0, 0.0, margin_px=None)
+    return np.concatenate([e, (p2 - 2 * centre + m2) / h_step**2], axis=-1)
+
+
+def shifted_positions(model_a: CameraModel, baseline_m: np.ndarray, pixels: np.ndarray,
+                      inv_depth_per_m: np.ndarray) -> np.ndarray:
+    """Exact position in the warped B image of A's ``pixels`` at inverse depth ``w``: ``π_A(r_A(p) − w c)``.
+
+    Parameters
+    ----------
+    model_a
+        Camera A's model (pan = tilt = 0).
+    baseline_m
+        Camera B's optical centre relative to A's (m), ``(3,)``.
+    pixels
+        ``(..., 2)`` pixel positions ``(x, y)`` of A.
+    inv_depth_per_m
+        Inverse depth ``w`` (1/m), broadcastable to ``pixels.shape[:-1]``.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(..., 2)`` positions (px of A's grid).
+    """
+    rays, _ = model_a.pixel_to_world(pixels, 0.0, 0.0)
+    shifted = rays - np.asarray(inv_depth_per_m, np.float64)[..., None] * np.asarray(baseline_m, np.float64)
+    out, _ = model_a.world_to_pixel(shifted, 0.0, 0.0, margin_px=None)
+    return out
+
+
+@dataclass(frozen=True)
+class BlockParallax:
+    """Block-grid inverse depth (:func:`block_parallax`): centres, inverse depth and what was measured.
+
+    Attributes
+    ----------
+    y_px, x_px : numpy.ndarray
+        Block centres (px), ``(ny,)`` and ``(nx,)``.
+    inv_depth_per_m : numpy.ndarray
+        ``(ny, nx)`` float32 inverse depth (1/m; 0 where not measured).
+    measured : numpy.ndarray
+        ``(ny, nx)`` boolean, blocks whose inverse depth was measured.
+    confidence : numpy.ndarray
+        ``(ny, nx)`` float32 POC peak height of the block measurement.
+    perpendicular_px : numpy.ndarray
+        ``(ny, nx)`` float32, the J-norm (px) of the part of the block's shift that no depth explains.
+    across_px : numpy.ndarray or None
+        ``(ny, nx)`` float32, the shift no depth explains (px, J-norm) on reliable blocks with structure
+        across the epipolar lines, NaN elsewhere: whether the rig model fits this direction at all.
+    """
+
+    y_px: np.ndarray
+    x_px: np.ndarray
+    inv_depth_per_m: np.ndarray
+    measured: np.ndarray
+    confidence: np.ndarray
+    perpendicular_px: np.ndarray
+    #: the shift no depth explains (px, J-norm), on reliable blocks with structure across the epipolar lines
+    #: (``pᵀJp / |e|² ≥ 0.3``, ``p ⟂ e``), whatever its size; NaN elsewhere.  Edges parallel to the lines
+    #: count with their whole measured shift (no depth moves them).  Says whether the rig model fits
+    #: this direction at all
+    across_px: np.ndarray | None = None
+
+
+def block_parallax(gray_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, field: np.ndarray, *,
+                   block: int, min_confidence: float = PARALLAX_MIN_CONFIDENCE,
+                   max_perpendicular_px: float = MAX_PERPENDICULAR_PX) -> BlockParallax:
+    """Step 1 of the module docstring: reliable blocks' inverse depth along their epipolar lines.
+
+    The blocks' shifts (:func:`~omnispectral.imaging.blockpoc.measure_blocks`) are projected on the
+    epipolar direction ``e`` with the block's normalised structure tensor ``J``:
+    ``w = eᵀJd / eᵀJe``; the rest ``d − w e`` (which no depth explains) must be small.
+
+    Parameters
+    ----------
+    gray_a, warped_b
+        ``(H, W)`` grey images of camera A and of camera B resampled onto A's grid.
+    seen
+        ``(H, W)`` boolean, where the warped B image has data.
+    field
+        ``(H, W, 2)`` or ``(H, W, 4)`` :func:`epipolar_field` at every pixel (px · m).
+    block
+        Block side (px).
+    min_confidence
+        Smallest POC peak height of a reliable block.
+    max_perpendicular_px
+        Largest accepted part of a block's shift perpendicular to its epipolar line (px).
+
+    Returns
+    -------
+    BlockParallax
+    """
+    bs = measure_blocks(gray_a, warped_b, block, min_confidence)
+    y_px, x_px, dx, dy = bs.y_px, bs.x_px, bs.dx, bs.dy
+    iy = np.clip(np.rint(y_px).astype(int), 0, gray_a.shape[0] - 1)
+    ix = np.clip(np.rint(x_px).astype(int), 0, gray_a.shape[1] - 1)
+    e = field[iy[:, None], ix[None, :], :2]
+    e_len = np.linalg.norm(e, axis=-1)
+    # the structure tensor J says which components of the shift the block measures: the inverse depth is
+    # the J-weighted projection on the epipolar direction, the rest (which no depth explains) must be small
+    jxx, jxy, jyy = bs.tensor[..., 0], bs.tensor[..., 1], bs.tensor[..., 2]
+    ex, ey = e[..., 0], e[..., 1]
+    eje = ex * (jxx * ex + jxy * ey) + ey * (jxy * ex + jyy * ey)
+    ejd = ex * (jxx * dx + jxy * dy) + ey * (jxy * dx + jyy * dy)
+    w = ejd / np.maximum(eje, 1e-12)
+    rx, ry = dx - w * ex, dy - w * ey
+    perp = np.sqrt(np.maximum(rx * (jxx * rx + jxy * ry) + ry * (jxy * rx + jyy * ry), 0.0))
+    along_weight = eje / np.maximum(e_len**2, 1e-12)
+    inside = _blocks_seen(seen, y_px, x_px, block)
+    usable = bs.reliable & inside & (e_len > 1e-6)
+    measured = usable & (along_weight >= MIN_ALONG_WEIGHT) & (perp <= max_perpendicular_px)
+    across_weight = (ey * (jxx * ey - jxy * ex) - ex * (jxy * ey - jyy * ex)) / np.maximum(e_len**2, 1e-12)
+    # an edge (nearly) parallel to the line: a depth would have to be absurd to explain its shift, so all of it
+    # is across (the J-projection above would "explain" it with w → ∞)
+    whole = np.sqrt(np.maximum(dx * (jxx * dx + jxy * dy) + dy * (jxy * dx + jyy * dy), 0.0))
+    across = np.where(usable & (across_weight >= MIN_ALONG_WEIGHT),
+                      np.where(along_weight >= MIN_ALONG_WEIGHT, perp, whole), np.nan)
+    w = np.where(measured, w, 0.0)
+    return BlockParallax(y_px, x_px, w.astype(np.float32), measured, bs.confidence.astype(np.float32),
+                         perp.astype(np.float32), across.astype(np.float32))
+
+
+def _blocks_seen(seen: np.ndarray, y_px: np.ndarray, x_px: np.ndarray, block: int) -> np.ndarray:
+    """Blocks lying (nearly) wholly where the warped B image has data: at least :data:`MIN_BLOCK_SEEN` of
+    their pixels (a block along A's frame edge that B misses by a row still measures its content)."""
+    integral = cv2.integral(seen.astype(np.uint8))
+    y0 = np.clip(np.rint(y_px - (block - 1) / 2).astype(int), 0, seen.shape[0] - block)
+    x0 = np.clip(np.rint(x_px - (block - 1) / 2).astype(int), 0, seen.shape[1] - block)
+    a, b = y0[:, None], x0[None, :]
+    total = integral[a + block, b + block] - integral[a, b + block] - integral[a + block, b] + integral[a, b]
+    return total >= MIN_BLOCK_SEEN * block * block
+
+
+def fill_blocks(bp: BlockParallax, ground_inv_depth: np.ndarray | None = None, radius: int = 2) -> np.ndarray:
+    """Step 2: inverse depth for every block.
+
+    Measured, else the (lower) median of the measured blocks within ``radius`` blocks, else the ground
+    plane, else 0.  A median is one neighbour's surface; a mean of a near chart's blocks and one of the
+    background beside it is neither (08:00 seed 5, chart at 1.5 m: five chart blocks and one far block
+    gave a surface 0.9 px behind the chart).  Negative values are clamped to 0 (nothing is beyond
+    infinity).
+
+    Parameters
+    ----------
+    bp
+        The block measurements.
+    ground_inv_depth
+        Optional ``(ny, nx)`` inverse depth (1/m) of the ground plane at the block centres (0 above the
+        horizon).
+    radius
+        Neighbourhood radius (blocks).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(ny, nx)`` float32 inverse depth (1/m), ``>= 0``.
+    """
+    w = np.where(bp.measured, bp.inv_depth_per_m, np.nan).astype(np.float64)
+    stack = neighbourhood_stack(w, radius)
+    has = np.isfinite(stack).any(axis=0)
+    neighbours = np.full(w.shape, np.nan)
+    if has.any():
+        neighbours[has] = np.nanpercentile(stack[:, has], 50, axis=0, method="lower")
+    out = np.where(bp.measured, w, neighbours)
+    if ground_inv_depth is not None:
+        out = np.where(np.isnan(out), ground_inv_depth, out)
+    # nothing is beyond infinity: a negative inverse depth is measurement noise (or the rig model's residual,
+    # which the per-direction offset at infinity takes up)
+    return np.maximum(np.nan_to_num(out, nan=0.0), 0.0).astype(np.float32)
+
+
+def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blocks: np.ndarray,
+                        measured: np.ndarray, y_px: np.ndarray, x_px: np.ndarray, step_px: float = SWEEP_STEP_PX,
+                        max_levels: int = SWEEP_MAX_LEVELS,
+                        window: int = NCC_WINDOW_PX) -> tuple[np.ndarray, np.ndarray]:
+    """Step 3: per-pixel inverse depth by a sweep along the epipolar lines (plane sweep, Collins 1996).
+
+    Inverse depths ``w_k`` every ``step_px`` of parallax span the range of the block estimates; at each
+    level B's resampled image is moved by ``w_k · e(p)`` and compared with A
+    (:class:`~omnispectral.imaging.similarity.LocalLinearScore` over a ``window``;
+    :func:`~omnispectral.imaging.similarity.local_ncc` for one-channel inputs); each pixel keeps the best
+    level within the range of its 5 × 5 neighbouring blocks (± 4 steps: a block larger than an object
+    mixes it with its background), refined by a parabola through the neighbouring levels.  Where nothing
+    correlates (best correlation below :data:`SWEEP_MIN_NCC`: flat areas, noise) or no neighbouring block
+    was measured, the pixel keeps its own block's value.  A prior must be beaten by a margin
+    (:data:`SWEEP_ZERO_MARGIN`): infinity where the blocks around see infinity, else the block's value.
+    A pixel whose best match is not distinctive (another local maximum of the score comes within the
+    margin: inside a uniform patch a few pixels wide, whose windows hold only edges along the line), or
+    that matched nothing, takes the median depth of its distinctive neighbours
+    (:func:`fill_from_neighbours`; choosing them by colour was tried and did not help at 3-px patches).
+
+    Parameters
+    ----------
+    ga, gb
+        Camera A's image and camera B's resampled onto A's grid, ``(H, W, C)`` (local linear score) or
+        ``(H, W)`` (normalised cross-correlation).
+    field
+        ``(H, W, 2)`` or ``(H, W, 4)`` :func:`epipolar_field` (px · m; second order used when present).
+    w_blocks
+        ``(ny, nx)`` inverse depth of every block (1/m, :func:`fill_blocks`).
+    measured
+        ``(ny, nx)`` boolean, blocks whose inverse depth was measured.
+    y_px, x_px
+        Block centres (px).
+    step_px
+        Parallax step (px) between levels (at the median field length).
+    max_levels
+        Most levels.
+    window
+        Side (px) of the matching window.
+
+    Returns
+    -------
+    inv_depth : numpy.ndarray
+        ``(H, W)`` float32 inverse depth (1/m), 3 × 3 median filtered.
+    confidence : numpy.ndarray
+        ``(H, W)`` float32 correlation reached, 0..1 (0 where ambiguous).
+    """
+    h, w = ga.shape[:2]
+    by = np.clip(np.rint(np.interp(np.arange(h), y_px, np.arange(y_px.size))).astype(int), 0, y_px.size - 1)
+    bx = np.clip(np.rint(np.interp(np.arange(w), x_px, np.arange(x_px.size))).astype(int), 0, x_px.size - 1)
+    e_len = np.linalg.norm(field[..., :2], axis=-1)
+    valid = e_len[np.isfinite(e_len) & (e_len > 0)]
+    if valid.size == 0:
+        return w_blocks[by[:, None], bx[None, :]].astype(np.float32), np.zeros((h, w), np.float32)
+    dw = step_px / float(np.median(valid))
+    # blocks larger than an object measure a mixture of its depth and its background's: search beyond
+    lo_b = ndimage.minimum_filter(w_blocks, size=SWEEP_RANGE_BLOCKS, mode="nearest") - SWEEP_MARGIN_STEPS * dw
+    hi_b = ndimage.maximum_filter(w_blocks, size=SWEEP_RANGE_BLOCKS, mode="nearest") + SWEEP_MARGIN_STEPS * dw
+    lo, hi = lo_b[by[:, None], bx[None, :]], hi_b[by[:, None], bx[None, :]]
+    own = w_blocks[by[:, None], bx[None, :]]
+    w_lo, w_hi = float(lo_b.min()), float(hi_b.max())
+    n = int(np.ceil((w_hi - w_lo) / dw)) + 1
+    if n > max_levels:
+        dw = (w_hi - w_lo) / (max_levels - 1)
+        n = max_levels
+    levels = w_lo + dw * np.arange(n)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    fx, fy = field[..., 0].astype(np.float32), field[..., 1].astype(np.float32)
+    # second order along the line when the field carries it (a near object's line curves: 0.2 px at 1 m)
+    hx, hy = ((0.5 * field[..., 2]).astype(np.float32), (0.5 * field[..., 3]).astype(np.float32)) \
+        if field.shape[-1] == 4 else (np.float32(0), np.float32(0))
+    # shiftable windows (Bobick & Intille 1999): a pixel takes the best of all windows that contain it,
+    # so near a depth edge it can use a window lying wholly on its own surface
+    shift_kernel = np.ones((window, window), np.uint8)
+    # several channels: the local linear score; one: normalised cross-correlation
+    ga_raw, gb_raw = (ga, gb) if ga.ndim == 3 else (None, None)
+    if ga.ndim == 3:
+        score_of = LocalLinearScore(ga, window)
+        gb = score_of.prepare_b(gb)
+    else:
+        def score_of(moved):
+            return local_ncc(ga, moved, window)
+    best = np.full((h, w), -np.inf, np.float32)
+    best_raw = np.full((h, w), np.nan, np.float32)
+    best_k = np.zeros((h, w), np.int32)
+    left = np.full((h, w), np.nan, np.float32)
+    right = np.full((h, w), np.nan, np.float32)
+    prev = np.full((h, w), np.nan, np.float32)
+    k_zero = int(np.argmin(np.abs(levels)))
+    score_zero = np.full((h, w), -np.inf, np.float32)
+    score_own = np.full((h, w), -np.inf, np.float32)
+    rival = np.full((h, w), -np.inf, np.float32)
+    top1 = np.full((h, w), -np.inf, np.float32)
+    prev_sel = prev2_sel = np.full((h, w), -np.inf, np.float32)
+    for k, wk in enumerate(levels):
+        wk2 = np.float32(wk * wk)
+        moved = cv2.remap(gb, xx + np.float32(wk) * fx + wk2 * hx, yy + np.float32(wk) * fy + wk2 * hy,
+                          cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        raw = score_of(moved)
+        score = cv2.dilate(raw, shift_kernel)
+        # the sub-step parabola uses the centred window's scores (the same window at every level)
+        right = np.where(best_k == k - 1, raw, right)
+        if k == k_zero:
+            score_zero = score
+        at_own = np.abs(wk - own) <= dw / 2
+        score_own = np.where(at_own, np.maximum(score_own, score), score_own)
+        score_sel = np.where((wk >= lo) & (wk <= hi), score + np.where(at_own, 0.01, 0.0), -np.inf).astype(np.float32)
+        better = score_sel > best
+        # the two highest local maxima of the score over the levels: a match is distinctive when the best
+        # beats every other peak by a margin (a broad peak's shoulders are not rivals; a flat curve, whose
+        # every level is a peak, is ambiguous).  Level k - 1 is judged once level k is known.
+        if k >= 1:
+            top1, rival = _add_peak(top1, rival, np.where((prev_sel >= prev2_sel) & (prev_sel >= score_sel),
+                                                          prev_sel, -np.inf))
+        prev2_sel, prev_sel = prev_sel, score_sel
+        left = np.where(better, prev, left)
+        right = np.where(better, np.nan, right)
+        best = np.where(better, score_sel, best)
+        best_raw = np.where(better, raw, best_raw)
+        best_k = np.where(better, k, best_k)
+        prev = raw
+    top1, rival = _add_peak(top1, rival, np.where(prev_sel >= prev2_sel, prev_sel, -np.inf))  # the last level
+    # keep the block's value where nothing nearby was measured or the best match is not a real match
+    near = ndimage.maximum_filter(measured.astype(np.uint8), size=3, mode="nearest")
+    measured_near = near[by[:, None], bx[None, :]]
+    flat = ~np.isfinite(best) | (best - 0.01 < SWEEP_MIN_NCC) | (measured_near == 0)
+    centre = best - np.where(np.abs(levels[best_k] - own) <= dw / 2, 0.01, 0.0)
+    den = left - 2 * best_raw + right
+    peak = (best_raw >= left) & (best_raw >= right)
+    curved = np.isfinite(den) & (den < -1e-6) & peak
+    frac = np.where(curved, 0.5 * (left - right) / np.where(curved, den, -1.0), 0.0)
+    out = levels[best_k] + np.clip(np.nan_to_num(frac), -0.5, 0.5) * dw
+    out = np.where(flat, own, out)
+    # a prior the pixel's own match must beat by a margin: infinity where the blocks around see (nearly)
+    # infinity, else the block's value.  Smooth content (the sun's halo) correlates almost as well at
+    # neighbouring levels and would otherwise wander by a fraction of a pixel; the inside of a small
+    # uniform patch matches almost as well at several levels (a row of patches matches itself moved along
+    # the row) and would take any of them
+    zero_ok = (np.abs(levels[k_zero]) <= dw) & (lo <= 0) & (hi >= 0) & (np.abs(own) <= 2 * dw)
+    prior = np.where(zero_ok, 0.0, own)
+    score_prior = np.where(zero_ok, score_zero, score_own)
+    at_prior = centre - score_prior < SWEEP_ZERO_MARGIN
+    out = np.where(at_prior, prior, out).astype(np.float32)
+    # a pixel whose match other levels reach almost as well (or that matched nothing) takes the depth of
+    # its distinctive neighbours, unless it sits at infinity among blocks that see infinity
+    unsure = flat | (best - rival < SWEEP_ZERO_MARGIN)
+    ambiguous = unsure & ~(at_prior & zero_ok)
+    out = fill_from_neighbours(out, ambiguous, ~ambiguous)
+    # an unsure pixel left at infinity (its prior, or its neighbours' depth) may belong to a near object
+    # whose windows saw only its edges along the line (the end of a post against the sky): it takes the
+    # depth of its surface when B's colour there fits A's pixel and B's colour at infinity plainly does not.
+    # Pixels that took a near neighbour's depth are left alone: inside a chart's 3-px patches one linear map
+    # between the cameras misfits saturated colours, and a search would trade a patch for its neighbour
+    at_infinity = unsure & (np.abs(out) * e_len < SWEEP_STEP_PX * 2)
+    if ga_raw is not None and at_infinity.any():
+        out = settle_by_colour(ga_raw, gb_raw, field, out, at_infinity, ~unsure, window)
+    return cv2.medianBlur(out, 3), np.clip(np.where(ambiguous, 0.0, centre), 0.0, 1.0).astype(np.float32)
+
+
+def moved_by_parallax(image: np.ndarray, field: np.ndarray, inv_depth: np.ndarray) -> np.ndarray:
+    """What B saw at A's pixel ``p`` for the per-pixel inverse depth ``w``.
+
+    ``image`` (B on A's grid) sampled bilinearly at ``p + w(p) e(p)`` (``+ w² h / 2`` when the field
+    carries the second order).
+
+    Parameters
+    ----------
+    image
+        ``(H, W)`` or ``(H, W, C)`` float32, camera B's image resampled onto A's grid.
+    field
+        ``(H, W, 2)`` or ``(H, W, 4)`` :func:`epipolar_field` (px · m).
+    inv_depth
+        ``(H, W)`` inverse depth (1/m).
+
+    Returns
+    -------
+    numpy.ndarray
+        Same shape as ``image``.
+    """
+    h, w = inv_depth.shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    mx, my = _parallax_positions(xx, yy, field, inv_depth.astype(np.float32))
+    return cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(image.shape)
+
+
+def _parallax_positions(x: np.ndarray, y: np.ndarray, field: np.ndarray, inv_depth: np.ndarray):
+    """``p + w e(p) (+ w²/2 · second order)``: where B saw the content of A's pixels ``(x, y)`` (float32);
+    ``field`` is the epipolar field at those pixels."""
+    mx = x + inv_depth * field[..., 0]
+    my = y + inv_depth * field[..., 1]
+    if field.shape[-1] == 4:
+        mx += 0.5 * inv_depth * inv_depth * field[..., 2]
+        my += 0.5 * inv_depth * inv_depth * field[..., 3]
+    return mx.astype(np.float32, copy=False), my.astype(np.float32, copy=False)
+
+
+def colour_map_a_to_b(a: np.ndarray, b: np.ndarray, sample: np.ndarray, max_samples: int = 20000) -> np.ndarray:
+    """The direction's linear map ``M`` (``C_B × C_A``) with ``B ≈ M A`` over the ``sample`` pixels.
+
+    Fitted by least squares in relative terms (each pixel divided by its brightness in A, so that the HDR
+    sun does not outweigh the rest): the cameras see through different filters, and over a direction one
+    linear map predicts B's channels from A's to within the materials' spectral variety.
+
+    Parameters
+    ----------
+    a, b
+        ``(H, W, C_A)`` and ``(H, W, C_B)`` images of camera A and (moved) camera B.
+    sample
+        ``(H, W)`` boolean, the pixels to fit on.
+    max_samples
+        At most this many pixels (evenly spaced among the sample) enter the fit.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(C_B, C_A)`` float64; all NaN when fewer than ``4 C_A`` usable pixels.
+    """
+    idx = np.flatnonzero(sample.ravel())
+    if idx.size > max_samples:
+        idx = idx[np.linspace(0, idx.size - 1, max_samples).astype(np.int64)]
+    xa = a.reshape(-1, a.shape[-1])[idx].astype(np.float64)
+    xb = b.reshape(-1, b.shape[-1])[idx].astype(np.float64)
+    norm = np.linalg.norm(xa, axis=1)
+    ok = norm > 0
+    if ok.sum() < 4 * a.shape[-1]:
+        return np.full((b.shape[-1], a.shape[-1]), np.nan)
+    m, *_ = np.linalg.lstsq(xa[ok] / norm[ok, None], xb[ok] / norm[ok, None], rcond=None)
+    return m.T
+
+
+def _colour_residual(a: np.ndarray, b: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """Relative misfit ``|B − M A| / (|M A| + |B|)`` per pixel (0: B is what A predicts; 1: unrelated)."""
+    pred = a @ m.T.astype(np.float32)
+    num = np.linalg.norm(b - pred, axis=-1)
+    den = np.linalg.norm(pred, axis=-1) + np.linalg.norm(b, axis=-1)
+    return np.where(den > 0, num / np.maximum(den, 1e-30), 0.0).astype(np.float32)
+
+
+def settle_by_colour(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarray, current: np.ndarray,
+                     todo: np.ndarray, reliable: np.ndarray, window: int = NCC_WINDOW_PX,
+                     passes: int = 16) -> np.ndarray:
+    """Give pixels whose B colour plainly misfits A's the depth of their surface.
+
+    Where ``todo`` and B's colour at the current parallax plainly misfits A's pixel, take the median
+    depth of the reliable pixels within a ``window`` whose colour in A is the pixel's
+    (:data:`SAME_SURFACE_COLOUR`) and whose B colour fits -- their nearest or their median depth,
+    whichever B's colour fits better -- if B's colour at that parallax fits the pixel (misfit halved).
+
+    A pixel whose windows cannot tell its depth (the end of a post against the sky: an edge along the
+    line) is still one surface, and B must show that surface's colour there.  The misfit is measured
+    with one linear map from A's channels to B's (:func:`colour_map_a_to_b`, fitted on the ``reliable``
+    pixels at their parallax) and must exceed :data:`COLOUR_MISFIT_MIN` and three times the reliable
+    pixels' typical misfit.  Repeated up to ``passes`` times, switched pixels serving as reliable ones,
+    so that the depth reaches into an object from its measured part.  A pixel with no such neighbour keeps
+    its depth: searching the line for the best colour fit was tried and gave far buildings and
+    sky 20-30 px of parallax where one linear map between the cameras misfits their colours everywhere
+    (a brick wall's repeated texture fits somewhere along any line).
+
+    Parameters
+    ----------
+    ga_raw, gb_raw
+        ``(H, W, C)`` images of camera A and of camera B resampled onto A's grid.
+    field
+        ``(H, W, 2)`` or ``(H, W, 4)`` :func:`epipolar_field` (px · m).
+    current
+        ``(H, W)`` current inverse depth (1/m).
+    todo
+        ``(H, W)`` boolean, the pixels that may change.
+    reliable
+        ``(H, W)`` boolean, pixels whose depth is trusted.
+    window
+        Side (px) of the neighbourhood that votes.
+    passes
+        Most repetitions.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(H, W)`` float32 inverse depth (1/m).
+    """
+    a = as_channels(ga_raw)
+    b = as_channels(gb_raw)
+    out = current.astype(np.float32).copy()
+    seen = moved_by_parallax(b, field, out)
+    m = colour_map_a_to_b(a, seen, reliable & np.isfinite(out))
+    if not np.isfinite(m).all():
+        return out
+    r_cur = _colour_residual(a, seen, m)
+    typical = float(np.median(r_cur[reliable])) if reliable.any() else 0.0
+    misfit = r_cur > max(COLOUR_MISFIT_MIN, 3 * typical)
+    todo = todo & misfit
+    known = reliable | ~misfit  # pixels whose colour fits at their depth vote for their surface
+    h, w = out.shape
+    half = window // 2
+    for _ in range(passes):
+        ys, xs = np.nonzero(todo)
+        if ys.size == 0:
+            break
+        ap = a[ys, xs]
+        votes = np.full((ys.size, window * window), np.nan, np.float32)
+        for k, (dy, dx) in enumerate((dy, dx) for dy in range(-half, half + 1) for dx in range(-half, half + 1)):
+            yq, xq = np.clip(ys + dy, 0, h - 1), np.clip(xs + dx, 0, w - 1)
+            aq = a[yq, xq]
+            same = (np.linalg.norm(ap - aq, axis=1)
+                    <= SAME_SURFACE_COLOUR * (np.linalg.norm(ap, axis=1) + np.linalg.norm(aq, axis=1)))
+            votes[:, k] = np.where(known[yq, xq] & same, out[yq, xq], np.nan)
+        has = np.isfinite(votes).any(axis=1)
+        if not has.any():
+            break
+        ys, xs, votes = ys[has], xs[has], votes[has]
+        # the nearest and the median depth of the pixel's surface around it (a uniform object's pixels that
+        # fit at the far depth too would outvote its measured part): the one at which B's colour fits best
+        ap = a[ys, xs][None]
+        cands = [np.nanmax(votes, axis=1).astype(np.float32), np.nanmedian(votes, axis=1).astype(np.float32)]
+        fits = [_colour_residual(ap, _sample_moved(b, field, ys, xs, c)[None], m)[0] for c in cands]
+        near_better = fits[0] <= fits[1]
+        cand = np.where(near_better, cands[0], cands[1])
+        r_cand = np.where(near_better, fits[0], fits[1])
+        switch = r_cand < 0.5 * r_cur[ys, xs]
+        if not switch.any():
+            break
+        ys, xs = ys[switch], xs[switch]
+        out[ys, xs] = cand[switch]
+        r_cur[ys, xs] = r_cand[switch]
+        known[ys, xs] = True
+        todo[ys, xs] = False
+    return out
+
+
+def _sample_moved(image: np.ndarray, field: np.ndarray, ys: np.ndarray, xs: np.ndarray,
+                  inv_depth: np.ndarray) -> np.ndarray:
+    """:func:`moved_by_parallax` at the pixels ``(ys, xs)`` only, ``(n, C)``."""
+    mx, my = _parallax_positions(xs.astype(np.float32), ys.astype(np.float32), field[ys, xs],
+                                 inv_depth.astype(np.float32))
+    out = cv2.remap(image, mx[None], my[None], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(xs.size, image.shape[-1])
+
+
+def _add_peak(top1: np.ndarray, top2: np.ndarray, peak: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Streaming update of the highest and second-highest local maxima (``-inf`` where none is new)."""
+    top2 = np.where(peak > top1, np.maximum(top2, top1), np.maximum(top2, peak))
+    return np.maximum(top1, peak), top2
+
+
+def neighbourhood_stack(values: np.ndarray, radius: int) -> np.ndarray:
+    """Every value of each pixel's ``(2r + 1)²`` neighbourhood.
+
+    NaN beyond the border; NaN values stay NaN, so ``np.nan*`` reductions over axis 0 see only the known
+    neighbours.
+
+    Parameters
+    ----------
+    values
+        ``(H, W)`` float array.
+    radius
+        ``r``, the neighbourhood radius (px or blocks).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``((2r + 1)², H, W)``.
+    """
+    h, w = values.shape
+    padded = np.pad(values, radius, mode="constant", constant_values=np.nan)
+    return np.stack([padded[dy:dy + h, dx:dx + w] for dy in range(2 * radius + 1) for dx in range(2 * radius + 1)])
+
+
+def fill_from_neighbours(values: np.ndarray, fill: np.ndarray, sources: np.ndarray, radius: int = 2,
+                         passes: int = 3) -> np.ndarray:
+    """Replace the ``fill`` pixels by the median of the ``sources`` pixels within ``radius``.
+
+    Repeated ``passes`` times, filled pixels serving as sources of the next pass, so that holes up to
+    ``2 · radius · passes`` pixels wide close from their rims; pixels with none in reach keep their value.
+
+    Parameters
+    ----------
+    values
+        ``(H, W)`` values.
+    fill
+        ``(H, W)`` boolean, the pixels to replace.
+    sources
+        ``(H, W)`` boolean, the pixels that may vote (``fill`` pixels never do in the first pass).
+    radius
+        Neighbourhood radius (px).
+    passes
+        Most passes.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(H, W)`` float32.
+    """
+    out = values.astype(np.float32).copy()
+    known = sources & ~fill
+    todo = fill.copy()
+    for _ in range(passes):
+        if not todo.any() or not known.any():
+            break
+        stack = neighbourhood_stack(np.where(known, out, np.nan), radius)[:, todo]
+        has = np.isfinite(stack).any(axis=0)
+        if not has.any():
+            break
+        idx = np.flatnonzero(todo.ravel())[has]
+        out.ravel()[idx] = np.nanmedian(stack[:, has], axis=0)
+        known.ravel()[idx] = True
+        todo.ravel()[idx] = False
+    return out
+
+
+@dataclass(frozen=True)
+class Parallax:
+    """Per-pixel result on A's grid (:func:`parallax_map`).
+
+    Attributes
+    ----------
+    inv_depth_per_m : numpy.ndarray
+        ``(H, W)`` float32 inverse depth (1/m; 0 at infinity).
+    confidence : numpy.ndarray
+        ``(H, W)`` float32, the correlation of A with B moved by that parallax, 0..1 (0 where flat or
+        ambiguous).
+    occluded : numpy.ndarray
+        ``(H, W)`` boolean, A's pixels hidden from B by a nearer surface.
+    blocks : BlockParallax
+        The block measurements (on the analysis grid, binned for large sensors).
+    """
+
+    inv_depth_per_m: np.ndarray
+    confidence: np.ndarray
+    occluded: np.ndarray
+    blocks: BlockParallax
+
+    def stats(self) -> dict:
+        """Summary numbers for reports.
+
+        Returns
+        -------
+        dict
+            ``n_blocks``, ``n_measured``, ``n_across_blocks``, ``median_across_px`` (px of the analysis grid),
+            ``occluded_fraction``, ``nearest_m`` (m) and ``median_perpendicular_px``; ``None`` where nothing
+            was measured.
+        """
+        w = self.blocks.inv_depth_per_m[self.blocks.measured]
+        across = self.blocks.across_px
+        across = across[np.isfinite(across)] if across is not None else np.zeros(0)
+        return {"n_blocks": int(self.blocks.measured.size), "n_measured": int(self.blocks.measured.sum()),
+                "n_across_blocks": int(across.size),
+                # in the analysis grid's px (binned for large sensors: see parallax_direction's degrees)
+                "median_across_px": float(np.median(across)) if across.size else None,
+                "occluded_fraction": float(self.occluded.mean()),
+                "nearest_m": float(1.0 / w.max()) if w.size and w.max() > 0 else None,
+                "median_perpendicular_px": float(np.median(np.abs(self.blocks.perpendicular_px[self.blocks.measured])))
+                if w.size else None}
+
+
+def parallax_map(image_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, model_a: CameraModel,
+                 baseline_m: np.ndarray, field: np.ndarray, *, block: int | None = None,
+                 ground_inv_depth=None, min_confidence: float = PARALLAX_MIN_CONFIDENCE,
+                 target_px: int = PARALLAX_ANALYSIS_PX) -> Parallax:
+    """Steps 1-4 of the module docstring for one direction.
+
+    Images larger than about ``target_px`` are analysed binned (inverse depth does not depend on the pixel
+    size; the sweep costs ~50 remaps per pixel), and the result is brought back to every pixel (nearest:
+    never a blend of two surfaces) where the occlusion is evaluated.
+
+    Parameters
+    ----------
+    image_a, warped_b
+        Camera A's image and camera B's resampled onto A's grid, both ``(H, W, C)`` radiance.
+    seen
+        ``(H, W)`` boolean, where the warped B image has data.
+    model_a
+        Camera A's model (not used by the computation, which takes ``field``; kept for callers).
+    baseline_m
+        Camera B's optical centre relative to A's (m), ``(3,)`` (likewise not used).
+    field
+        ``(H, W, 2)`` or ``(H, W, 4)`` :func:`epipolar_field` at every pixel (px · m).
+    block
+        Block side (px) of the POC measurement (default :func:`~omnispectral.imaging.blockpoc.block_size_for`).
+    ground_inv_depth
+        Optional callable ``ground_inv_depth(pixels)`` giving the ground plane's inverse depth (1/m) at A's
+        pixels ``(..., 2)`` (0 above the horizon).
+    min_confidence
+        Smallest POC peak height of a block measurement.
+    target_px
+        Long side (px) of the analysis grid.
+
+    Returns
+    -------
+    Parallax
+    """
+    f = analysis_factor(image_a.shape[1], image_a.shape[0], target_px)
+    if f > 1:
+        h, w = image_a.shape[:2]
+        small_field = bin_image(field, f) / f
+        small_seen = bin_image(seen.astype(np.float32), f) > 0.999
+        ground_small = None
+        if ground_inv_depth is not None:
+            def ground_small(pixels):
+                return ground_inv_depth(binned_to_full_px(pixels, f))
+        low = parallax_map(bin_image(image_a, f), bin_image(warped_b, f), small_seen, model_a, baseline_m,
+                           small_field, block=block, ground_inv_depth=ground_small,
+                           min_confidence=min_confidence, target_px=10**9)
+        rows = np.clip(np.arange(h) // f, 0, low.inv_depth_per_m.shape[0] - 1)
+        cols = np.clip(np.arange(w) // f, 0, low.inv_depth_per_m.shape[1] - 1)
+        inv_depth = low.inv_depth_per_m[rows[:, None], cols[None, :]]
+        confidence = low.confidence[rows[:, None], cols[None, :]]
+        return Parallax(inv_depth, confidence, _occluded(inv_depth, field), low.blocks)
+    h, w = image_a.shape[:2]
+    block = block or block_size_for(w, h)
+    gray_a, gray_b = as_gray(image_a), as_gray(warped_b)
+    bp = block_parallax(gray_a, gray_b, seen, field, block=block, min_confidence=min_confidence)
+    ga, gb = as_channels(image_a), as_channels(warped_b)
+    ground = None
+    if ground_inv_depth is not None:
+        gy, gx = np.meshgrid(bp.y_px, bp.x_px, indexing="ij")
+        ground = ground_inv_depth(np.stack([gx, gy], axis=-1))
+    wb = fill_blocks(bp, ground)
+    inv_depth, confidence = sweep_inverse_depth(ga, gb, field, wb, bp.measured, bp.y_px, bp.x_px)
+    inv_depth = np.maximum(inv_depth, 0.0)
+    return Parallax(inv_depth.astype(np.float32), confidence.astype(np.float32), _occluded(inv_depth, field), bp)
+
+
+def _occluded(inv_depth: np.ndarray, field: np.ndarray, e_len: np.ndarray | None = None) -> np.ndarray:
+    """Step 4: pixels hidden from B by a nearer surface (z-buffer of the forward warp, nearness in px along
+    the epipolar line); ``e_len``: the field's length, when the caller has it."""
+    if e_len is None:
+        e_len = np.hypot(field[..., 0], field[..., 1]).astype(np.float32)
+    return occlusion_zbuffer(inv_depth * field[..., 0], inv_depth * field[..., 1], inv_depth * e_len,
+                              OCCLUSION_TOL_PX)

@@ -1,0 +1,118 @@
+"""The fast stacked estimator equals the one-component-at-a-time reference."""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import pytest
+from threadpoolctl import threadpool_info
+
+from omnispectral.spectral.prior import build_prior
+from omnispectral.spectral.system import six_band_system
+from omnispectral.spectral.wiener import WienerEstimator, apply_linear_map
+from omnispectral.threads import kernel_threads, single_threaded_blas
+
+TOL = 1e-6  # relative to each pixel's largest value
+
+
+def peak_relative_error(fast: np.ndarray, ref: np.ndarray) -> float:
+    fast = np.asarray(fast, np.float64).reshape(-1, fast.shape[-1])
+    ref = np.asarray(ref, np.float64).reshape(-1, ref.shape[-1])
+    return float((np.abs(fast - ref).max(axis=1) / np.abs(ref).max(axis=1)).max())
+
+
+@pytest.fixture(scope="module")
+def setup():
+    system = six_band_system()
+    prior = build_prior()
+    rng = np.random.default_rng(17)
+    n = 1500
+    random = rng.uniform(0.01, 1.0, (n, 6)).astype(np.float32)
+    # realistic: the prior's colour signals (nine lights x reflectances) at brightness spanning 1e4, plus noise
+    pick = rng.choice(len(prior.signals), n)
+    clean = system.response(prior.signals[pick] * np.geomspace(0.01, 100, n)[:, None])
+    realistic = (clean * (1 + 0.01 * rng.standard_normal(clean.shape))).astype(np.float32)
+    return system, prior, {"random": random, "realistic": realistic}
+
+
+@pytest.fixture(scope="module", params=[True, False], ids=["normalized", "absolute"])
+def estimators(request, setup):
+    system, prior, _ = setup
+    return (WienerEstimator.fit(system, prior, 1e-5, normalized=request.param, mixture=True),
+            WienerEstimator.fit(system, prior, 1e-5, normalized=request.param))
+
+
+@pytest.mark.parametrize("data", ["random", "realistic"])
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_mixture_estimate_std_and_posterior_equal_reference(setup, estimators, data, dtype):
+    rho = setup[2][data]
+    mix = estimators[0]
+    assert mix.n_components == 9 and mix._kernel is not None
+    err = peak_relative_error(mix.estimate(rho, dtype=dtype, chunk_pixels=256),
+                              mix._estimate_reference(rho, dtype=dtype))
+    assert err <= TOL
+    err = peak_relative_error(mix.posterior_std(rho, dtype=dtype, chunk_pixels=256),
+                              mix._posterior_std_reference(rho, dtype=dtype))
+    assert err <= TOL
+    post = mix.component_posterior(rho, dtype=np.float64, chunk_pixels=256)
+    np.testing.assert_allclose(post.sum(axis=1), 1.0, atol=1e-12)
+    assert np.abs(post - mix._component_posterior_reference(rho, dtype=np.float64)).max() <= TOL
+
+
+@pytest.mark.parametrize("data", ["random", "realistic"])
+def test_per_pixel_noise_variance_equals_reference(setup, estimators, data):
+    rho = setup[2][data][:300]
+    variance = 1e-3 * np.abs(rho) + 1e-6  # shot-noise-like, per pixel and band
+    for est in estimators:
+        err = peak_relative_error(est.estimate(rho, noise_variance=variance, chunk_pixels=128),
+                                  est._estimate_reference(rho, noise_variance=variance))
+        assert err <= TOL
+        err = peak_relative_error(est.posterior_std(rho, noise_variance=variance, chunk_pixels=128),
+                                  est._posterior_std_reference(rho, noise_variance=variance))
+        assert err <= TOL
+    mix = estimators[0]
+    assert np.abs(mix.component_posterior(rho, noise_variance=variance, dtype=np.float64)
+                  - mix._component_posterior_reference(rho, noise_variance=variance, dtype=np.float64)).max() <= TOL
+
+
+def test_linear_maps_equal_reference(setup, estimators):
+    rho = setup[2]["realistic"]
+    mix, pooled = estimators
+    err = peak_relative_error(pooled.estimate(rho, chunk_pixels=300), pooled._estimate_reference(rho))
+    assert err <= TOL
+    # fixed weights (a region's mean posterior): the mixture is one linear map
+    w = mix.component_posterior(rho[:200], dtype=np.float64).mean(axis=0)
+    M, b = mix.linear_map(w)
+    maps = [mix._component_map(j) for j in range(mix.n_components)]
+    explicit = sum(wj * (rho.astype(np.float64) @ Mj.T + bj) for wj, (Mj, bj) in zip(w, maps, strict=True))
+    assert peak_relative_error(apply_linear_map(rho, M, b, chunk_pixels=300), explicit) <= TOL
+    assert peak_relative_error(apply_linear_map(rho, M, b, dtype=np.float64), explicit) <= 1e-12
+
+
+def test_threads_do_not_change_results_and_blas_is_held_to_one(setup, estimators, monkeypatch):
+    rho = setup[2]["realistic"]
+    mix = estimators[0]
+    monkeypatch.setenv("OMNISPECTRAL_THREADS", "1")
+    one = mix.estimate(rho, chunk_pixels=100)
+    monkeypatch.setenv("OMNISPECTRAL_THREADS", "2")
+    two = mix.estimate(rho, chunk_pixels=100)
+    np.testing.assert_array_equal(one, two)
+    monkeypatch.delenv("OMNISPECTRAL_THREADS")
+    with ThreadPoolExecutor(1) as pool:  # inside somebody else's pool: one thread
+        assert pool.submit(kernel_threads).result() == 1
+    before = [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+    with single_threaded_blas(), single_threaded_blas():
+        assert all(i["num_threads"] == 1 for i in threadpool_info() if i["user_api"] == "blas")
+    assert [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"] == before
+
+
+def test_singular_component_falls_back_to_reference(setup):
+    system, prior, data = setup
+    est = WienerEstimator.fit(system, prior, 0.0, mixture=True)
+    rho = data["random"][:50]
+    if est._kernel is None:  # sigma2 = 0 may leave an innovation covariance singular: the reference path runs
+        np.testing.assert_array_equal(est.estimate(rho), est._estimate_reference(rho))
+    else:
+        assert peak_relative_error(est.estimate(rho, dtype=np.float64),
+                                   est._estimate_reference(rho, dtype=np.float64)) <= TOL

@@ -86,7 +86,7 @@ def main(argv: list[str] | None = None) -> dict:
                 "scheduler": address, "workers": None, "startup_s": time.perf_counter() - t0}
         times: dict[str, list[dict]] = {k: [] for k in configs}
         reference = None
-        for rep in range(a.repeat + 1):  # round 0: warm-up
+        for rep in range(a.repeat + 1):  # repetition 0: warm-up
             for name, cfg in configs.items():
                 out = a.work / f"out-{list(configs).index(name)}.zarr"
                 t0 = time.perf_counter()

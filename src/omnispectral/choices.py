@@ -47,6 +47,7 @@ __all__ = [
     "SUN_METHOD_NAMES",
     "WINDOWS",
     "method_from",
+    "options_or_keywords",
 ]
 
 # ------------------------------------------------------------------ the rig (omnispectral.rig)

@@ -158,8 +158,9 @@ def test_rig_device_errors_name_the_rig(tmp_path, capsys):
         text = open(_rig(tmp_path / "rig.toml", emu.port)).read()
     bad = tmp_path / "bad.toml"
     bad.write_text(text.replace("fixed_exposure = true", "exposure_mode = 1", 1))
-    assert main(["capture", "--rig", str(bad), "-o", str(tmp_path / "s"), "--dry-run"]) == 0  # dry run: no device
-    capsys.readouterr()
+    # the dry run talks to no device, but it reads the device tables: an unknown key is a problem (exit 1)
+    assert main(["capture", "--rig", str(bad), "-o", str(tmp_path / "s"), "--dry-run"]) == 1
+    assert "[cameras.A] device: unknown keys ['exposure_mode']" in capsys.readouterr().out
     assert main(["devices", "probe", "--rig", str(bad)]) == 1
     out = capsys.readouterr().out
     assert f"cameras (genicam): {bad}: [cameras.A] device: unknown keys ['exposure_mode']" in out

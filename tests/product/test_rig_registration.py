@@ -326,6 +326,30 @@ def test_calibration_file_round_trip_and_bad_files(tmp_path):
         RigCalibration.load(tmp_path / "missing.json")
 
 
+def test_fit_leaves_out_blocks_it_cannot_evaluate():
+    """Blocks with a non-finite position or confidence (a flat or saturated pair of frames gives them) are left
+    out of the session fit, which then equals the fit without them (was: scipy's "Residuals are not finite in
+    the initial point", a traceback from ``process``)."""
+    ma, mb = camera_model(RIG, "A"), camera_model(RIG, "B")
+    true_b = adjusted_model(mb, (0.1, -0.2, 0.05))
+    rng = np.random.default_rng(4)
+    a_px = rng.uniform([10, 10], [246, 126], (120, 2))
+    b_px = predict_b_px(ma, true_b, a_px, np.zeros(120)) + rng.normal(0, 0.03, (120, 2))
+    good = RigMeasurements(a_px, b_px, np.ones(120), rng.integers(0, 36, 120), np.tile([0.5, 0.0, 0.5], (120, 1)))
+    bad = RigMeasurements(np.array([[50.0, 60.0], [np.nan, 3.0], [70.0, 80.0]]),
+                          np.array([[np.nan, 1.0], [5.0, 6.0], [71.0, 81.0]]), np.array([1.0, 1.0, np.nan]),
+                          np.zeros(3, int), np.tile([0.5, 0.0, 0.5], (3, 1)))
+    both = RigMeasurements.empty()
+    both.extend(good)
+    both.extend(bad)
+    expected = fit_b_mounting(good, ma, mb)
+    cal = fit_b_mounting(both, ma, mb)
+    assert cal.delta_deg == pytest.approx(expected.delta_deg, abs=1e-12)
+    assert infinity_error_px(ma, cal.apply(mb), true_b) < 0.05
+    only_bad = fit_b_mounting(bad, ma, mb)
+    assert tuple(only_bad.delta_deg) == (0.0, 0.0, 0.0)  # fewer than 12 usable blocks: the rig file's mounting
+
+
 def test_reject_inconsistent_keeps_the_majority_and_leaves_pairs_alone():
     """Three views of a pixel, one registered on the wrong surface (the most trusted one): it is dropped
     there and only there; two disagreeing views are left as they are; weights elsewhere unchanged."""

@@ -495,7 +495,7 @@ def render_spectral(env: EnvironmentMap, scene, width: int = 256, height: int = 
     variant
         Mitsuba variant (:func:`mitsuba`).
     progress
-        ``progress("render passes", done, total)`` after each Mitsuba pass.
+        ``progress("render passes", done, total)`` before the first Mitsuba pass and after each.
 
     Returns
     -------
@@ -509,6 +509,7 @@ def render_spectral(env: EnvironmentMap, scene, width: int = 256, height: int = 
     out = np.empty((height, width, wl.size), np.float32)
     t0 = time.perf_counter()
     passes = _passes(wl.size)
+    report_progress(progress or None, "render passes", 0, len(passes))
     for p, idx in enumerate(passes):
         idx3 = np.concatenate([idx, np.repeat(idx[-1:], 3 - idx.size)])
         lam = wl[idx3]
@@ -571,7 +572,7 @@ def render_fast(env: EnvironmentMap, estimator, scene, width: int = 256, height:
     linear_map
         ``(M (n, bands), b (n,))`` to apply as one linear map; ``None`` for the mixture with per-pixel weights.
     progress
-        ``progress("render passes", done, total)`` after each Mitsuba pass.
+        ``progress("render passes", done, total)`` before the first Mitsuba pass and after each.
 
     Returns
     -------
@@ -597,6 +598,7 @@ def render_fast(env: EnvironmentMap, estimator, scene, width: int = 256, height:
     mats = band_materials(scene, estimator.system_matrix, wl, env_mean)
     n_pass = env.bands.shape[2] // 3
     bands = np.empty((height, width, 3 * n_pass), np.float32)
+    report_progress(progress or None, "render passes", 0, n_pass)
     for p, sl in enumerate(slice(3 * q, 3 * q + 3) for q in range(n_pass)):
         pass_mats = {k: {q: v[sl] for q, v in params.items()} for k, params in mats.items()}
         bands[..., sl] = render_rgb(mi, scene.build(mi, pass_mats, env.bands[..., sl], width, height, spp), spp, seed)
@@ -741,7 +743,8 @@ def render_product(product: str | Path, out_dir: str | Path, scene: str | None =
     name, exposure
         Output file stem and exposure (:func:`write_render`).
     progress
-        ``progress("render passes", done, total)`` after each Mitsuba pass.
+        ``progress("environment", 0 | 1, 1)`` before and after reading the product, then
+        ``progress("render passes", done, total)`` before the first Mitsuba pass and after each.
     **scene_kwargs
         Fields of :class:`MirrorBallScene`.
 
@@ -763,7 +766,9 @@ def render_product(product: str | Path, out_dir: str | Path, scene: str | None =
     t0 = time.perf_counter()
     sc = scene_from_name(scene, **scene_kwargs)
     width, height, spp = render_settings(sc, width, height, spp)
+    report_progress(progress or None, "environment", 0, 1)  # reading the product and its estimator takes seconds
     env, estimator = environment_from_product(product, level, max_env_width)
+    report_progress(progress or None, "environment", 1, 1)
     if fast:
         result = render_fast(env, estimator, sc, width, height, spp, seed, variant, progress=progress)
     else:

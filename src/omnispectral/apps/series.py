@@ -1,7 +1,8 @@
 """Rendering every slot of a time-lapse (paper Fig. 16): per-slot outputs, a frame sequence and a contact sheet.
 
 ``render_series(SERIES, OUT)`` renders each slot's product (a ``process-series`` output, or any directory
-whose sub-directories are products) with the same scene and settings into ``OUT/slot_<time>/``, copies the
+whose sub-directories are products) with the same scene and settings into ``OUT/slot_<time>/`` (e.g.
+``slot_2017-06-21T0630``; :func:`slot_folder_names`), copies the
 tone-mapped images to ``OUT/frames/frame_0000.png …`` (video-ready: ``ffmpeg -i frames/frame_%04d.png``) and
 assembles ``OUT/contact_sheet.png`` labelled with the times.  ``exposure="common"`` tone-maps every frame
 with one exposure (the brightest slot's automatic one) so brightness changes over the day stay visible;
@@ -10,6 +11,7 @@ with one exposure (the brightest slot's automatic one) so brightness changes ove
 
 from __future__ import annotations
 
+import datetime as _dt
 import math
 import shutil
 from pathlib import Path
@@ -25,7 +27,7 @@ from omnispectral.product.exports import reinhard_srgb8
 from omnispectral.product.series import series_products
 from omnispectral.progress import ProgressCallback, report_progress
 
-__all__ = ["contact_sheet", "render_series", "series_slots"]
+__all__ = ["contact_sheet", "render_series", "series_slots", "slot_folder_names"]
 
 
 def series_slots(series: str | Path) -> list[tuple[str, Path]]:
@@ -38,6 +40,49 @@ def series_slots(series: str | Path) -> list[tuple[str, Path]]:
     if not slots:
         raise InputFileError(root, "holds no processed series (timestack.zarr) and no product sub-directories")
     return slots
+
+
+def slot_folder_names(labels: list[str]) -> list[str]:
+    """The output folder of each slot, from its label: readable, unique, and sorting in time order.
+
+    A time (ISO 8601, a processed series' slots) gives ``slot_YYYY-MM-DDTHHMM`` (``SS`` appended when the
+    seconds are not 0) in the time's own zone, e.g. ``2017-06-21T06:30:00+00:00`` → ``slot_2017-06-21T0630``;
+    any other label (a product folder's name) keeps its letters, digits, ``-`` and ``_`` with one ``slot_``
+    prefix (``slot_0630`` stays ``slot_0630``).  A name met again gets ``_2``, ``_3``… (the hour repeated when
+    clocks go back).
+
+    Parameters
+    ----------
+    labels : list of str
+        The slots' labels, in slot order (:func:`series_slots`).
+
+    Returns
+    -------
+    list of str
+        One folder name per label, all different.
+    """
+    names: list[str] = []
+    used: set[str] = set()
+    for label in labels:
+        base = _folder_name(label)
+        name, k = base, 1
+        while name in used:
+            k += 1
+            name = f"{base}_{k}"
+        used.add(name)
+        names.append(name)
+    return names
+
+
+def _folder_name(label: str) -> str:
+    try:
+        t = _dt.datetime.fromisoformat(label)
+    except ValueError:
+        t = None
+    if t is not None and "T" in label:
+        return f"slot_{t:%Y-%m-%dT%H%M}" + (f"{t:%S}" if t.second else "")
+    safe = "".join(ch for ch in label if ch.isalnum() or ch in "-_")[:40]
+    return safe if safe.startswith("slot_") else f"slot_{safe}" if safe else "slot"
 
 
 def contact_sheet(images: list[np.ndarray], labels: list[str], columns: int | None = None) -> np.ndarray:
@@ -69,13 +114,14 @@ def render_series(series: str | Path, output: str | Path, exposure: str = "auto"
         A processed series (a ``process-series`` output with ``timestack.zarr``) or a directory whose
         sub-directories are products (:func:`series_slots`).
     output : str or pathlib.Path
-        The output directory: ``slot_<time>/`` per slot, ``frames/frame_NNNN.png``, ``contact_sheet.png`` and
-        ``render_series.json``.
+        The output directory: ``slot_<time>/`` per slot (:func:`slot_folder_names`), ``frames/frame_NNNN.png``,
+        ``contact_sheet.png`` and ``render_series.json``.
     exposure : {"auto", "common"}
         ``"auto"``: each frame exposed for itself; ``"common"``: every frame's PNG re-tone-mapped with one
         exposure scale, ``1 /`` the largest automatic reference of the slots (the brightest slot's).
     progress : ProgressCallback, optional
-        ``progress("slots", done, total)`` after each slot.
+        ``progress("slots", done, total)``: once before the first slot, then after each; within each slot the
+        render's own reports (``"environment"``, ``"render passes"``: :func:`~omnispectral.apps.render.render_product`).
     **render_kwargs
         Keyword arguments of :func:`~omnispectral.apps.render.render_product` (scene, size, samples, ...),
         the same for every slot.
@@ -84,7 +130,8 @@ def render_series(series: str | Path, output: str | Path, exposure: str = "auto"
     -------
     dict
         ``n_slots``, ``contact_sheet`` and ``frames`` (paths), ``exposure``, and ``slots``: per slot its
-        ``label`` and :func:`~omnispectral.apps.render.render_product`'s result (also in ``render_series.json``).
+        ``label``, its output ``folder`` and :func:`~omnispectral.apps.render.render_product`'s result (also in
+        ``render_series.json``).
 
     Raises
     ------
@@ -106,10 +153,12 @@ def render_series(series: str | Path, output: str | Path, exposure: str = "auto"
         raise ValueError(f"exposure must be 'auto' or 'common', got {exposure!r}")
     out = Path(output)
     slots = series_slots(series)
+    folders = slot_folder_names([label for label, _ in slots])
     results = []
-    for k, (label, product) in enumerate(slots):
-        res = render_product(product, out / f"slot_{_safe(label)}", **render_kwargs)
-        results.append((label, res))
+    report_progress(progress or None, "slots", 0, len(slots))
+    for k, ((label, product), folder) in enumerate(zip(slots, folders, strict=True)):
+        res = render_product(product, out / folder, progress=progress, **render_kwargs)
+        results.append((label, {"folder": str(out / folder), **res}))
         report_progress(progress or None, "slots", k + 1, len(slots))
     if exposure == "common":
         refs = [auto_exposure_reference(read_image(r["files"]["srgb_exr"])) for _, r in results]
@@ -132,10 +181,6 @@ def render_series(series: str | Path, output: str | Path, exposure: str = "auto"
                "exposure": exposure, "slots": [{"label": label, **r} for label, r in results]}
     atomic_write_json(out / "render_series.json", summary)
     return summary
-
-
-def _safe(label: str) -> str:
-    return "".join(ch if ch.isalnum() or ch in "-_" else "" for ch in label.replace(":", ""))[:40] or "slot"
 
 
 def _short(label: str) -> str:

@@ -139,7 +139,10 @@ def _head_info(rig: Rig, head) -> dict:
 
 
 def dry_run(rig: Rig, output: str | Path | None = None) -> dict:
-    """What a capture would do, without talking to any device: plan, timing, devices named, frames already done."""
+    """What a capture would do, without talking to any device: plan, timing, devices named, frames already done,
+    and ``problems``: what would stop the capture before its first frame (:func:`drivers.device_problems`: a
+    missing GenTL producer, two cameras with one serial number, a head port that is not there…; empty when the
+    rig looks usable)."""
     drivers.rig_device_kind(rig)
     plan = make_plan(rig)
     out = {"rig": rig.name, "n_directions": plan.n_directions, "exposures_s": list(plan.exposures_s),
@@ -149,7 +152,8 @@ def dry_run(rig: Rig, output: str | Path | None = None) -> dict:
                     "port_exists": bool(rig.head.port) and Path(rig.head.port).exists()},
            "cameras": {n: dict(rig.cameras[n].device) for n in rig.camera_names},
            "moves": [{"direction": d.index, "pan_deg": d.pan_deg, "tilt_deg": d.tilt_deg} for d in plan.directions],
-           "n_already_done": 0, "session": str(output) if output else None}
+           "n_already_done": 0, "session": str(output) if output else None,
+           "problems": drivers.device_problems(rig)}
     if output and (Path(output) / "session.json").exists():
         session = Session.open(output)
         if session.plan().to_dict()["directions"] != plan.to_dict()["directions"]:

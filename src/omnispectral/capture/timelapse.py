@@ -19,6 +19,7 @@ from pathlib import Path
 from omnispectral.capture.devices import Clock
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.io import atomic_write_json
+from omnispectral.progress import ProgressCallback, report_progress
 
 __all__ = ["INDEX", "parse_hhmm", "parse_interval_s", "run_timelapse", "slot_name", "slot_times"]
 
@@ -58,10 +59,11 @@ def slot_name(t: _dt.datetime) -> str:
 
 def run_timelapse(series_dir: str | Path, slots: list[_dt.datetime], clock: Clock,
                   capture_slot: Callable[[Path, _dt.datetime], dict], meta: dict | None = None,
-                  on_slot: Callable[[dict], None] | None = None) -> dict:
+                  on_slot: Callable[[dict], None] | None = None, progress: ProgressCallback | None = None) -> dict:
     """Capture every slot that is still to come; returns the index (also written to ``series.json``).
 
-    ``capture_slot(session_dir, slot_time)`` runs one capture and returns at least ``{"complete": bool}``.
+    ``capture_slot(session_dir, slot_time)`` runs one capture and returns at least ``{"complete": bool}``;
+    it reports its own frames (e.g. passes the caller's progress callback on to the capture).
 
     Parameters
     ----------
@@ -79,6 +81,9 @@ def run_timelapse(series_dir: str | Path, slots: list[_dt.datetime], clock: Cloc
         Extra fields of a new index (e.g. the rig and the interval).
     on_slot : callable, optional
         ``on_slot(entry)`` after each slot's entry is recorded and the index saved.
+    progress : ProgressCallback, optional
+        ``progress("slots", done, total)``: once at the start (before waiting for the first slot, the slots a
+        resumed series had settled as done), then after each slot (captured, missed, or skipped by an overrun).
 
     Returns
     -------
@@ -106,14 +111,18 @@ def run_timelapse(series_dir: str | Path, slots: list[_dt.datetime], clock: Cloc
     entries = index["slots"]
     if [e["time"] for e in entries] != [t.isoformat() for t in slots]:
         raise InputFileError(series / INDEX, "holds a series with other slot times; choose another directory")
+    settled = {i for i, e in enumerate(entries) if e["status"] in ("complete", "skipped", "missed")}
+    report_progress(progress or None, "slots", len(settled), len(entries))
     for i, (entry, t) in enumerate(zip(entries, slots, strict=True)):
-        if entry["status"] in ("complete", "skipped", "missed"):
+        if i in settled:
             continue
         now = clock.now()
         later = slots[i + 1] if i + 1 < len(slots) else None
         if later is not None and now >= later:
             entry.update(status="missed", reason=f"slot time passed (now {now:%H:%M:%S})")
             _save(series, index, on_slot, entry)
+            settled.add(i)
+            report_progress(progress or None, "slots", len(settled), len(entries))
             continue
         clock.sleep((t - now).total_seconds())
         started = clock.now()
@@ -122,12 +131,15 @@ def run_timelapse(series_dir: str | Path, slots: list[_dt.datetime], clock: Cloc
         entry.update(status="complete" if result.get("complete") else "incomplete", started=started.isoformat(),
                      finished=finished.isoformat(), duration_s=(finished - started).total_seconds(),
                      reason=result.get("stopped_reason"))
-        for later_entry, lt in zip(entries[i + 1:], slots[i + 1:], strict=True):
+        settled.add(i)
+        for j, (later_entry, lt) in enumerate(zip(entries[i + 1:], slots[i + 1:], strict=True), start=i + 1):
             if lt > finished:
                 break
             if later_entry["status"] == "pending":
                 later_entry.update(status="skipped", reason=f"the {t:%H:%M} capture overran until {finished:%H:%M:%S}")
+                settled.add(j)
         _save(series, index, on_slot, entry)
+        report_progress(progress or None, "slots", len(settled), len(entries))
     return index
 
 

@@ -39,8 +39,9 @@ class ProgressBars:
     """Rich progress bars on standard error for the library's ``progress(stage, done, total)`` callbacks.
 
     Use as a context manager and pass the object itself as the callback; one bar per stage, created
-    on the stage's first report.  Nothing is drawn with ``enabled=False`` (e.g. with ``--json``), with
-    ``--quiet``, or when standard error is not a terminal (a log file gets no bar frames).
+    on the stage's first report, and started again (its elapsed time too) when the stage reports fewer units
+    done than before (a stage run once per slot of a series).  Nothing is drawn with ``enabled=False`` (e.g.
+    with ``--json``), with ``--quiet``, or when standard error is not a terminal (a log file gets no bar frames).
     """
 
     def __init__(self, enabled: bool = True, transient: bool = False):
@@ -48,6 +49,7 @@ class ProgressBars:
         self.bar = Progress(TextColumn("{task.description:>16}"), BarColumn(), MofNCompleteColumn(),
                             TimeElapsedColumn(), console=err_console, disable=not self.enabled, transient=transient)
         self.tasks: dict[str, int] = {}
+        self.done: dict[str, int] = {}  # the last report's units done, per stage
 
     def __enter__(self) -> ProgressBars:
         self.bar.start()
@@ -59,4 +61,7 @@ class ProgressBars:
     def __call__(self, stage: str, done: int, total: int) -> None:
         if stage not in self.tasks:
             self.tasks[stage] = self.bar.add_task(stage, total=total)
+        elif done < self.done[stage]:  # the stage starts again (the next slot's frames): its clock too
+            self.bar.reset(self.tasks[stage], total=total, completed=done)
+        self.done[stage] = done
         self.bar.update(self.tasks[stage], completed=done, total=total)

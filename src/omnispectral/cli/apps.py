@@ -10,14 +10,9 @@ from omnispectral.apps.materials import load_metal
 from omnispectral.apps.relight import parse_white, relight_product
 from omnispectral.apps.render import render_product
 from omnispectral.apps.series import render_series
-from omnispectral.cli._common import console, err_console, print_json
+from omnispectral.cli._common import ProgressBars, console, print_json
 
 __all__ = ["cmd_relight", "cmd_render", "cmd_render_series"]
-
-
-def _progress(enabled: bool):
-    return (lambda stage, done, total: err_console.print(f"[dim]{escape(stage)} {done}/{total}[/dim]")) if enabled \
-        else None
 
 
 def _render_kwargs(args) -> dict:
@@ -47,7 +42,8 @@ def _print_environment_sun(env: dict) -> None:
 
 def cmd_render(args) -> int:
 
-    out = render_product(args.product, args.output, progress=_progress(not args.json), **_render_kwargs(args))
+    with ProgressBars(enabled=not args.json, transient=True) as bars:  # from the start: reading the product
+        out = render_product(args.product, args.output, progress=bars, **_render_kwargs(args))
     if args.json:
         print_json(out)
         return 0
@@ -65,22 +61,27 @@ def cmd_render(args) -> int:
 
 def cmd_render_series(args) -> int:
 
-    out = render_series(args.series, args.output, exposure=args.exposure, progress=_progress(not args.json),
-                        **_render_kwargs(args))
+    with ProgressBars(enabled=not args.json, transient=True) as bars:  # slots, and each slot's passes
+        out = render_series(args.series, args.output, exposure=args.exposure, progress=bars,
+                            **_render_kwargs(args))
     if args.json:
         print_json(out)
         return 0
+    folders = [Path(s["folder"]).name for s in out["slots"]]
     console.print(f"{out['n_slots']} slots rendered into {Path(args.output)}: contact sheet {out['contact_sheet']}, "
                   f"frames {Path(out['frames']) / 'frame_%04d.png'}")
+    console.print("slot folders: " + escape(", ".join(folders) if len(folders) <= 4
+                                            else f"{folders[0]}, {folders[1]} … {folders[-1]}"))
     return 0
 
 
 def cmd_relight(args) -> int:
 
     whites = [parse_white(w) for w in args.white]
-    out = relight_product(args.product, args.output, whites, to=args.to, reflectance=args.white_reflectance,
-                          sources=args.sources, method=args.method, source_factor=args.source_factor,
-                          progress=_progress(not args.json))
+    with ProgressBars(enabled=not args.json, transient=True) as bars:
+        out = relight_product(args.product, args.output, whites, to=args.to, reflectance=args.white_reflectance,
+                              sources=args.sources, method=args.method, source_factor=args.source_factor,
+                              progress=bars)
     if args.json:
         print_json(out)
         return 0

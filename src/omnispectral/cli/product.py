@@ -15,7 +15,7 @@ from omnispectral.errors import ConfigurationError
 from omnispectral.product.exports import export_product
 from omnispectral.product.layout import read_index
 from omnispectral.product.process import process
-from omnispectral.product.report import write_report
+from omnispectral.product.report import calibration_basis, write_report
 from omnispectral.product.rigboard import calibrate_chessboard_folder
 from omnispectral.product.rigsession import calibrate_session
 from omnispectral.product.series import DEFAULT_REGIONS, parse_region, process_series
@@ -67,7 +67,8 @@ def _print_summary(index: dict) -> None:
     console.print(f"[bold]{index['width']}×{index['height']}[/bold] {what}.")
     source = registration.get("rig_calibration_source")
     if source:
-        console.print(f"Calibration: {escape(source['description'])}.")
+        basis = f": {calibration_basis(registration['rig_calibration'])}" if registration.get("rig_calibration") else ""
+        console.print(f"Calibration: {escape(source['description'])}{escape(basis)}.")
     far_warning = (registration.get("far_content") or {}).get("warning")
     for w in registration.get("warnings", []):
         if w != far_warning:  # said last, below
@@ -80,8 +81,15 @@ def _print_summary(index: dict) -> None:
     console.print(t)
     for d in index["skipped_directions"]:
         console.print(f"[yellow]skipped direction {d['direction']}:[/yellow] {'; '.join(d['problems'][:3])}")
-    if far_warning:
+    _print_accuracy_warnings(index.get("accuracy_warnings") or [])
+    if far_warning:  # the last line (README): how far off far content may be
         console.print(f"[bold yellow]warning:[/bold yellow] {escape(far_warning)}")
+
+
+def _print_accuracy_warnings(warnings: list[dict]) -> None:
+    """One line per accuracy limit of the run (product.expectations): what is off, how much, what to do."""
+    for w in warnings:
+        console.print(f"[bold yellow]accuracy:[/bold yellow] {escape(w['message'])}")
 
 
 def _print_sun(sun: dict) -> None:
@@ -156,6 +164,7 @@ def cmd_report(args) -> int:
     else:
         _print_accuracy(rep["report"].get("accuracy"), rep["report"].get("holes"))
         console.print(f"Report: {rep['files']['html']} and {rep['files']['json']}")
+        _print_accuracy_warnings(rep["report"].get("accuracy_warnings") or [])
     return 0
 
 
@@ -181,9 +190,13 @@ def _print_accuracy(acc: dict | None, holes: dict | None = None) -> None:
     edges = (acc.get("pixel_errors") or {}).get("depth_edges")
     if edges:  # where the aggregates do not look (product.report_edges)
         e, s_ = edges["edge"], edges["smooth"]
-        t.add_row("band NRMSE at depth edges / smooth", f"{e['band_nrmse']:.3f} / {s_['band_nrmse']:.4f}",
-                  f"within {edges['radius_px']:g} px of a depth step")
-        t.add_row("ΔE*ab at depth edges / smooth", f"{e['delta_e_ab']:.2f} / {s_['delta_e_ab']:.2f}",
+
+        def num(v, fmt: str) -> str:  # a region with no scored pixel has no figure
+            return "–" if v is None else format(v, fmt)
+
+        t.add_row("band NRMSE at depth edges / smooth", f"{num(e['band_nrmse'], '.3f')} / "
+                  f"{num(s_['band_nrmse'], '.4f')}", f"within {edges['radius_px']:g} px of a depth step")
+        t.add_row("ΔE*ab at depth edges / smooth", f"{num(e['delta_e_ab'], '.2f')} / {num(s_['delta_e_ab'], '.2f')}",
                   "the pipeline's, same estimator")
     if holes is not None:
         t.add_row("holes (covered, a band missing)", f"{holes['n_pixels']}", "")

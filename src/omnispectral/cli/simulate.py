@@ -147,9 +147,10 @@ def cmd_capture(args) -> int:
     kind = rig_device_kind(rig)
     if args.dry_run:
         out = dry_run(rig, args.output)
+        status = 1 if out["problems"] else 0  # a rig the capture could not use: the dry run fails too
         if args.json:
             print_json(out)
-            return 0
+            return status
         h = out["head"]
         console.print(f"[bold]{rig.name}[/bold] (dry run, nothing moves): {out['n_directions']} directions x "
                       f"{len(out['exposures_s'])} exposures x {len(out['cameras'])} camera(s) = "
@@ -163,7 +164,8 @@ def cmd_capture(args) -> int:
             console.print(f"  direction {m['direction']}: pan {m['pan_deg']:.3f} deg, tilt {m['tilt_deg']:.3f} deg")
         if len(out["moves"]) > 8:
             console.print(f"  … {len(out['moves']) - 8} more directions")
-        return 0
+        _print_problems(rig, out["problems"])
+        return status
     if kind == "simulated":
         return cmd_simulate(args)
     with ProgressBars(enabled=not args.json, transient=True) as bars:
@@ -179,6 +181,18 @@ def cmd_capture(args) -> int:
     return 0 if out["complete"] else 1
 
 
+def _print_problems(rig, problems: list[str]) -> None:
+    """The dry run's problems, one per line under the rig file's name, or that it found none."""
+    if not problems:
+        console.print("No problems found (the devices were not contacted: 'omnispectral devices probe' talks to them)")
+        return
+    n = len(problems)
+    console.print(f"[bold red]{n} problem{'s' if n > 1 else ''}[/bold red] in {escape(str(rig.source or rig.name))}: "
+                  "a capture would stop before its first frame")
+    for p in problems:
+        console.print(f"  - {escape(p)}")
+
+
 def cmd_timelapse(args) -> int:
     rig = rig_from_args(args, default_preset="small")
     start = _start_time(args.start, args.date)
@@ -192,7 +206,7 @@ def cmd_timelapse(args) -> int:
         scene = build_scene(args.scene, args.cube, t, seed=args.seed, chart_distance_m=args.chart_distance,
                             chart_patch_m=args.chart_patch, light=args.light)
         res = simulate_session(session_dir, rig, scene, start=clock.now(), noise=args.noise == "on",
-                               seed=args.seed, ground_truth_width=args.gt_width, progress=False,
+                               seed=args.seed, ground_truth_width=args.gt_width, progress=bars,
                                mounting_error_deg=args.mounting_error, raw=args.raw, calibration_views=views)
         clock.sleep(res["simulated_s"])
         return res
@@ -202,8 +216,11 @@ def cmd_timelapse(args) -> int:
             console.print(f"{entry['time'][11:16]} {entry['session']}: {entry['status']}"
                           + (f" ({entry['reason']})" if entry.get("reason") else ""))
 
-    index = run_timelapse(args.output, slots, clock, capture, {"rig": rig.name, "every_s": parse_interval_s(args.every),
-                                                                "scene": args.scene}, on_slot=report)
+    # one bar for the slots (drawn from the start, before the first slot's capture), one for the frames of each
+    with ProgressBars(enabled=not args.json, transient=True) as bars:
+        index = run_timelapse(args.output, slots, clock, capture,
+                              {"rig": rig.name, "every_s": parse_interval_s(args.every), "scene": args.scene},
+                              on_slot=report, progress=bars)
     if args.json:
         print_json(index)
     else:

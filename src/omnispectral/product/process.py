@@ -58,6 +58,7 @@ from omnispectral.mosaic.store import PanoramaStore
 from omnispectral.product.align import align_direction
 from omnispectral.product.direction_parallax import FAR_OFFSET_MIN_STD_PX, off_model_warnings, parallax_direction
 from omnispectral.product.estimator import b_predictor, rig_estimator
+from omnispectral.product.expectations import accuracy_warnings
 from omnispectral.product.far_content import far_content_errors, far_content_warning
 from omnispectral.product.fingerprint import product_fingerprint
 from omnispectral.product.layout import MERGED, PANORAMA, PRODUCT_FORMAT, RIG_CALIBRATION, product_paths
@@ -621,6 +622,8 @@ def _process_locked(session_path: Path, paths: dict, options: ProcessOptions,
              "session_check": {k: check[k] for k in ("n_planned", "n_ok", "n_missing", "n_damaged")},
              "mosaic": {k: v for k, v in summary.items() if k not in ("output",)},
              "sun": sun_summary(sun), "timings_s": timings, "fingerprint": fingerprint}
+    # accuracy limits this run's rig, settings and measurements imply (product.expectations)
+    index["accuracy_warnings"] = accuracy_warnings(index, rig, {d.index: d.pan_deg for d in s.plan().directions})
     atomic_write_json(paths["index"], index)
     if options.report:
         t3 = time.perf_counter()

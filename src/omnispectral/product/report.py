@@ -39,6 +39,7 @@ from omnispectral.capture.session import Session
 from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.geometry import equirect_pixel_to_lonlat, lonlat_to_equirect_pixel, lonlat_to_ray
 from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text
+from omnispectral.product.expectations import product_accuracy_warnings
 from omnispectral.product.exports import write_preview
 from omnispectral.product.irradiance import HORIZONTAL_NORMAL, IRRADIANCE_UNITS, irradiance, sun_sky_irradiance
 from omnispectral.product.layout import open_product, product_paths
@@ -61,8 +62,8 @@ from omnispectral.product.rigfile import DIRECTION_WARNING_PX
 from omnispectral.product.spectra import bands_to_linear_srgb
 from omnispectral.spectral.metrics import colour_differences, nrmse
 
-__all__ = ["MAX_PATCH_RADIANCE_SPREAD", "accuracy", "accuracy_and_pixel_errors", "chart_scores", "irradiance_report",
-           "patch_bands", "pixel_error_report", "psnr_db", "store_holes", "write_report"]
+__all__ = ["MAX_PATCH_RADIANCE_SPREAD", "accuracy", "accuracy_and_pixel_errors", "calibration_basis", "chart_scores",
+           "irradiance_report", "patch_bands", "pixel_error_report", "psnr_db", "store_holes", "write_report"]
 
 #: A chart patch whose radiance varies more than this over its central 80 % (``(max − min) / mean``) is
 #: crossed by a shadow edge and is not scored (module docstring).  Sky light varies < 1 % over a patch.
@@ -408,7 +409,8 @@ def write_report(product: str | Path, preview_width: int = 2048, truth=None) -> 
               "timings_s": index["timings_s"],
               "registration_method": reg.get("method", "paper"), "registration": alignments,
               "rig_calibration": reg.get("rig_calibration"), "registration_warnings": reg.get("warnings", []),
-              "skipped_directions": index["skipped_directions"], "accuracy": None}
+              "skipped_directions": index["skipped_directions"],
+              "accuracy_warnings": product_accuracy_warnings(index), "accuracy": None}
     bands = errors = None
     if truth is not None:
         s = Session.open(index["session"])
@@ -464,6 +466,47 @@ def _write_maps(store, out_dir: Path, level: int, errors: PixelErrors | None, ho
     return files
 
 
+def calibration_basis(calibration: dict) -> str:
+    """What camera B's mounting was fitted from, in a few words: the chessboard corners of K views (with B's corner
+    RMS and the stated standard deviations) or the blocks of a session's images (with the residual across the
+    epipolar lines and the far anchor).
+
+    Parameters
+    ----------
+    calibration
+        The rig calibration's JSON object (:meth:`omnispectral.product.rigfile.RigCalibration.to_dict`, as in
+        ``product.json``'s ``registration.rig_calibration``).
+
+    Returns
+    -------
+    str
+        E.g. ``"324 chessboard corners of 6 views (camera B's corner RMS 0.031 px; ± 0.0040° yaw, …)"``.
+    """
+    def px(v) -> str:
+        return "–" if v is None else f"{v:.3f}"
+
+    board = calibration.get("chessboard")
+    if calibration.get("method") == "chessboard" and board:
+        sd = board.get("std_deg") or {}
+        stated = (f"; ± {sd['yaw']:.4f}° yaw, {sd['pitch']:.4f}° pitch, {sd['roll']:.4f}° roll"
+                  if all(k in sd for k in ("yaw", "pitch", "roll")) else "")
+        return (f"{calibration.get('n_blocks', 0)} chessboard corners of {board.get('n_pairs', '?')} views (camera B's "
+                f"corner RMS {px(board.get('rms_b_px'))} px{stated})")
+    anchor = calibration.get("far_anchor") or {}
+    n_dirs = len(anchor.get("directions") or [])
+    rms = px(calibration.get("rms_perpendicular_px"))
+    return (f"{calibration.get('n_inliers', 0)} of {calibration.get('n_blocks', 0)} blocks of the session's images "
+            f"(RMS residual across the epipolar lines {rms} px; infinity anchored on {anchor.get('n_blocks', 0)} "
+            f"blocks in {n_dirs} direction{'' if n_dirs == 1 else 's'})")
+
+
+def _accuracy_warnings_html(warnings: list[dict]) -> str:
+    """The accuracy limits of the run (:mod:`omnispectral.product.expectations`), one item each."""
+    if not warnings:
+        return "<p>None found from the rig, the run's settings and the session's own measurements.</p>"
+    return "<ul>" + "".join(f"<li>{html.escape(w['message'])}</li>" for w in warnings) + "</ul>"
+
+
 def _html(report: dict) -> str:
     acc = report.get("accuracy")
     rows = "".join(f"<tr><td>{k}</td><td>{v:.2f} s</td></tr>" for k, v in report["timings_s"].items())
@@ -484,14 +527,13 @@ def _html(report: dict) -> str:
     elif report.get("registration_method") == "parallax":
         cal = report.get("rig_calibration") or {}
         delta = cal.get("delta_from_rig_file_deg", {})
-        warn = "".join(f"<li>{w}</li>" for w in report.get("registration_warnings", []))
-        rms = cal.get("rms_perpendicular_px", float("nan"))
-        reg_html = (f"<p>Camera B's mounting fitted from {cal.get('n_inliers', 0)} of {cal.get('n_blocks', 0)} block "
-                    f"measurements (RMS residual across epipolar lines {rms:.3f} px); change from the rig file: "
-                    f"yaw {delta.get('yaw', 0):+.3f}°, pitch {delta.get('pitch', 0):+.3f}°"
+        warn = "".join(f"<li>{html.escape(w)}</li>" for w in report.get("registration_warnings", []))
+        reg_html = (f"<p>Camera B's mounting fitted from {html.escape(calibration_basis(cal))}; change from the rig "
+                    f"file: yaw {delta.get('yaw', 0):+.3f}°, pitch {delta.get('pitch', 0):+.3f}°"
                     f", roll {delta.get('roll', 0):+.3f}°. Per-pixel parallax in {len(report['registration'])} "
                     "directions.</p>" + (f"<ul>{warn}</ul>" if warn else "")
-                    + '<img src="registration.png" width="760">')
+                    + ('<img src="registration.png" width="760">'
+                       if "registration_plot" in report.get("files", {}) else ""))
     else:
         n_fallback = sum(a["used_fallback"] for a in report["registration"])
         reg_html = (f"<p>{len(report['registration'])} directions, {n_fallback} used the calibrated offset (low "
@@ -500,6 +542,7 @@ def _html(report: dict) -> str:
 <style>body{{font-family:sans-serif;max-width:1000px;margin:2em auto}}td{{padding:2px 12px}}</style></head><body>
 <h1>omnispectral report</h1><p>Product {report['product']} from session {report['session']} (rig {report['rig']}),
 {report['size'][1]} × {report['size'][0]} px, {report['n_bands']} bands.</p>
+<h2>Accuracy limits of this run</h2>{_accuracy_warnings_html(report.get("accuracy_warnings") or [])}
 <h2>Preview</h2><img src="preview.png" width="960">
 <p>sRGB rendering of the Wiener estimate, global Reinhard tone map.</p>
 <h2>Accuracy against ground truth</h2>{acc_html}

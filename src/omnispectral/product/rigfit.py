@@ -114,6 +114,16 @@ def _far_cluster(along_px: np.ndarray, half_px: float, min_count: int) -> tuple[
     return float(np.median(along_px[members])), mask
 
 
+def _finite_blocks(meas: RigMeasurements, model_a: CameraModel, model_b: CameraModel) -> RigMeasurements:
+    """The blocks whose residuals are finite under the rig file's mounting (all of them, the same object, when
+    every one is): a flat or saturated image pair can give blocks the fit cannot use."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        _, along, perp, along_weight = _split(meas, model_a, model_b)
+    ok = (np.isfinite(perp) & np.isfinite(along) & np.isfinite(along_weight) & np.isfinite(meas.confidence)
+          & np.isfinite(meas.tensor).all(axis=1))
+    return meas if ok.all() else meas.subset(ok)
+
+
 def fit_b_mounting(meas: RigMeasurements, model_a: CameraModel, model_b: CameraModel, *, rig_name: str = "",
                    max_iter: int = 6) -> RigCalibration:
     """Estimate camera B's rotation change ``δ`` from pooled block correspondences (module docstring).
@@ -133,10 +143,13 @@ def fit_b_mounting(meas: RigMeasurements, model_a: CameraModel, model_b: CameraM
     -------
     RigCalibration
         ``method = "scene"``: B's absolute mounting, ``δ`` in degrees, the inliers' RMS perpendicular
-        residual (px), the far anchor and the per-direction residuals.  Fewer than 12 blocks leave ``δ = 0``.
+        residual (px), the far anchor and the per-direction residuals.  Blocks whose residual cannot be
+        evaluated (a non-finite position or confidence, a point the rig model cannot project into B) are left
+        out; fewer than 12 blocks leave ``δ = 0``.
     """
-    n = meas.a_px.shape[0]
     delta = np.zeros(3)
+    meas = _finite_blocks(meas, model_a, model_b)
+    n = meas.a_px.shape[0]
     anchor = {"n_blocks": 0}
     if n < 12:
         return _result(meas, model_a, model_b, delta, np.ones(n, bool), anchor, rig_name)

@@ -21,7 +21,6 @@ record ``exposure_controlled: false``).
 from __future__ import annotations
 
 import logging
-import os
 import re
 import time
 from pathlib import Path
@@ -31,6 +30,7 @@ import numpy as np
 from harvesters.core import Harvester
 
 from omnispectral.capture.devices import DeviceDisconnected, DeviceError, DeviceTimeout
+from omnispectral.capture.drivers import SIMULATOR_ALIAS, environment_producers
 from omnispectral.errors import ConfigurationError
 
 __all__ = ["SIMULATOR_ALIAS", "GenICamCamera", "GenTLSystem", "bits_of_pixel_format", "cfa_pattern_of",
@@ -38,7 +38,6 @@ __all__ = ["SIMULATOR_ALIAS", "GenICamCamera", "GenTLSystem", "bits_of_pixel_for
 
 log = logging.getLogger(__name__)
 
-SIMULATOR_ALIAS = "simulator"
 _GENTL_ERRORS = (genicam.gentl.GenericException, genicam.genapi.GenericException)
 
 
@@ -56,9 +55,7 @@ def producer_paths(extra: list[str] | tuple[str, ...] = (), environment: bool = 
             raise ConfigurationError(f"GenTL producer {p} does not exist")
         out.append(p.resolve())
     if environment:
-        for d in os.environ.get("GENICAM_GENTL64_PATH", "").split(os.pathsep):
-            if d and Path(d).is_dir():
-                out.extend(sorted(p.resolve() for p in Path(d).glob("*.cti")))
+        out.extend(p.resolve() for p in environment_producers())
     return list(dict.fromkeys(out))
 
 

@@ -26,23 +26,27 @@ __all__ = [
     "DEFAULT_CAMERA",
     "DEFAULT_DATE",
     "DEFAULT_FILTERS",
+    "DEFAULT_HDR_WEIGHT",
     "DEFAULT_ILLUMINANT",
     "DEFAULT_INTERP",
     "DEFAULT_MIN_CONFIDENCE",
     "DEFAULT_MULTIBAND_LEVELS",
     "DEFAULT_N_VIEWS",
     "DEFAULT_PREPROCESS",
+    "DEFAULT_REGISTRATION",
     "DEFAULT_SQUARE_MM",
     "DEFAULT_SUBPIX_WINDOW",
     "DEFAULT_TARGET",
     "DEFAULT_TILE",
     "DETECTORS",
     "FORMATS",
+    "HDR_WEIGHT_NAMES",
     "INTERP_NAMES",
     "LENS_MODEL_NAMES",
     "MIN_IMAGES",
     "PREPROCESS",
     "PRESETS",
+    "REGISTRATION_NAMES",
     "RESPONSES",
     "SUN_METHOD_NAMES",
     "WINDOWS",
@@ -69,6 +73,18 @@ DETECTORS = ("auto", "classic", "sb")
 MIN_IMAGES = 3
 #: Default ``subpix_window_px``: "auto" (adapted to the corner spacing) or an int (11 = OpenCV's pipeline).
 DEFAULT_SUBPIX_WINDOW: int | str = "auto"
+
+# ------------------------------------------------------------------ HDR merge (omnispectral.imaging.hdr)
+#: The merge's weights, the keys of ``omnispectral.imaging.hdr.WEIGHTS``: the paper's Eq. (2), inverse variance.
+HDR_WEIGHT_NAMES = ("triangle", "noise")
+#: ``process``'s weight: the triangle weight biases dark pixels upwards (docs/benchmarks.md, HDR merge).
+DEFAULT_HDR_WEIGHT = "noise"
+
+# ------------------------------------------------------------------ camera B (omnispectral.product.process)
+#: The keys of ``omnispectral.product.process.REGISTRATIONS``: rig calibration + per-pixel parallax, the paper's
+#: one offset per direction.
+REGISTRATION_NAMES = ("parallax", "paper")
+DEFAULT_REGISTRATION = "parallax"
 
 # ------------------------------------------------------------------ registration (omnispectral.imaging.registration)
 WINDOWS = ("hann", "tukey", "none")

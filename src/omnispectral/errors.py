@@ -7,9 +7,12 @@ so the CLI can print a one-line message instead of a traceback.
 from __future__ import annotations
 
 import errno
+import os
+import re
 from pathlib import Path
 
-__all__ = ["ConfigurationError", "InputFileError", "InvalidFileContent", "OmnispectralError", "describe_os_error"]
+__all__ = ["ConfigurationError", "InputFileError", "InvalidFileContent", "OmnispectralError", "describe_os_error",
+           "os_errno", "os_problem"]
 
 
 class OmnispectralError(Exception):
@@ -55,10 +58,36 @@ _OS_PROBLEMS = {errno.ENOSPC: "disk full", errno.EDQUOT: "disk quota exceeded", 
                 errno.ENOTDIR: "not a directory"}
 
 
+_ERRNO_IN_TEXT = re.compile(r"\[Errno (\d+)\]")
+
+
+def os_errno(exc: OSError) -> int | None:
+    """The error number of ``exc``, also when a library raised it without the ``(errno, strerror)`` form:
+    ``OSError(28)`` or ``OSError("[Errno 28] No space left on device")``; ``None`` when it has none."""
+    if exc.errno is not None:
+        return exc.errno
+    if len(exc.args) == 1 and isinstance(exc.args[0], int) and not isinstance(exc.args[0], bool):
+        return exc.args[0]
+    m = _ERRNO_IN_TEXT.search(str(exc))
+    return int(m.group(1)) if m else None
+
+
+def os_problem(exc: OSError) -> str:
+    """The problem of an operating-system error in plain words (``disk full``, ``permission denied``…)."""
+    code = os_errno(exc)
+    if code in _OS_PROBLEMS:
+        return _OS_PROBLEMS[code]
+    if exc.strerror:
+        return exc.strerror
+    if code is not None:
+        return os.strerror(code)
+    return str(exc) or type(exc).__name__
+
+
 def describe_os_error(exc: OSError) -> str:
     """One line for an operating-system error: the path concerned and the problem in plain words
     (``disk full``, ``permission denied``, ``read-only file system``…)."""
-    problem = _OS_PROBLEMS.get(exc.errno or -1, exc.strerror or type(exc).__name__)
+    problem = os_problem(exc)
     path = exc.filename if exc.filename is not None else "(no file name)"
     extra = f" → {exc.filename2}" if getattr(exc, "filename2", None) else ""
     return f"{path}{extra}: {problem}"

@@ -10,7 +10,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from omnispectral.errors import InputFileError
+from omnispectral.errors import InputFileError, os_errno, os_problem
 
 __all__ = ["TEMP_MARK", "atomic_path", "atomic_write_json", "atomic_write_text", "clean_temp_files", "current_umask",
            "error_naming_output", "follow_umask", "is_temp_name", "jsonable", "names_temp_file_of", "read_text_file"]
@@ -80,10 +80,13 @@ def error_naming_output(exc: OSError, path: Path) -> OSError:
     """``exc`` as an error of the output ``path`` when it names a temporary file of ``path`` or no file (a
     failed ``write`` names none): the user asked for ``path`` and never saw the temporary name.  Other
     errors (a parent directory, an input) come back unchanged."""
-    if exc.errno is None or not names_temp_file_of(exc.filename, path) \
+    if not names_temp_file_of(exc.filename, path) \
             or not (exc.filename2 is None or os.path.abspath(os.fsdecode(exc.filename2)) == os.path.abspath(path)):
         return exc
-    return OSError(exc.errno, exc.strerror, str(path))  # OSError picks the subclass (PermissionError, …)
+    code = os_errno(exc)  # also of OSError(28) or OSError("[Errno 28] …"), which some writers raise
+    if code is None:
+        return OSError(None, os_problem(exc), str(path))
+    return OSError(code, exc.strerror or os.strerror(code), str(path))  # OSError picks the subclass (PermissionError…)
 
 
 @contextlib.contextmanager

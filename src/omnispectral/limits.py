@@ -7,6 +7,7 @@ a command allocate tens of GiB or run for days:
 * exposure times in [``MIN_EXPOSURE_S``, ``MAX_EXPOSURE_S``] and finite;
 * a raw frame or bracket image at most ``MAX_IMAGE_SIDE_PX`` per side and ``MAX_IMAGE_PIXELS`` pixels,
   checked from the file's header *before* decoding (:func:`check_image_header`);
+* a lens's distortion coefficients at most ``MAX_DISTORTION_COEFFICIENT`` in magnitude;
 * a plan of at most ``MAX_DIRECTIONS`` directions;
 * a panorama at most ``MAX_PANORAMA_WIDTH_PX`` wide, and never larger than the free disk space of its
   output (:func:`check_panorama_size`).
@@ -15,23 +16,47 @@ a command allocate tens of GiB or run for days:
 from __future__ import annotations
 
 import math
+import re
 import shutil
+import struct
+import threading
 from pathlib import Path
 
 import tifffile
+from PIL import Image, UnidentifiedImageError
 
 from omnispectral.errors import ConfigurationError, InputFileError
 
-__all__ = ["MAX_DIRECTIONS", "MAX_EXPOSURE_S", "MAX_IMAGE_PIXELS", "MAX_IMAGE_SIDE_PX", "MAX_PANORAMA_WIDTH_PX",
-           "MIN_EXPOSURE_S", "MIN_FOV_DEG", "PANORAMA_BYTES_PER_PX", "check_bit_depth", "check_directions",
-           "check_exposure_times", "check_image_header", "check_image_shape", "check_panorama_size", "gib",
-           "guard_product_output", "refuse_overwriting_inputs", "same_file"]
+__all__ = [
+    "MAX_DIRECTIONS",
+    "MAX_DISTORTION_COEFFICIENT",
+    "MAX_EXPOSURE_S",
+    "MAX_IMAGE_PIXELS",
+    "MAX_IMAGE_SIDE_PX",
+    "MAX_PANORAMA_WIDTH_PX",
+    "MIN_EXPOSURE_S",
+    "MIN_FOV_DEG",
+    "PANORAMA_BYTES_PER_PX",
+    "check_bit_depth",
+    "check_directions",
+    "check_exposure_times",
+    "check_image_header",
+    "check_image_shape",
+    "check_panorama_size",
+    "gib",
+    "guard_product_output",
+    "image_header",
+    "refuse_overwriting_inputs",
+    "same_file",
+]
 
 MIN_EXPOSURE_S = 1e-7
 MAX_EXPOSURE_S = 3600.0
 MAX_IMAGE_SIDE_PX = 32768
 MAX_IMAGE_PIXELS = 1 << 28  # 268 Mpx: a 16-bit RGB frame of this size is 1.5 GiB
 MAX_DIRECTIONS = 100_000
+#: |OpenCV distortion coefficient| of a rig file's lens: real lenses (rational models included) stay far below.
+MAX_DISTORTION_COEFFICIENT = 1e6
 MIN_FOV_DEG = 0.1  # a 0.1° lens needs 1.3 million directions for the sphere
 MAX_PANORAMA_WIDTH_PX = 131_072
 PANORAMA_BYTES_PER_PX = 6 * 4 * 4 / 3  # six float32 bands, pyramid levels add a third
@@ -79,19 +104,89 @@ def check_image_shape(path: str | Path, shape: tuple[int, ...], expected_hw: tup
                                    f"{MAX_IMAGE_SIDE_PX} px per side and {MAX_IMAGE_PIXELS / 1e6:.0f} Mpx")
 
 
-def check_image_header(path: str | Path, expected_hw: tuple[int, int] | None = None) -> None:
-    """Read only a TIFF's first page header (or an image's header via OpenCV-free means) and check its size."""
+def check_image_header(path: str | Path, expected_hw: tuple[int, int] | None = None) -> tuple[int, ...] | None:
+    """Read only an image file's header and check its size (against ``expected_hw``, the rig's sensor, when known;
+    else against the limits) before anything decodes it; return the shape it claims (``None`` if unknown).
 
+    TIFF through tifffile's first page; PNG, JPEG, BMP, PNM and the other formats Pillow identifies through
+    Pillow's lazy ``Image.open`` (which reads the header only); Radiance HDR from its resolution line.  A file no
+    header reader identifies is left to its decoder, which then refuses it as unreadable.
+    """
     path = Path(path)
-    if path.suffix.lower() not in (".tif", ".tiff"):
-        return
-    try:
-        with tifffile.TiffFile(path) as tf:
-            page = tf.pages[0]
-            shape, itemsize = page.shape, int(page.dtype.itemsize) if page.dtype is not None else 2
-    except Exception as exc:  # tifffile raises several types for damaged headers
-        raise InputFileError(path, f"damaged TIFF ({type(exc).__name__}: {exc})") from None
+    header = image_header(path)
+    if header is None:
+        return None
+    shape, itemsize = header
     check_image_shape(path, shape, expected_hw, itemsize)
+    return tuple(int(x) for x in shape)
+
+
+def image_header(path: str | Path) -> tuple[tuple[int, ...], int] | None:
+    """``(shape, bytes per sample)`` an image file's header claims, read without decoding; ``None`` for a format
+    no header reader here knows."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix in (".tif", ".tiff"):
+        try:
+            with tifffile.TiffFile(path) as tf:
+                page = tf.pages[0]
+                return page.shape, int(page.dtype.itemsize) if page.dtype is not None else 2
+        except Exception as exc:  # tifffile raises several types for damaged headers
+            raise InputFileError(path, f"damaged TIFF ({type(exc).__name__}: {exc})") from None
+    if suffix in (".hdr", ".pic"):
+        shape = _radiance_shape(path)
+        return None if shape is None else (shape, 4)
+    return _pillow_header(path)
+
+
+_PILLOW_LIMIT_LOCK = threading.Lock()
+# Pillow's own decompression-bomb limit (a warning above it, an error above twice it) is at least ours: an image
+# this module let through is never refused by Pillow with a traceback half-way through decoding it.
+if Image.MAX_IMAGE_PIXELS is not None and Image.MAX_IMAGE_PIXELS < MAX_IMAGE_PIXELS:
+    Image.MAX_IMAGE_PIXELS = MAX_IMAGE_PIXELS
+
+
+def _pillow_header(path: Path) -> tuple[tuple[int, int, int], int] | None:
+    """``((h, w, channels), bytes per sample)`` from Pillow's header parse, ``None`` when Pillow does not know the
+    format.  Pillow's own decompression-bomb check is switched off here: :func:`check_image_shape` is the check."""
+    try:
+        with _PILLOW_LIMIT_LOCK:  # the limit is global: threads checking headers at once restore it in turn
+            saved = Image.MAX_IMAGE_PIXELS
+            Image.MAX_IMAGE_PIXELS = None
+            try:
+                with Image.open(path) as im:  # lazy: reads the header, decodes nothing
+                    w, h = im.size
+                    bands = len(im.getbands())
+                    itemsize = 2 if im.mode.startswith("I;16") or im.mode in ("I", "F") else 1
+            finally:
+                Image.MAX_IMAGE_PIXELS = saved
+    except UnidentifiedImageError:
+        return None
+    except FileNotFoundError:
+        raise InputFileError(path, "file not found") from None
+    except OSError as exc:  # a damaged header of a known format
+        if exc.errno is not None:
+            raise
+        raise InputFileError(path, f"damaged image header ({exc})") from None
+    except (SyntaxError, ValueError, struct.error, EOFError) as exc:
+        raise InputFileError(path, f"damaged image header ({type(exc).__name__}: {exc})") from None
+    return (h, w, bands), itemsize
+
+
+def _radiance_shape(path: Path) -> tuple[int, int, int] | None:
+    """``(h, w, 3)`` from a Radiance HDR file's resolution line (``-Y H +X W``), ``None`` if it has none."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(65536)
+    except FileNotFoundError:
+        raise InputFileError(path, "file not found") from None
+    if not head.startswith(b"#?"):
+        return None
+    m = re.search(rb"\n\n([-+][YX]) (\d{1,12}) ([-+][YX]) (\d{1,12})\n", head)
+    if m is None:
+        return None
+    a, b = int(m.group(2)), int(m.group(4))
+    return (a, b, 3) if m.group(1).endswith(b"Y") else (b, a, 3)
 
 
 def check_panorama_size(width: int, output: str | Path) -> None:

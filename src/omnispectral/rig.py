@@ -38,6 +38,7 @@ from omnispectral.imaging.geometry import CameraModel, Mounting
 from omnispectral.io import read_text_file
 from omnispectral.limits import (
     MAX_DIRECTIONS,
+    MAX_DISTORTION_COEFFICIENT,
     MAX_EXPOSURE_S,
     MAX_IMAGE_SIDE_PX,
     MIN_EXPOSURE_S,
@@ -449,6 +450,9 @@ def _camera(r: _Reader, name: str) -> CameraSpec:
     if len(dist) not in (0, 4, 5, 8, 12, 14) or not all(isinstance(v, int | float) and not isinstance(v, bool)
                                                         and math.isfinite(v) for v in dist):
         lens.fail("distortion", f"expected 4, 5, 8, 12 or 14 numbers (OpenCV order), got {dist!r}")
+    if any(abs(v) > MAX_DISTORTION_COEFFICIENT for v in dist):
+        lens.fail("distortion", f"coefficient {max(dist, key=abs)!r} is beyond ±{MAX_DISTORTION_COEFFICIENT:g} "
+                                f"(no lens is that distorted; the model's polynomials would overflow)")
     calib = lens.get("calibration", str, None)
     if calib is not None and not Path(calib).is_absolute() and r.source and Path(r.source).exists():
         calib = str(Path(r.source).parent / calib)

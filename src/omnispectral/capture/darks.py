@@ -25,6 +25,7 @@ from omnispectral.capture.devices import Camera, DeviceError
 from omnispectral.capture.session import Session, utc_now_iso
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.io import atomic_path, atomic_write_json
+from omnispectral.limits import check_image_header
 from omnispectral.locking import directory_lock
 from omnispectral.progress import ProgressCallback
 
@@ -100,6 +101,12 @@ def load_darks(session_path: str | Path) -> dict[tuple[str, int], np.ndarray]:
     out = {}
     for e in entries:
         p = root / e["file"]
+        if not p.is_file():
+            raise InputFileError(p, "dark frame missing (listed in darks.json)")
+        try:
+            check_image_header(p)  # a damaged header claiming gigapixels is refused before decoding
+        except InputFileError as exc:
+            raise InputFileError(p, f"damaged dark frame ({exc.problem})") from None
         try:
             data = tifffile.imread(p)
         except FileNotFoundError:

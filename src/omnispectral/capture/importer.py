@@ -11,7 +11,7 @@ Inputs, per camera of the rig (run once for camera A and once for camera B into 
   - a Hugin project ``.pto``: the ``i`` lines' ``y`` (yaw), ``p`` (pitch), ``r`` (roll) and ``n"file"`` (relative to
     the project); yaw is pan (positive right), pitch is tilt (positive up), roll must be the rig camera's mounting
     roll with the same sign (90 for a portrait camera), as Hugin's ``nona`` remaps such an image onto our model's
-    pixels (``tests/test_import.py::test_pto_yaw_pitch_roll_follow_hugin``);
+    pixels (``tests/capture/test_import.py::test_pto_yaw_pitch_roll_follow_hugin``);
 * **exposure times**: the CSV's ``exposure_s`` column, else a table (``file,exposure_s`` CSV or Debevec's
   ``name seconds`` list), else the EXIF ``ExposureTime`` of each file.
 
@@ -50,10 +50,11 @@ import numpy as np
 
 from omnispectral.capture.plan import Direction, Plan
 from omnispectral.capture.session import Session, sha256_of
-from omnispectral.capture.sourcefiles import IMAGE_SUFFIXES, decode_source_image
+from omnispectral.capture.sourcefiles import IMAGE_SUFFIXES, RAW_SUFFIXES, decode_source_image
 from omnispectral.choices import RESPONSES
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.imaging.bracket import exif_exposure_s, parse_exposure_s, read_times_list
+from omnispectral.limits import image_header
 from omnispectral.locking import directory_lock
 from omnispectral.progress import ProgressCallback
 from omnispectral.rig import Rig
@@ -336,15 +337,23 @@ def import_images(output: str | Path, rig: Rig, camera: str, entries: list[Image
             "cameras_imported": sorted({c for _, c, _ in Session.open(output).completed()})}
 
 
+def _size_problem(shape: tuple[int, ...], cam, camera: str) -> str:
+    channels = '' if len(shape) == 2 or shape[2] == 1 else f' x {shape[2]}'
+    return (f"image of {shape[1]}x{shape[0]} px{channels}; camera {camera} of the rig is "
+            f"{cam.width_px}x{cam.height_px} (RGB, or a Bayer mosaic)")
+
+
 def _write_one(session: Session, cam, camera: str, index: int, k: int, e: ImageEntry, time_and_source, response,
                reference: bool = False):
+    if e.path.suffix.lower() not in RAW_SUFFIXES:  # the size from the header, before anything is decoded
+        header = image_header(e.path)  # a size other than the sensor's (a sensor is within the limits) is refused
+        if header is not None and tuple(header[0][:2]) != (cam.height_px, cam.width_px):
+            raise InputFileError(e.path, _size_problem(tuple(header[0]), cam, camera))
     frame, raw_meta = decode_source_image(e.path)
     if raw_meta:
         response = "linear"
     if frame.shape[:2] != (cam.height_px, cam.width_px) or (frame.ndim == 3 and frame.shape[2] != 3):
-        raise InputFileError(e.path, f"image of {frame.shape[1]}x{frame.shape[0]} px"
-                                     f"{'' if frame.ndim == 2 else f' x {frame.shape[2]}'}; camera {camera} of the "
-                                     f"rig is {cam.width_px}x{cam.height_px} (RGB, or a Bayer mosaic)")
+        raise InputFileError(e.path, _size_problem(frame.shape, cam, camera))
     bit_depth = 8 if frame.dtype == np.uint8 else cam.bit_depth
     if int(frame.max()) >= 1 << bit_depth:
         raise InputFileError(e.path, f"holds values up to {int(frame.max())}, more than camera {camera}'s "

@@ -42,13 +42,17 @@ def read_camera_raw(path: Path) -> tuple[np.ndarray, dict]:
     return mosaic, {"cfa_pattern": cfa, "black_level": black, "white_level": white}
 
 
-def decode_source_image(path: Path) -> tuple[np.ndarray, dict]:
+def decode_source_image(path: Path, expected_hw: tuple[int, int] | None = None) -> tuple[np.ndarray, dict]:
     """A file as a session frame: ``(H, W, 3)`` RGB (an alpha channel dropped) or an ``(H, W)`` Bayer mosaic of a
-    camera raw file, in its own integer type, and the raw file's CFA metadata (empty for other images)."""
+    camera raw file, in its own integer type, and the raw file's CFA metadata (empty for other images).
+
+    ``expected_hw``: the camera's sensor (px); an image file whose header says another size is refused before it
+    is decoded (any image's header is checked against the limits, :func:`omnispectral.limits.check_image_header`).
+    """
     path = Path(path)
     if path.suffix.lower() in RAW_SUFFIXES:
         return read_camera_raw(path)
-    frame = read_frame(path)
+    frame = read_frame(path, expected_hw)
     if frame.ndim == 3 and frame.shape[2] == 4:
         frame = frame[..., :3]
     return frame, {}

@@ -29,7 +29,7 @@ from omnispectral.imaging.hdr import merge_exposures
 from omnispectral.imaging.imageio import decode_with_opencv, read_exr  # noqa: F401  (read_exr: re-exported)
 from omnispectral.imaging.response import CameraResponse, recover_response
 from omnispectral.io import atomic_path
-from omnispectral.limits import check_bit_depth, check_exposure_times, check_image_header
+from omnispectral.limits import check_bit_depth, check_exposure_times, check_image_header, image_header
 
 __all__ = ["EXIF_EXPOSURE_TIME", "EXIF_IFD_POINTER", "EXPOSURE_RATIO_TOLERANCE", "FLOAT_IMAGE_SUFFIXES", "Bracket",
            "ExposureMismatch", "auto_weight", "exif_exposure_s", "exposure_time_mismatches", "exposure_times_for",
@@ -69,14 +69,17 @@ def parse_exposure_s(text: str) -> float:
     return check_exposure_times([value], f"exposure time {text!r}")[0]
 
 
-def read_frame(path: str | Path) -> np.ndarray:
-    """One raw or LDR frame, unchanged: ``(H, W)`` or ``(H, W, C)`` uint8/uint16 in RGB(A) order."""
+def read_frame(path: str | Path, expected_hw: tuple[int, int] | None = None) -> np.ndarray:
+    """One raw or LDR frame, unchanged: ``(H, W)`` or ``(H, W, C)`` uint8/uint16 in RGB(A) order.
+
+    The header's size is checked before decoding (:func:`omnispectral.limits.check_image_header`): against
+    ``expected_hw`` (the sensor, in px) when given, else against the limits."""
     path = Path(path)
     if not path.is_file():
         raise InputFileError(path, "file not found")
     suffix = path.suffix.lower()
+    check_image_header(path, expected_hw)  # a hostile header claiming gigapixels is refused before any allocation
     if suffix in (".tif", ".tiff"):
-        check_image_header(path)  # a hostile header claiming gigapixels is refused before any allocation
         try:
             img = tifffile.imread(path)
         except Exception as exc:  # tifffile raises many types for damaged files
@@ -103,8 +106,11 @@ def _check_jpeg_complete(path: Path) -> None:
 
 
 def exif_exposure_s(path: str | Path) -> float | None:
-    """EXIF ``ExposureTime`` in seconds, or ``None`` when the file has none."""
+    """EXIF ``ExposureTime`` in seconds, or ``None`` when the file has none (a header claiming a size beyond the
+    limits is refused first: Pillow would raise its decompression-bomb error)."""
 
+    if Path(path).suffix.lower() in (".png", ".jpg", ".jpeg", ".tif", ".tiff"):
+        check_image_header(path)
     try:
         with Image.open(path) as im:
             exif = im.getexif()
@@ -174,6 +180,10 @@ def exposure_times_for(paths: Sequence[Path], times: Sequence[str | float] | Non
     return np.array(values, dtype=np.float64), tuple(sources)
 
 
+def _sample_type(itemsize: int) -> str:
+    return {1: "uint8", 2: "uint16", 4: "float32"}.get(int(itemsize), f"{itemsize}-byte samples")
+
+
 def load_bracket(paths: Sequence[str | Path], times: Sequence[str | float] | None = None,
                  times_list: str | Path | None = None) -> Bracket:
     """Read a bracket: every frame (same size, type and channels) and its exposure time."""
@@ -185,6 +195,15 @@ def load_bracket(paths: Sequence[str | Path], times: Sequence[str | float] | Non
             raise InputFileError(p, "file not found" if not p.exists() else "is not a file")
     table = read_times_list(times_list) if times_list is not None else None
     exposure_s, sources = exposure_times_for(paths, times, table)
+    headers = []  # every size from its header, checked before any frame is decoded
+    for p in paths:
+        check_image_header(p)
+        headers.append(image_header(p))
+    for p, header in zip(paths, headers, strict=True):
+        if header is not None and headers[0] is not None and tuple(header[0][:2]) != tuple(headers[0][0][:2]):
+            (shape, size), (shape0, size0) = header, headers[0]
+            raise InputFileError(p, f"is {tuple(shape)} {_sample_type(size)} but {paths[0].name} is {tuple(shape0)} "
+                                    f"{_sample_type(size0)}; a bracket must match")
     frames = []
     for p in paths:
         f = read_frame(p)

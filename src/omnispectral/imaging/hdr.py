@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import ndimage
 
+from omnispectral.choices import HDR_WEIGHT_NAMES
 from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.response import CameraResponse
 from omnispectral.imaging.weights import triangle_weight
@@ -72,8 +73,8 @@ def _inverse_variance(model, k: int, x: np.ndarray, var: np.ndarray) -> np.ndarr
 
 #: The HDR merge's weights by name: ``"triangle"`` (the paper's Eq. (2)), ``"noise"`` (inverse variance,
 #: Granados et al. 2010).
-WEIGHTS = {"triangle": HDRWeight(_triangle, inverse_variance=False),
-           "noise": HDRWeight(_inverse_variance, inverse_variance=True)}
+WEIGHTS = dict(zip(HDR_WEIGHT_NAMES, (HDRWeight(_triangle, inverse_variance=False),
+                                      HDRWeight(_inverse_variance, inverse_variance=True)), strict=True))
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,7 @@ import OpenEXR
 import tifffile
 
 from omnispectral.errors import InputFileError
+from omnispectral.limits import check_image_header, check_image_shape
 
 __all__ = ["decode_with_opencv", "read_exr", "read_image"]
 
@@ -34,7 +35,8 @@ def read_image(path: str | Path) -> np.ndarray:
     Raises
     ------
     InputFileError
-        The file does not exist, is not a file, or cannot be decoded as an image.
+        The file does not exist, is not a file, cannot be decoded as an image, or its header claims a size
+        above the limits (:func:`omnispectral.limits.check_image_header`, checked before decoding).
     """
     path = Path(path)
     if not path.exists():
@@ -45,6 +47,7 @@ def read_image(path: str | Path) -> np.ndarray:
     if suffix == ".exr":
         image, _ = read_exr(path)
     else:
+        check_image_header(path)  # the size from the header, before OpenCV (which is not lazy) decodes it
         image = decode_with_opencv(path)
         if image is None and suffix in (".tif", ".tiff"):
             image = _read_tiff(path)
@@ -85,6 +88,14 @@ def read_exr(path: str | Path) -> tuple[np.ndarray, list[str]]:
 
     path = Path(path)
 
+    try:  # the size from the header first: a hostile data window is refused before any pixel is read
+        with OpenEXR.File(str(path), header_only=True) as exr:  # the header is valid only while the file is open
+            header = exr.header()
+            (x0, y0), (x1, y1) = (np.asarray(v, dtype=np.int64) for v in header["dataWindow"])
+            n_channels = max(1, len(header.get("channels") or ()))
+    except Exception as exc:  # the OpenEXR binding raises RuntimeError/OSError/ValueError; a damaged window
+        raise InputFileError(path, f"cannot be read as an OpenEXR image ({exc})") from exc
+    check_image_shape(path, (int(y1 - y0 + 1), int(x1 - x0 + 1), n_channels), bytes_per_sample=4)
     try:
         with OpenEXR.File(str(path), separate_channels=True) as exr:
             channels = {name: np.asarray(ch.pixels) for name, ch in exr.channels().items()}

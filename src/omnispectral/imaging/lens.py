@@ -35,6 +35,7 @@ from PIL import Image, UnidentifiedImageError
 from omnispectral.choices import DEFAULT_SUBPIX_WINDOW, DETECTORS, LENS_MODEL_NAMES, MIN_IMAGES
 from omnispectral.errors import ConfigurationError, InputFileError, OmnispectralError
 from omnispectral.imaging.geometry import CameraModel
+from omnispectral.limits import check_image_header
 
 __all__ = ["DEFAULT_SUBPIX_WINDOW", "DETECTORS", "MIN_IMAGES", "MODELS", "SUBPIX_WINDOW_PX", "BoardView",
            "CalibrationError", "LensCalibration", "board_object_points", "calibrate_lens", "check_board",
@@ -133,6 +134,7 @@ def read_gray8(path: str | Path) -> np.ndarray:
         raise InputFileError(path, f"cannot read the file ({exc.strerror or exc})") from None
     if data.size == 0:
         raise InputFileError(path, "file is empty")
+    check_image_header(path)  # the size from the header, before OpenCV (which is not lazy) decodes it
     try:
         img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED)
     except cv2.error:

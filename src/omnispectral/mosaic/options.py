@@ -17,13 +17,15 @@ from omnispectral.mosaic.blending import DEFAULT_MULTIBAND_LEVELS, blend_method
 from omnispectral.mosaic.interp import interpolation
 from omnispectral.spectral.conditional import BandPredictor
 
-__all__ = ["DEFAULT_INTERP", "DEFAULT_TILE", "MIN_TILE_PX", "MIN_WIDTH_PX", "MosaicOptions"]
+__all__ = ["DEFAULT_INTERP", "DEFAULT_TILE", "MAX_TILE_PX", "MIN_TILE_PX", "MIN_WIDTH_PX", "MosaicOptions"]
 
 #: Interpolation of :func:`~omnispectral.mosaic.engine.mosaic` called as a library function (``process`` and the
 #: ``mosaic`` command choose ``cubic-clamped``, :data:`omnispectral.product.process.DEFAULT_INTERP`).
 DEFAULT_INTERP = "spline"
 #: Smallest tile side, px.
 MIN_TILE_PX = 16
+#: Largest tile side, px: a tile's maps, weights and six bands in float32 stay within a few GiB.
+MAX_TILE_PX = 8192
 #: Smallest panorama width, px.
 MIN_WIDTH_PX = 8
 
@@ -38,7 +40,7 @@ class MosaicOptions:
         Panorama width in px (height = width / 2), an even number ≥ 8; ``None``: the native width of camera A
         (:func:`omnispectral.imaging.geometry.native_width`).
     tile
-        Tile (and chunk) side in px, at least :data:`MIN_TILE_PX`.
+        Tile (and chunk) side in px, from :data:`MIN_TILE_PX` to :data:`MAX_TILE_PX`.
     interp
         Interpolation, a key of :data:`omnispectral.mosaic.interp.METHODS`.
     blend
@@ -79,6 +81,8 @@ class MosaicOptions:
         blend_method(self.blend)
         if self.tile < MIN_TILE_PX:
             raise ConfigurationError(f"tile must be at least {MIN_TILE_PX} px, got {self.tile}")
+        if self.tile > MAX_TILE_PX:
+            raise ConfigurationError(f"tile must be at most {MAX_TILE_PX} px, got {self.tile}")
         if self.width is not None:
             width = int(self.width)
             if width < MIN_WIDTH_PX or width % 2:

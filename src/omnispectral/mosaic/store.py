@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from omnispectral.errors import InputFileError
+from omnispectral.errors import InputFileError, os_errno, os_problem
 from omnispectral.io import TEMP_MARK, atomic_write_json, follow_umask, jsonable
 from omnispectral.mosaic.kernels import compiled_kernels
 
@@ -115,8 +115,9 @@ class ChannelLast:
     for reading and ``a[rows, cols, :] = data`` for writing (integer indices keep their axis out, as NumPy).
     """
 
-    def __init__(self, array):
+    def __init__(self, array, path: Path | str | None = None):
         self.zarr = array
+        self.path = path  # the array's directory: named by a write's operating-system error
         names = tuple(getattr(array.metadata, "dimension_names", None) or ())
         self.channel_first = bool(names) and names[0] == DIMENSIONS[0]
 
@@ -144,14 +145,20 @@ class ChannelLast:
         return data if isinstance(bands, (int, np.integer)) else np.moveaxis(data, 0, -1)
 
     def __setitem__(self, key, value) -> None:
-        if not self.channel_first:
-            self.zarr[key] = value
-            return
-        rows, cols, bands = self._key(key)
-        value = np.asarray(value)
-        if not isinstance(bands, (int, np.integer)):
-            value = np.moveaxis(value, -1, 0) if value.ndim == 3 else value
-        self.zarr[bands, rows, cols] = np.ascontiguousarray(value)
+        try:
+            if not self.channel_first:
+                self.zarr[key] = value
+                return
+            rows, cols, bands = self._key(key)
+            value = np.asarray(value)
+            if not isinstance(bands, (int, np.integer)):
+                value = np.moveaxis(value, -1, 0) if value.ndim == 3 else value
+            self.zarr[bands, rows, cols] = np.ascontiguousarray(value)
+        except OSError as exc:  # a failed chunk write (disk full) names no file: name the array
+            if exc.filename is not None or self.path is None:
+                raise
+            code = os_errno(exc)
+            raise OSError(code, exc.strerror or os_problem(exc), str(self.path)) from exc
 
 
 def _compressors(name: str):
@@ -297,7 +304,8 @@ class PanoramaStore:
         """Level ``level`` as an ``(H, W, C)`` array (:class:`ChannelLast`; ``.zarr`` is the array on disk)."""
         import zarr
 
-        return ChannelLast(zarr.open_array(str(self.path / str(level)), mode=mode, zarr_format=3))
+        where = self.path / str(level)
+        return ChannelLast(zarr.open_array(str(where), mode=mode, zarr_format=3), where)
 
     def to_xarray(self, level: int = 0):
         """Level ``level`` as a lazy (Dask) ``xarray.DataArray`` with dimensions ``(band, lat, lon)``.
@@ -391,7 +399,7 @@ class PanoramaStore:
     def _quality(self, mode: str = "r") -> ChannelLast:
         import zarr
 
-        return ChannelLast(zarr.open_array(str(self.path / QUALITY), mode=mode, zarr_format=3))
+        return ChannelLast(zarr.open_array(str(self.path / QUALITY), mode=mode, zarr_format=3), self.path / QUALITY)
 
     def has_quality(self) -> bool:
         return (self.path / QUALITY / "zarr.json").is_file()

@@ -42,7 +42,14 @@ from pathlib import Path
 import numpy as np
 
 from omnispectral.capture.session import Session, verify_session
-from omnispectral.choices import DEFAULT_INTERP, method_from, options_or_keywords
+from omnispectral.choices import (
+    DEFAULT_HDR_WEIGHT,
+    DEFAULT_INTERP,
+    DEFAULT_REGISTRATION,
+    REGISTRATION_NAMES,
+    method_from,
+    options_or_keywords,
+)
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.fingerprint import check_merged
 from omnispectral.imaging.geometry import CameraModel
@@ -107,7 +114,7 @@ def _check_session(session_path: Path, skip_bad: bool, verify_checksums: bool) -
 
 def merge_and_register(session: Session, out: Path, skip: set[int], min_confidence: float,
                        progress: ProgressCallback | None = None, timings: dict | None = None,
-                       hdr_weight: str = "noise", models: dict | None = None) -> tuple[object, list[dict]]:
+                       hdr_weight: str = DEFAULT_HDR_WEIGHT, models: dict | None = None) -> tuple[object, list[dict]]:
     """Stage 2: :func:`omnispectral.product.merge.merge_session` (streamed per direction) with camera B
     registered to A by :func:`~omnispectral.product.align.align_direction`; returns the merged directions
     and the alignment of every direction.  ``models``: the rig's camera models (default: built here);
@@ -135,7 +142,7 @@ def merge_and_register(session: Session, out: Path, skip: set[int], min_confiden
 
 
 def merge_only(session: Session, out: Path, skip: set[int], progress: ProgressCallback | None = None,
-               timings: dict | None = None, hdr_weight: str = "noise", models: dict | None = None):
+               timings: dict | None = None, hdr_weight: str = DEFAULT_HDR_WEIGHT, models: dict | None = None):
     """Stage 2 without registration: the HDR merge of every direction (camera B at the rig file's mounting);
     ``progress("merge", done, total)`` per direction."""
     t0 = time.perf_counter()
@@ -305,10 +312,10 @@ class Registration:
 
 #: Registration methods by name (the valid names are its keys): ``parallax`` (default: rig calibration of
 #: camera B + per-pixel parallax) and ``paper`` (one POC offset per direction, Sec. 4.3 of the paper).
-REGISTRATIONS: dict[str, Registration] = {
-    "parallax": Registration(_register_parallax, rig_model=True),
-    "paper": Registration(_register_paper, rig_model=False),
-}
+REGISTRATIONS: dict[str, Registration] = dict(zip(REGISTRATION_NAMES, (
+    Registration(_register_parallax, rig_model=True),  # parallax
+    Registration(_register_paper, rig_model=False),  # paper
+), strict=True))
 #: What a one-camera rig runs whatever the registration asked for: the merge alone (``"method": "none"``).
 ONE_CAMERA = Registration(_register_one_camera, rig_model=False)
 
@@ -384,10 +391,10 @@ class ProcessOptions:
     workers: int | None = None
     skip_bad: bool = False
     min_confidence: float | None = None
-    hdr_weight: str = "noise"
+    hdr_weight: str = DEFAULT_HDR_WEIGHT
     report: bool = True
     verify_checksums: bool = True
-    registration: str = "parallax"
+    registration: str = DEFAULT_REGISTRATION
     rig_calibration: str | Path | None = None
     overwrite: bool = False
     sun: str = "auto"
@@ -453,8 +460,9 @@ class ProcessOptions:
 def process(session: str | Path, output: str | Path, *, options: ProcessOptions | None = None,
             width: int | None = None, tile: int | None = None, interp: str | None = None, scheduler=None,
             workers: int | None = None, skip_bad: bool = False, min_confidence: float | None = None,
-            hdr_weight: str = "noise", report: bool = True, progress: ProgressCallback | None = None,
-            verify_checksums: bool = True, registration: str = "parallax", rig_calibration: str | Path | None = None,
+            hdr_weight: str = DEFAULT_HDR_WEIGHT, report: bool = True, progress: ProgressCallback | None = None,
+            verify_checksums: bool = True, registration: str = DEFAULT_REGISTRATION,
+            rig_calibration: str | Path | None = None,
             overwrite: bool = False, sun: str = "auto", sun_reference: SunReference | None = None,
             calibration_views: bool = True, truth=None) -> dict:
     """Run stages 1-4 (module docstring) and write ``product.json`` and, by default, the report.

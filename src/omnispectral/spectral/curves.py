@@ -25,6 +25,7 @@ import csv
 import io
 import math
 import re
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -288,6 +289,8 @@ def _parse_float(text: str, path: Path, line: int, column: str) -> float:
         raise InputFileError(path, f"column {column!r}: {text.strip()!r} is not a number", line) from None
     if math.isnan(value) or math.isinf(value):
         raise InputFileError(path, f"column {column!r}: value is {text.strip()} (NaN or infinite)", line)
+    if value != 0.0 and abs(value) < sys.float_info.min:
+        return 0.0  # subnormal (e.g. 1e-320): below double precision, and its reciprocal overflows
     return value
 
 
@@ -332,10 +335,14 @@ def read_spectral_csv(path: str | Path, kind: str, percent: bool | None = None) 
     text = read_text_file(path, encoding="utf-8-sig")
 
     rows: list[tuple[int, list[str]]] = []
-    for line_no, row in enumerate(csv.reader(text.splitlines()), start=1):
-        if not row or not "".join(row).strip() or row[0].lstrip().startswith("#"):
-            continue
-        rows.append((line_no, row))
+    reader = csv.reader(text.splitlines())
+    try:
+        for line_no, row in enumerate(reader, start=1):
+            if not row or not "".join(row).strip() or row[0].lstrip().startswith("#"):
+                continue
+            rows.append((line_no, row))
+    except csv.Error as exc:  # a field above the csv module's limit (128 KiB), a NUL byte, a bad quote
+        raise InputFileError(path, f"not a readable CSV table ({exc})", reader.line_num) from None
     if not rows:
         raise InputFileError(path, "no header row and no data")
     header_line, header = rows[0]

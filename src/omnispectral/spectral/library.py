@@ -25,13 +25,16 @@ from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.spectral.curves import SpectralSet, read_spectral_csv
 
 __all__ = ["CALIBRATION_ILLUMINANTS", "CALIBRATION_REFLECTANCE_SETS", "DEFAULT_CAMERA", "DEFAULT_FILTERS",
-           "DEFAULT_ILLUMINANT", "DEFAULT_TARGET", "PRIOR_ILLUMINANTS", "PRIOR_REFLECTANCE_SETS", "camera_names",
+           "DEFAULT_ILLUMINANT", "DEFAULT_TARGET", "MIN_FILTER_PEAK", "PRIOR_ILLUMINANTS",
+           "PRIOR_REFLECTANCE_SETS", "camera_names",
            "daylight_spd", "denser_filter", "filter_names", "illuminant_names", "load_camera", "load_filter",
            "load_illuminant", "load_reflectances", "reflectance_set_names", "sp18_standin_transmittance"]
 
 # Nine light sources for the prior (paper Sec. 4.6: "nine spectral power distributions of
 # different light sources"): daylight from 4000 K to 10000 K, tungsten, three fluorescents and
 # two white LEDs.
+#: Smallest peak transmittance of a filter file (optical density 9; the paper's sun filter is density 3).
+MIN_FILTER_PEAK = 1e-9
 PRIOR_ILLUMINANTS = ("A", "D50", "D65", "D75", "D100", "FL2", "FL11", "LED-B3", "LED-V1")
 # Light sources under which the noise variance is tuned (paper: "under various light sources").
 CALIBRATION_ILLUMINANTS = ("A", "D50", "D65", "FL11", "LED-B3")
@@ -170,6 +173,9 @@ def load_filter(name: str) -> SpectralSet:
             raise InputFileError(name, f"a filter file needs exactly one transmittance curve; found {len(f)}")
         if not np.any(f.values > 0):
             raise InputFileError(name, "the filter's transmittance is zero at every wavelength")
+        if float(f.values.max()) < MIN_FILTER_PEAK:
+            raise InputFileError(name, f"the filter's transmittance peaks at {float(f.values.max()):g} (below "
+                                       f"{MIN_FILTER_PEAK:g}, optical density > 9): no usable light passes")
         return f
     if key in _PACKAGE_FILTERS:
         path = _data_file("filters", _PACKAGE_FILTERS[key])

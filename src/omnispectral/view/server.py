@@ -42,7 +42,6 @@ import numpy as np
 from starlette.applications import Starlette
 from starlette.exceptions import HTTPException
 from starlette.middleware import Middleware
-from starlette.middleware.trustedhost import TrustedHostMiddleware
 from starlette.requests import Request
 from starlette.responses import JSONResponse, Response
 from starlette.routing import Route
@@ -53,10 +52,10 @@ from omnispectral.product.spectra import spectrum_in_store
 from omnispectral.view.tiles import MODES, Display, SlotRenderer, TileCache, encode_png, viewer_levels
 
 __all__ = ["BASE_SIZE", "LOCAL_HOSTS", "PORT_RANGE", "STATIC_DIR", "TILE_PX", "BadRequest", "CannotListenError",
-           "Slot", "ViewerState", "auto_exposure", "bad_request", "base", "bound_port", "check_listen_address",
-           "check_port_number", "create_app", "host_port", "http_error", "index_page", "info", "load_static",
-           "no_icon", "probes", "probes_csv", "serve", "spectrum", "static_file", "tile", "unprocessable",
-           "view_slots"]
+           "LoopbackHostMiddleware", "Slot", "ViewerState", "auto_exposure", "bad_request", "base", "bound_port",
+           "check_listen_address", "check_port_number", "create_app", "host_name", "host_port", "http_error",
+           "index_page", "info", "load_static", "no_icon", "probes", "probes_csv", "serve", "spectrum", "static_file",
+           "tile", "unprocessable", "view_slots"]
 
 STATIC_DIR = Path(__file__).parent / "static"
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1", "[::1]")
@@ -330,6 +329,36 @@ async def http_error(request: Request, exc: HTTPException) -> Response:
     return JSONResponse({"error": exc.detail}, status_code=exc.status_code)
 
 
+def host_name(header: str) -> str:
+    """The name in an HTTP ``Host`` header, without its port: ``[::1]:8000`` → ``::1``, ``localhost:80`` →
+    ``localhost``.  (Starlette's ``TrustedHostMiddleware`` cuts at the first colon, so it sees ``[`` for every
+    IPv6 address and refused every request of a viewer bound to ``::1``.)"""
+    header = header.strip().lower()
+    if header.startswith("["):
+        end = header.find("]")
+        return header[1:end] if end > 0 else ""
+    return header.rsplit(":", 1)[0] if header.count(":") == 1 else header
+
+
+class LoopbackHostMiddleware:
+    """Refuse (400) an HTTP request whose ``Host`` is not a loopback name: a page elsewhere that rebinds its DNS
+    name to 127.0.0.1 cannot read the viewer."""
+
+    allowed = frozenset({"127.0.0.1", "localhost", "::1"})
+
+    def __init__(self, app):
+        self.app = app
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] in ("http", "websocket"):
+            headers = dict(scope.get("headers") or ())
+            name = host_name(headers.get(b"host", b"").decode("latin-1"))
+            if name not in self.allowed:
+                await Response("Invalid host header", status_code=400, media_type="text/plain")(scope, receive, send)
+                return
+        await self.app(scope, receive, send)
+
+
 def create_app(path: str | Path, host: str = "127.0.0.1", cache_bytes: int = 64 * 2**20,
                max_parallel: int = 2) -> Starlette:
     """The viewer application for a product or a processed series (module docstring).
@@ -344,7 +373,7 @@ def create_app(path: str | Path, host: str = "127.0.0.1", cache_bytes: int = 64 
               Route("/api/probes.csv", probes)]
     middleware = []
     if host in LOCAL_HOSTS:
-        middleware.append(Middleware(TrustedHostMiddleware, allowed_hosts=["127.0.0.1", "localhost", "::1"]))
+        middleware.append(Middleware(LoopbackHostMiddleware))
     app = Starlette(routes=routes, middleware=middleware,
                     exception_handlers={BadRequest: bad_request, ConfigurationError: unprocessable,
                                         HTTPException: http_error})

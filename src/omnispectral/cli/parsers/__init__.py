@@ -6,3 +6,29 @@ Each module's ``add_commands(subparsers)`` registers its commands, and each comm
 function that runs it as ``"omnispectral.cli.AREA:cmd_NAME"``; :func:`omnispectral.cli.main` imports that module (and
 with it the library) only when the command runs.
 """
+
+import argparse as _argparse
+import datetime as _dt
+
+#: Largest ``--seed``: seeds reach NumPy's ``SeedSequence`` and renderers that take an unsigned 32-bit seed.
+MAX_SEED = 2**32 - 1
+
+
+def seed_arg(text: str) -> int:
+    """argparse type: a random seed, an integer in 0 – 2³² − 1 (a negative seed used to end in NumPy's traceback)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise _argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if not 0 <= value <= MAX_SEED:
+        raise _argparse.ArgumentTypeError(f"{value} is outside 0-{MAX_SEED}")
+    return value
+
+
+def date_arg(text: str) -> str:
+    """argparse type: a calendar date ``YYYY-MM-DD`` that exists (``2017-02-30`` is refused), returned as given."""
+    try:
+        _dt.date.fromisoformat(text)
+    except ValueError as exc:
+        raise _argparse.ArgumentTypeError(f"{text!r} is not a date YYYY-MM-DD ({exc})") from None
+    return text

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from omnispectral.cli.parsers import seed_arg
+
 __all__ = ["add_commands"]
 
 
@@ -34,7 +36,7 @@ def _add_render_args(p) -> None:
                                                                                        "(default silver)")
     p.add_argument("--variant", default=None, choices=["scalar_rgb", "llvm_ad_rgb"],
                    help="Mitsuba variant (default: llvm_ad_rgb when an LLVM library is installed)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=seed_arg, default=0)
     p.add_argument("--json", action="store_true")
 
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from omnispectral.choices import HDR_WEIGHT_NAMES
+
 __all__ = ["add_commands"]
 
 
@@ -22,7 +24,7 @@ def add_commands(sub) -> None:
                    help="list file 'name seconds' per line (Debevec's hdr_image_list.txt format)")
     m.add_argument("--bit-depth", type=int, default=None,
                    help="bits per sample of the frames (default: 8 for 8-bit files, else guessed from the data)")
-    m.add_argument("--weight", choices=["auto", "triangle", "noise"], default="auto",
+    m.add_argument("--weight", choices=["auto", *HDR_WEIGHT_NAMES], default="auto",
                    help="triangle: paper Eq. (2); noise: inverse variance (Granados 2010); auto: triangle for "
                         "linear frames, noise after response recovery")
     m.add_argument("--response", default="auto", metavar="auto|linear|debevec|FILE.json",

@@ -6,7 +6,18 @@ from __future__ import annotations
 import argparse
 import math
 
-from omnispectral.choices import DEFAULT_INTERP, FORMATS, INTERP_NAMES, PRESETS, SUN_METHOD_NAMES
+from omnispectral.choices import (
+    DEFAULT_HDR_WEIGHT,
+    DEFAULT_INTERP,
+    DEFAULT_REGISTRATION,
+    FORMATS,
+    HDR_WEIGHT_NAMES,
+    INTERP_NAMES,
+    PRESETS,
+    REGISTRATION_NAMES,
+    SUN_METHOD_NAMES,
+)
+from omnispectral.cli.parsers import seed_arg
 from omnispectral.cli.parsers.lens import board_arg, calibrate_group, positive_mm_arg
 
 __all__ = ["add_commands", "degrees_in"]
@@ -72,9 +83,9 @@ def add_commands(sub) -> None:
     p.add_argument("--interp", default=DEFAULT_INTERP, choices=INTERP_NAMES,
                    help=f"interpolation (default {DEFAULT_INTERP}: no overshoot on small targets; also the "
                         f"default of 'mosaic')")
-    p.add_argument("--hdr-weight", default="noise", choices=["noise", "triangle"],
+    p.add_argument("--hdr-weight", default=DEFAULT_HDR_WEIGHT, choices=HDR_WEIGHT_NAMES,
                    help="HDR weight (default inverse variance; 'triangle' is the paper's Eq. (2))")
-    p.add_argument("--registration", default="parallax", choices=["parallax", "paper"],
+    p.add_argument("--registration", default=DEFAULT_REGISTRATION, choices=REGISTRATION_NAMES,
                    help="camera B to A: rig calibration + per-pixel parallax (default), or the paper's one POC "
                         "offset per direction")
     p.add_argument("--rig-calibration", default=None, metavar="FILE.json",
@@ -156,5 +167,5 @@ def add_commands(sub) -> None:
                    help="output directory (default demo-output/)")
     d.add_argument("--full", action="store_true", help="the paper's full scale (2048×1088 sensors)")
     d.add_argument("--time", default="12:00", metavar="HH:MM", help="time of day of the scene")
-    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--seed", type=seed_arg, default=0, help="the simulation's seed (0 to 2^32 - 1)")
     d.set_defaults(func="omnispectral.cli.product:cmd_demo")

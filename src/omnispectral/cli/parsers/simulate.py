@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from omnispectral.choices import DEFAULT_BOARD, DEFAULT_DATE, DEFAULT_N_VIEWS, DEFAULT_SQUARE_MM
+from omnispectral.cli.parsers import date_arg, seed_arg
 from omnispectral.cli.parsers.capture import add_rig_args
 from omnispectral.cli.parsers.lens import board_arg, positive_mm_arg
 
@@ -19,9 +20,10 @@ def _add_scene_args(p) -> None:
     p.add_argument("--cube", default=None, metavar="FILE.npz|FILE.hdr",
                    help="hyperspectral reflectance cube mounted on a wall of the procedural scene, or the "
                         "painting of --scene indoor")
-    p.add_argument("--date", default=None, metavar="YYYY-MM-DD", help=f"day of the capture (default {DEFAULT_DATE})")
+    p.add_argument("--date", type=date_arg, default=None, metavar="YYYY-MM-DD",
+                   help=f"day of the capture (default {DEFAULT_DATE})")
     p.add_argument("--noise", choices=["on", "off"], default="on", help="CMV2000 sensor noise")
-    p.add_argument("--seed", type=int, default=0,
+    p.add_argument("--seed", type=seed_arg, default=0,
                    help="random seed of the noise, of camera B's unknown mounting error and of the scene's materials")
     p.add_argument("--mounting-error", type=float, default=0.5, metavar="DEG",
                    help="camera B is mounted up to this far (per axis) from what the rig file says, drawn from the "
@@ -76,8 +78,9 @@ def add_commands(sub) -> None:
     b.add_argument("--square-mm", type=positive_mm_arg, default=DEFAULT_SQUARE_MM, metavar="S",
                    help=f"square side in mm (default {DEFAULT_SQUARE_MM:g})")
     b.add_argument("--noise", choices=["on", "off"], default="on", help="CMV2000 sensor noise")
-    b.add_argument("--seed", type=int, default=0, help="random seed of the poses, the noise and camera B's mounting "
-                                                       "error (the same error as 'simulate --seed')")
+    b.add_argument("--seed", type=seed_arg, default=0,
+                   help="random seed of the poses, the noise and camera B's mounting error (the same error as "
+                        "'simulate --seed')")
     b.add_argument("--mounting-error", type=float, default=0.5, metavar="DEG",
                    help="largest error of camera B's mounting per axis, as for 'simulate' (default 0.5)")
     b.add_argument("-o", "--output", required=True, metavar="DIR")

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 
 from omnispectral.choices import DEFAULT_CAMERA, DEFAULT_FILTERS, DEFAULT_ILLUMINANT, DEFAULT_TARGET
+from omnispectral.cli.parsers import seed_arg
 
 __all__ = ["add_commands"]
 
@@ -20,7 +21,7 @@ def _add_protocol_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--noise", choices=["on", "off"], default="on",
                    help="simulate CMV2000 sensor noise (12 bit, 13500 e- full well, 13 e- read noise)")
     p.add_argument("--patch-px", type=int, default=32, help="side of the pixel region averaged per patch")
-    p.add_argument("--seed", type=int, default=0, help="random seed of the noise simulation")
+    p.add_argument("--seed", type=seed_arg, default=0, help="random seed of the noise simulation")
     p.add_argument("--estimator", choices=["mixture", "pooled"], default="mixture",
                    help="mixture: one prior component per light source (default); pooled: paper Eq. (7) as is")
     p.add_argument("--absolute", action="store_true",

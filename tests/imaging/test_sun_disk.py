@@ -16,6 +16,7 @@ from omnispectral.imaging.sundisk import (
     n_radial_for_pixel,
     pixel_solid_angles_sr,
     splat_equirect,
+    splat_camera,
 )
 from omnispectral.rig import load_preset
 from omnispectral.sim.scenes import ProceduralOutdoorScene
@@ -208,3 +209,24 @@ def test_neutral_density_filters_are_registered():
     np.testing.assert_allclose(nd3.values, nd1.values ** 3)
     assert 0.04 < nd1.values.min() and nd1.values.max() < 0.1
     assert 3.0 < -np.log10(nd3.values[0, nd3.wavelength_nm == 550.0][0]) < 3.2
+
+
+def test_splat_drops_edge_pixels_without_a_solid_angle():
+    """A wide lens whose distortion model ends inside the sensor's last pixel: a direction imaged there has
+    no measurable pixel solid angle and is dropped, not splatted as NaN (was: NaN photo-electrons in a
+    simulated frame at 07:00 with the sun at the frame's corner)."""
+    import tomllib
+
+    from omnispectral.rig import camera_model, rig_from_dict
+
+    text = load_preset("small").toml_text.replace("hfov_deg = 95.0", "hfov_deg = 120.0")
+    text = text.replace("width_px = 256", "width_px = 96").replace("height_px = 136", "height_px = 52")
+    model = camera_model(rig_from_dict(tomllib.loads(text), "wide", text), "A")
+    omega = pixel_solid_angles_sr(model)
+    assert np.isnan(omega).any()  # the case this test is about exists on this lens
+    rows, cols = np.nonzero(np.isnan(omega))
+    rays = model.unproject(np.stack([cols, rows], axis=-1).astype(float))[0]
+    world = rays @ model.camera_to_world(0.0, 0.0).T
+    r, c, fraction = splat_camera(model, world, np.full(len(world), 1e-6), 0.0, 0.0)
+    assert np.all(np.isfinite(fraction))
+    assert not np.any(np.isnan(omega[r, c]))

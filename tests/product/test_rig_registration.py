@@ -350,6 +350,24 @@ def test_fit_leaves_out_blocks_it_cannot_evaluate():
     assert tuple(only_bad.delta_deg) == (0.0, 0.0, 0.0)  # fewer than 12 usable blocks: the rig file's mounting
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_fit_on_meaningless_correspondences_stays_inside_its_box(seed):
+    """A scene that anchors nothing (a camera's test pattern, flat frames: correspondences unrelated to any
+    mounting) gives a correction inside ±MAX_DELTA_DEG and no traceback (was: a 76° yaw from the far anchor,
+    then scipy's "Residuals are not finite in the initial point" from ``process``)."""
+    from omnispectral.product.rigfit import MAX_DELTA_DEG
+
+    ma, mb = camera_model(RIG, "A"), camera_model(RIG, "B")
+    rng = np.random.default_rng(seed)
+    n = 400
+    a_px = rng.uniform([10, 10], [246, 126], (n, 2))
+    b_px = a_px + rng.normal(0, 40.0, (n, 2))  # nothing to do with the rig
+    meas = RigMeasurements(a_px, b_px, rng.uniform(0.1, 1.0, n), rng.integers(0, 36, n),
+                           np.tile([0.5, 0.0, 0.5], (n, 1)))
+    cal = fit_b_mounting(meas, ma, mb)
+    assert np.all(np.isfinite(cal.delta_deg)) and np.all(np.abs(cal.delta_deg) <= MAX_DELTA_DEG + 1e-9)
+
+
 def test_reject_inconsistent_keeps_the_majority_and_leaves_pairs_alone():
     """Three views of a pixel, one registered on the wrong surface (the most trusted one): it is dropped
     there and only there; two disagreeing views are left as they are; weights elsewhere unchanged."""

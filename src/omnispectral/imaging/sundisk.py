@@ -248,7 +248,8 @@ def splat_camera(model: CameraModel, dirs_world, weights_sr, pan_deg: float,
 
     World → camera with the inverse of :meth:`CameraModel.camera_to_world` at ``(pan_deg, tilt_deg)``
     (directions at infinity: the camera's baseline does not move them), projected with the lens;
-    directions off the sensor or outside the lens model's valid region are dropped.
+    directions off the sensor or outside the lens model's valid region are dropped, and so are pixels at
+    the edge of that region whose solid angle cannot be measured (a corner without a ray).
 
     Returns
     -------
@@ -261,7 +262,9 @@ def splat_camera(model: CameraModel, dirs_world, weights_sr, pan_deg: float,
     w = np.asarray(weights_sr, dtype=np.float64)[ok]
     cols = np.clip(np.floor(uv[ok, 0] + 0.5).astype(np.int64), 0, model.width - 1)
     rows = np.clip(np.floor(uv[ok, 1] + 0.5).astype(np.int64), 0, model.height - 1)
-    return _accumulate(rows, cols, w, model.width, lambda r, c: pixel_solid_angles_sr(model, c, r))
+    r, c, fraction = _accumulate(rows, cols, w, model.width, lambda r, c: pixel_solid_angles_sr(model, c, r))
+    measurable = np.isfinite(fraction)  # a corner beyond the lens model's valid region: no solid angle
+    return r[measurable], c[measurable], fraction[measurable]
 
 
 def _accumulate(rows, cols, weights, width: int, solid_angle) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -39,8 +39,8 @@ from omnispectral.product.pairgeometry import adjusted_model, predict_b_px
 from omnispectral.product.rigfile import RigCalibration
 from omnispectral.product.rigmeasure import RigMeasurements
 
-__all__ = ["ALONG_MIN_WEIGHT", "FAR_MIN_FRACTION", "FAR_WINDOW_PX", "MAX_INV_DEPTH_PER_M", "ROBUST_SCALE_PX",
-           "fit_b_mounting"]
+__all__ = ["ALONG_MIN_WEIGHT", "FAR_MIN_FRACTION", "FAR_WINDOW_PX", "MAX_DELTA_DEG", "MAX_INV_DEPTH_PER_M",
+           "ROBUST_SCALE_PX", "fit_b_mounting"]
 
 #: Soft-L1 scale of the perpendicular residuals (px).
 ROBUST_SCALE_PX = 0.15
@@ -52,6 +52,12 @@ MAX_INV_DEPTH_PER_M = 3.0
 ALONG_MIN_WEIGHT = 0.3
 #: Smallest share of the usable blocks that makes a cluster.
 FAR_MIN_FRACTION = 0.15
+#: Largest correction of the rig file's mounting, per angle (degrees): a rig file wrong by more is a wrong
+#: rig file, and a fit on a scene that cannot anchor it (flat frames, a test pattern) stays inside this box.
+MAX_DELTA_DEG = 5.0
+#: Residual (px) given to a block the model cannot project into B during the fit (beyond the soft-L1 knee,
+#: so it pulls as little as an outlier).
+UNPROJECTABLE_RESIDUAL_PX = 10.0
 
 
 def _epipolar(model_a, model_b, a_px, w) -> tuple[np.ndarray, np.ndarray]:
@@ -159,11 +165,13 @@ def fit_b_mounting(meas: RigMeasurements, model_a: CameraModel, model_b: CameraM
         yaw0 = delta[0]
 
         def residuals(x, yaw0=yaw0):
-            _, _, perp, _ = _split(meas, model_a, adjusted_model(model_b, x))
+            with np.errstate(invalid="ignore", divide="ignore"):
+                _, _, perp, _ = _split(meas, model_a, adjusted_model(model_b, x))
+            perp = np.where(np.isfinite(perp), perp, UNPROJECTABLE_RESIDUAL_PX)
             return np.concatenate([perp * np.sqrt(meas.confidence), [10.0 * (x[0] - yaw0)]])
 
         sol = least_squares(residuals, delta, loss="soft_l1", f_scale=ROBUST_SCALE_PX, x_scale=0.05,
-                            diff_step=1e-4)
+                            diff_step=1e-4, bounds=(-MAX_DELTA_DEG, MAX_DELTA_DEG))
         delta = sol.x
         # 2. the farthest dense cluster is at infinity: move the yaw along the lines until it sits at 0
         mb = adjusted_model(model_b, delta)
@@ -179,8 +187,8 @@ def fit_b_mounting(meas: RigMeasurements, model_a: CameraModel, model_b: CameraM
             nudged = adjusted_model(model_b, delta + np.array([eps, 0.0, 0.0]))
             _, along_eps, _, _ = _split(meas.subset(idx), model_a, nudged)
             slope = float(np.median((along_eps - along[idx]) / eps))  # px per degree of yaw
-            if abs(slope) > 1e-6:
-                delta[0] -= far / slope
+            if abs(slope) > 1e-6 and np.isfinite(slope):
+                delta[0] = float(np.clip(delta[0] - far / slope, -MAX_DELTA_DEG, MAX_DELTA_DEG))
             anchor = {"n_blocks": int(idx.size), "offset_px_before": far,
                       "directions": sorted({int(d) for d in meas.direction[idx]})}
         if np.max(np.abs(delta - previous)) < 1e-4:

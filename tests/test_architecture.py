@@ -1,7 +1,7 @@
 """The package's layers, checked on its import statements (every one, including those inside functions).
 
     base      omnispectral, errors, io, threads, limits, locking,  (import nothing else of the package)
-              fingerprint, extras, progress, choices
+              fingerprint, ownership, extras, progress, choices, checksums
     core      imaging → spectral                                   (base; imaging may use spectral, never the reverse)
     rig       omnispectral.rig                                     (base, core)
     stages    capture (the real path), mosaic                      (base, core, rig; mosaic never capture)
@@ -27,7 +27,8 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 PACKAGE = "omnispectral"
 
 BASE = {"omnispectral", "omnispectral.errors", "omnispectral.io", "omnispectral.threads", "omnispectral.limits",
-        "omnispectral.locking", "omnispectral.fingerprint", "omnispectral.extras",
+        "omnispectral.locking", "omnispectral.fingerprint", "omnispectral.ownership", "omnispectral.extras",
+        "omnispectral.checksums",
         "omnispectral.progress",
         "omnispectral.choices"}  # names and defaults the command line shows: its parsers import nothing heavy
 SIMULATOR = "omnispectral.sim"

@@ -103,6 +103,7 @@ CHECKS = {
     "omnispectral export product/ --format spectral-exr -o pano.exr": _exists("pano.exr", "pano_saturated.png"),
     "omnispectral export product/ --format spectral-exr -o pano-half.exr": _exists("pano-half.exr"),
     "omnispectral export product/ --format png": _exists("preview.png"),
+    "omnispectral product verify product/": lambda cwd, out: None if "all good" in out else pytest.fail(out),
     "omnispectral process-series": _exists("series-out"),
     "omnispectral mosaic": _exists("pano.zarr"),
     "omnispectral render demo-output/product": _exists("ball"),

@@ -19,39 +19,25 @@ with ``overwrite`` removes the stale intermediates and starts again.
 
 from __future__ import annotations
 
-import hashlib
 import json
-import shutil
+import re
 from pathlib import Path
 
 from omnispectral.errors import InputFileError
 from omnispectral.io import atomic_write_json
+from omnispectral.ownership import (
+    MERGED_NAMES,
+    STORE_NAMES,
+    check_owned_tree,
+    remove_owned_tree,
+    written_by_omnispectral,
+)
 
-__all__ = ["FINGERPRINT_FILE", "FINGERPRINT_VERSION", "check_merged", "differences", "file_sha256", "flatten",
-           "read_fingerprint", "written_by_omnispectral"]
+__all__ = ["FINGERPRINT_FILE", "FINGERPRINT_VERSION", "check_merged", "differences", "flatten",
+           "read_fingerprint"]
 
 FINGERPRINT_VERSION = 1
 FINGERPRINT_FILE = "fingerprint.json"
-
-
-def file_sha256(path: str | Path) -> str:
-    """SHA-256 of a file's bytes (read in 1 MiB blocks).
-
-    Parameters
-    ----------
-    path
-        The file.
-
-    Returns
-    -------
-    str
-        The hex digest.
-    """
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
 
 
 def flatten(d: dict, prefix: str = "") -> dict:
@@ -126,50 +112,6 @@ def read_fingerprint(directory: str | Path) -> dict | None:
     return data if isinstance(data, dict) else {"unreadable": True}
 
 
-def _json_format(path: Path) -> str:
-    """The ``format`` a small JSON file of ours declares (at the top level or under ``attributes.omnispectral``,
-    as a Zarr group's ``zarr.json``), or ``""``."""
-    try:
-        if path.stat().st_size > 1 << 26:
-            return ""
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return ""
-    if not isinstance(data, dict):
-        return ""
-    attributes = data.get("attributes")
-    inner = attributes.get("omnispectral") if isinstance(attributes, dict) else None
-    fmt = data.get("format") or (inner.get("format") if isinstance(inner, dict) else "")
-    return fmt if isinstance(fmt, str) else ""
-
-
-def written_by_omnispectral(path: str | Path) -> bool:
-    """Whether ``path`` is something omnispectral wrote and may replace.
-
-    That is an empty directory, a directory with our fingerprint or ``merged.json``, a Zarr store or JSON file
-    whose format names omnispectral.  Anything else — a user's file or folder in the way — is never deleted,
-    ``--overwrite`` or not.
-
-    Parameters
-    ----------
-    path
-        A file or directory.
-
-    Returns
-    -------
-    bool
-        True when omnispectral wrote it.
-    """
-    path = Path(path)
-    if path.is_dir():
-        if not any(path.iterdir()):
-            return True
-        if (path / FINGERPRINT_FILE).is_file() or (path / "merged.json").is_file():
-            return True
-        return _json_format(path / "zarr.json").startswith("omnispectral")
-    return path.is_file() and path.suffix == ".json" and _json_format(path).startswith("omnispectral")
-
-
 def check_merged(merged_dir: str | Path, wanted: dict, overwrite: bool = False,
                  dependents: tuple[str | Path, ...] = ()) -> str:
     """Make ``merged_dir`` hold intermediates of exactly ``wanted``.
@@ -214,17 +156,16 @@ def check_merged(merged_dir: str | Path, wanted: dict, overwrite: bool = False,
                 raise InputFileError(merged_dir, f"{what}. Rerun with --overwrite to rebuild the product, or "
                                                  f"choose another output directory")
             state = "overwritten"
-        for path in (merged_dir, *map(Path, dependents)):
+        targets = [(merged_dir, MERGED_NAMES, "merged directions")] + [
+            (Path(d), STORE_NAMES if Path(d).is_dir() else re.compile(re.escape(Path(d).name)), "product")
+            for d in dependents]
+        for path, names, what in targets:  # everything checked before anything is removed
             if path.exists() and not written_by_omnispectral(path):
                 raise InputFileError(path, "is in the way and was not written by omnispectral: nothing was "
                                            "removed; move it, or choose another output directory")
-        shutil.rmtree(merged_dir)
-        for dep in dependents:
-            dep = Path(dep)
-            if dep.is_dir():
-                shutil.rmtree(dep)
-            elif dep.exists():
-                dep.unlink()
+            check_owned_tree(path, names, what)
+        for path, names, what in targets:
+            remove_owned_tree(path, names, what)
     merged_dir.mkdir(parents=True, exist_ok=True)
     atomic_write_json(merged_dir / FINGERPRINT_FILE, wanted)
     return state

@@ -10,22 +10,32 @@ a command allocate tens of GiB or run for days:
 * a lens's distortion coefficients at most ``MAX_DISTORTION_COEFFICIENT`` in magnitude;
 * a plan of at most ``MAX_DIRECTIONS`` directions;
 * a panorama at most ``MAX_PANORAMA_WIDTH_PX`` wide, and never larger than the free disk space of its
-  output (:func:`check_panorama_size`).
+  output (:func:`check_panorama_size`);
+* work whose memory is known from headers (``hdr merge``) within a budget: ``MEMORY_FRACTION`` of the memory
+  available (psutil, else ``/proc/meminfo``), or what the user states (:func:`memory_budget`,
+  :func:`check_memory`).
 """
 
 from __future__ import annotations
 
 import math
+import os
 import re
 import shutil
 import struct
 import threading
+from dataclasses import dataclass
 from pathlib import Path
 
 import tifffile
 from PIL import Image, UnidentifiedImageError
 
 from omnispectral.errors import ConfigurationError, InputFileError
+
+try:  # optional (any platform); without it the available memory comes from Linux's /proc/meminfo
+    import psutil
+except ImportError:  # pragma: no cover - psutil is installed with the test extras
+    psutil = None
 
 __all__ = [
     "MAX_DIRECTIONS",
@@ -34,20 +44,25 @@ __all__ = [
     "MAX_IMAGE_PIXELS",
     "MAX_IMAGE_SIDE_PX",
     "MAX_PANORAMA_WIDTH_PX",
+    "MEMORY_FRACTION",
     "MIN_EXPOSURE_S",
     "MIN_FOV_DEG",
     "PANORAMA_BYTES_PER_PX",
+    "MemoryBudget",
+    "available_memory_bytes",
     "check_bit_depth",
     "check_directions",
     "check_exposure_times",
     "check_image_header",
     "check_image_shape",
+    "check_memory",
     "check_panorama_size",
+    "check_png_chunks",
     "gib",
     "guard_product_output",
     "image_header",
-    "refuse_overwriting_inputs",
-    "same_file",
+    "memory_budget",
+    "sensor_memory_bytes",
 ]
 
 MIN_EXPOSURE_S = 1e-7
@@ -60,6 +75,8 @@ MAX_DISTORTION_COEFFICIENT = 1e6
 MIN_FOV_DEG = 0.1  # a 0.1° lens needs 1.3 million directions for the sphere
 MAX_PANORAMA_WIDTH_PX = 131_072
 PANORAMA_BYTES_PER_PX = 6 * 4 * 4 / 3  # six float32 bands, pyramid levels add a third
+#: Share of the available memory one command may plan to use (the rest: the system, other programs, estimates' slack).
+MEMORY_FRACTION = 0.5
 
 
 def gib(n_bytes: float) -> str:
@@ -136,7 +153,39 @@ def image_header(path: str | Path) -> tuple[tuple[int, ...], int] | None:
     if suffix in (".hdr", ".pic"):
         shape = _radiance_shape(path)
         return None if shape is None else (shape, 4)
+    check_png_chunks(path)
     return _pillow_header(path)
+
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def check_png_chunks(path: str | Path) -> None:
+    """Refuse a PNG file one of whose chunks claims more bytes than the file holds, reading only the chunks'
+    8-byte length and type fields (nothing is decoded).
+
+    libpng (under OpenCV) allocates a chunk's stated length before reading it: one damaged length field made a
+    700-byte file allocate 256 MiB.  A file that is not a PNG is left alone.
+    """
+    path = Path(path)
+    try:
+        with open(path, "rb") as fh:
+            if fh.read(8) != PNG_SIGNATURE:
+                return
+            size = os.fstat(fh.fileno()).st_size
+            at = 8
+            while at + 8 <= size:
+                fh.seek(at)
+                length, kind = struct.unpack(">I4s", fh.read(8))
+                if at + 12 + length > size:
+                    name = kind.decode("latin-1") if kind.isalpha() else kind.hex()
+                    raise InputFileError(path, f"damaged PNG: chunk {name!r} at byte {at} claims {length} bytes, "
+                                               f"the file has {size}")
+                if kind == b"IEND":
+                    return
+                at += 12 + length
+    except FileNotFoundError:
+        raise InputFileError(path, "file not found") from None
 
 
 _PILLOW_LIMIT_LOCK = threading.Lock()
@@ -213,31 +262,77 @@ def check_directions(n_pan: int, n_tilt: int, where: str = "plan") -> None:
                                  f"{MAX_DIRECTIONS} (check the field of view and the grid)")
 
 
-def same_file(a: str | Path, b: str | Path) -> bool:
-    """Whether two paths name the same file (existing or not)."""
-    a, b = Path(a), Path(b)
-    try:
-        if a.exists() and b.exists():
-            return a.samefile(b)
-    except OSError:
-        pass
-    return a.resolve() == b.resolve()
-
-
-def refuse_overwriting_inputs(output: str | Path, inputs, what: str = "input") -> None:
-    """Refuse an output path that is one of the inputs (the command would destroy what it reads)."""
-    for p in inputs:
-        if same_file(output, p):
-            raise ConfigurationError(f"{output}: is also an {what} of this command; choose another output")
-
-
 def guard_product_output(session: str | Path, product: str | Path, width: int | None = None) -> None:
-    """``process``: the product directory is not the session or inside it, and the width is sane."""
-    s, p = Path(session).resolve(), Path(product).resolve()
-    if p == s or s in p.parents:
-        raise ConfigurationError(f"{product}: the product would be written into the session {session}; "
-                                 f"choose an output outside it")
+    """``process``: the product directory is not a session, and the width is sane (that it lies outside the
+    session: :func:`omnispectral.ownership.check_output_outside_inputs`)."""
+    p = Path(product).resolve()
     if (p / "session.json").exists():
         raise ConfigurationError(f"{product}: is a capture session, not a product directory")
     if width is not None:
         check_panorama_size(int(width) if not isinstance(width, bool) else width, product)
+
+
+@dataclass(frozen=True)
+class MemoryBudget:
+    """How many bytes a command may plan to hold in memory, and where that number comes from (for messages)."""
+
+    bytes: float
+    source: str
+
+
+def available_memory_bytes() -> int | None:
+    """Memory available to a new allocation without swapping (bytes): psutil's ``available`` when psutil is
+    installed, else ``MemAvailable`` of ``/proc/meminfo``; ``None`` when neither says."""
+    if psutil is not None:
+        return int(psutil.virtual_memory().available)
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024  # kB
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def memory_budget(memory_gb: float | None = None, fraction: float = MEMORY_FRACTION) -> MemoryBudget | None:
+    """The memory budget: ``memory_gb`` GiB when the user states it (``--memory-gb``), else ``fraction`` of the
+    available memory (:func:`available_memory_bytes`); ``None`` when the available memory is unknown.
+
+    Raises
+    ------
+    ConfigurationError
+        For a stated budget that is not a positive, finite number of GiB.
+    """
+    if memory_gb is not None:
+        try:
+            value = float(memory_gb)
+        except (TypeError, ValueError):
+            raise ConfigurationError(f"--memory-gb {memory_gb!r} is not a number of GiB") from None
+        if not math.isfinite(value) or value <= 0:
+            raise ConfigurationError(f"--memory-gb {memory_gb!r} must be a positive number of GiB")
+        return MemoryBudget(value * 2**30, f"--memory-gb {value:g}")
+    available = available_memory_bytes()
+    if available is None:
+        return None
+    return MemoryBudget(fraction * available, f"{fraction:.0%} of the {gib(available)} available; --memory-gb "
+                                              "states another budget")
+
+
+def sensor_memory_bytes(sensor_px: int, bytes_per_px: float, base_bytes: float = 0.0) -> float:
+    """Working memory of a job that holds a few frames of a ``sensor_px``-pixel camera at a time: its measured
+    peak per sensor pixel (``bytes_per_px``) times the pixels, plus its fixed part."""
+    return float(base_bytes) + float(bytes_per_px) * int(sensor_px)
+
+
+def check_memory(path: str | Path, need_bytes: float, budget: MemoryBudget | None, what: str) -> None:
+    """Refuse work on ``path`` that needs more memory than ``budget`` (no check without a budget).
+
+    Raises
+    ------
+    InputFileError
+        ``PATH: WHAT needs about N GiB of memory, more than the budget of M GiB (its source)``.
+    """
+    if budget is not None and need_bytes > budget.bytes:
+        raise InputFileError(path, f"{what} needs about {gib(need_bytes)} of memory, more than the budget of "
+                                   f"{gib(budget.bytes)} ({budget.source})")

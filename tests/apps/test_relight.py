@@ -125,14 +125,15 @@ def test_two_white_references_relight_mixed_lighting(tmp_path, est):
     assert de_both < 2.5 and de_one > 2 * de_both, (de_both, de_one)
 
 
-def test_bad_input():
+def test_bad_input(tmp_path):
     assert parse_white("10,-20") == WhiteReference(10.0, -20.0, 1.0)
     assert parse_white("10,-20,2.5").radius_deg == 2.5
     for bad in ("10", "a,b", "0,95", "0,0,-1"):
         with pytest.raises(ConfigurationError):
             parse_white(bad)
-    with pytest.raises(ConfigurationError, match="its own directory"):
-        relight_product("somewhere", "somewhere/.", [WhiteReference(0, 0)])
+    (tmp_path / "product").mkdir()
+    with pytest.raises(ConfigurationError, match="is the input"):
+        relight_product(tmp_path / "product", tmp_path / "product" / ".", [WhiteReference(0, 0)])
     with pytest.raises(ConfigurationError, match="no light"):
         Relighter(WL, np.zeros((1, 3)), np.zeros((1, WL.size)), np.ones(WL.size), method="ratio")
 

@@ -15,8 +15,8 @@ from omnispectral.imaging.sundisk import (
     equirect_pixel_solid_angle_sr,
     n_radial_for_pixel,
     pixel_solid_angles_sr,
-    splat_equirect,
     splat_camera,
+    splat_equirect,
 )
 from omnispectral.rig import load_preset
 from omnispectral.sim.scenes import ProceduralOutdoorScene

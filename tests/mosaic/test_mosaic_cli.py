@@ -60,7 +60,8 @@ def test_mosaic_command_human_summary(merged, tmp_path):
 
 
 def test_mosaic_command_bad_input_is_one_line(tmp_path):
-    r = subprocess.run([sys.executable, "-m", "omnispectral.cli", "mosaic", str(tmp_path), "-o",
+    (tmp_path / "input").mkdir()
+    r = subprocess.run([sys.executable, "-m", "omnispectral.cli", "mosaic", str(tmp_path / "input"), "-o",
                         str(tmp_path / "p.zarr")], capture_output=True, text=True, timeout=120)
     assert r.returncode == 1 and "neither a capture session" in " ".join(r.stderr.split())
     assert "Traceback" not in r.stderr

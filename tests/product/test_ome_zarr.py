@@ -138,3 +138,27 @@ def test_format1_stores_are_still_read_and_resuming_them_is_refused(tmp_path, ba
         PanoramaStore.create(path, H, W, 6, TILE, {}, fingerprint={"old": True})
     new = PanoramaStore.create(path, H, W, 6, TILE, {"bands": BANDS}, fingerprint={"new": 1}, overwrite=True)
     assert new.format_version == 2 and PanoramaStore.open(path).array(0).zarr.shape == (6, H, W)
+
+
+def test_napari_reader_shows_every_band_by_name_with_its_geometry_and_a_window_from_the_data(product, bands):
+    """What napari shows when it opens the store through napari-ome-zarr (README: `napari product/panorama.zarr`):
+    one image layer split on the channel axis, layer names ending in the band names, every pyramid level, the
+    pixel-centre geometry in degrees, the values as written and display windows that fit the data (the
+    99.5th percentile of each band, not a fixed 1e6 DN/s)."""
+    pytest.importorskip("napari_ome_zarr", reason="napari-ome-zarr is not installed (pip install 'omnispectral[test]')")
+    from napari_ome_zarr import napari_get_reader
+
+    path = str(product / "panorama.zarr")
+    reader = napari_get_reader(path)
+    assert reader is not None
+    (data, kwargs, kind), = reader(path)
+    assert kind == "image" and kwargs["channel_axis"] == 0
+    assert [name.rsplit(": ", 1)[-1] for name in kwargs["name"]] == BANDS
+    assert [tuple(d.shape) for d in data] == [(6, *s) for s in pyramid_shapes(H, W, TILE)]
+    np.testing.assert_array_equal(np.asarray(data[0]), np.moveaxis(bands, 2, 0))  # NaN where uncovered, too
+    assert list(kwargs["scale"]) == [180.0 / H, 360.0 / W]
+    coarse = np.asarray(data[-1])
+    for k, (start, end) in enumerate(kwargs["contrast_limits"]):
+        assert start == 0.0
+        assert end == pytest.approx(np.nanpercentile(coarse[k], 99.5), rel=1e-6)
+        assert end < np.nanmax(bands[..., k])

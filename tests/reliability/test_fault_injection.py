@@ -368,11 +368,13 @@ def test_case05_corrupted_same_size_frames_count_as_damaged_and_are_skippable(se
     garbled.write_bytes(bytes(data))
     noise = bad / "frames/d0007/B_e05.tif"
     noise.write_bytes(np.random.default_rng(2).integers(0, 256, noise.stat().st_size, dtype=np.uint8).tobytes())
-    # sizes alone see nothing; decoding sees the random file only; checksums (the default) see both
+    # sizes alone see nothing; decoding sees both (the random file does not decode, the garbled one fails the
+    # pixel checksum its description embeds); checksums (the default) see both
     fast = verify_session(bad, checksums=False)
     assert fast["n_damaged"] == 0
     decoded = verify_session(bad, checksums=False, check_pixels=True)
-    assert [d["file"] for d in decoded["damaged"]] == ["frames/d0007/B_e05.tif"]
+    assert [d["file"] for d in decoded["damaged"]] == ["frames/d0004/A_e02.tif", "frames/d0007/B_e05.tif"]
+    assert decoded["damaged"][0]["problem"].startswith("pixel checksum mismatch")
     with pytest.raises(InputFileError, match=r"d0004/A_e02.tif: checksum mismatch.*--skip-bad"):
         process(bad, tmp_path / "p", progress=False, report=False)
     index = process(bad, tmp_path / "p2", progress=False, report=False, skip_bad=True)
@@ -583,7 +585,7 @@ def test_case14_hdr_merge_refuses_to_overwrite_an_input(tmp_path, capsys):
     files = _bracket(tmp_path)
     before = files[1].read_bytes()
     assert main(["hdr", "merge", *map(str, files), "--times", "0.0025", "0.01", "0.04", "-o", str(files[1])]) == 2
-    assert "is also an input of this command" in capsys.readouterr().err
+    assert "is the input" in capsys.readouterr().err
     assert files[1].read_bytes() == before
 
 
@@ -591,14 +593,14 @@ def test_case14_export_refuses_to_write_into_the_product(product, capsys):
     index = product / "product.json"
     before = index.read_bytes()
     assert main(["export", str(product), "--format", "rgb-exr", "-o", str(product / "product.exr")]) == 2
-    assert "is inside the product" in capsys.readouterr().err
+    assert "lies inside the input" in capsys.readouterr().err
     assert main(["export", str(product), "--format", "png", "-o", str(index)]) == 2
     assert index.read_bytes() == before
 
 
 def test_case14_process_refuses_to_write_into_its_session(session, capsys):
     assert main(["process", str(session), "-o", str(session / "product")]) == 2
-    assert "would be written into the session" in capsys.readouterr().err
+    assert "lies inside the input" in capsys.readouterr().err
     assert not (session / "product").exists()
 
 

@@ -163,8 +163,10 @@ def test_journal_reader_and_verify_never_crash(lines, keep, newline_at_end):
         assert all(isinstance(k[0], int) and isinstance(k[2], int) for k in j.records)
         report = verify_session(root)
         assert report["n_ok"] + report["n_missing"] + report["n_damaged"] == report["n_planned"]
-        rep = repair_session(root)  # dry run: the frames themselves are intact
-        assert rep["n_frames"] == 6 and not rep["applied"]
+        rep = repair_session(root)  # dry run: the frames themselves are intact ...
+        assert rep["n_frames"] + rep["n_quarantined"] == 6 and not rep["applied"]
+        # ... but one whose journal line now holds another checksum is never given a new one
+        assert all(d["problem"].startswith("checksum mismatch with its journal record") for d in rep["damaged_frames"])
     finally:
         (root / "journal.jsonl").write_bytes(b"".join(original))
 

@@ -82,7 +82,7 @@ def test_import_refuses_a_png_bomb_before_decoding(tmp_path, capsys, palette):
     (tmp_path / "dirs.csv").write_text("file,pan_deg,tilt_deg,exposure_s\nbomb.png,0,0,0.01\n")
     before = peak_rss_kib()
     code = main(["import", "--preset", "small", "--directions", str(tmp_path / "dirs.csv"), "--images",
-                 str(tmp_path), "-o", str(tmp_path / "s")])
+                 str(tmp_path), "-o", str(tmp_path.parent / f"{tmp_path.name}-session")])
     err = capsys.readouterr().err
     assert code == 1 and "Traceback" not in err and err.count("\n") == 1
     assert "bomb.png: image of 30000x30000 px; camera A of the rig is 256x136" in err
@@ -93,7 +93,7 @@ def test_import_refuses_a_jpeg_bomb_before_decoding(tmp_path, capsys):
     bomb_jpeg(tmp_path / "bomb.jpg")
     (tmp_path / "dirs.csv").write_text("file,pan_deg,tilt_deg,exposure_s\nbomb.jpg,0,0,0.01\n")
     code = main(["import", "--preset", "small", "--directions", str(tmp_path / "dirs.csv"), "--images",
-                 str(tmp_path), "-o", str(tmp_path / "s")])
+                 str(tmp_path), "-o", str(tmp_path.parent / f"{tmp_path.name}-session")])
     err = capsys.readouterr().err
     assert code == 1 and "Traceback" not in err and err.count("\n") == 1
     assert "bomb.jpg: image of 15000x15000 px x 3; camera A of the rig is 256x136" in err

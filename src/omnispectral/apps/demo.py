@@ -21,6 +21,7 @@ from pathlib import Path
 from omnispectral.apps.relight import WhiteReference, relight_product
 from omnispectral.apps.render import render_product
 from omnispectral.io import atomic_write_json
+from omnispectral.ownership import claim_output_directory
 from omnispectral.product.exports import export_product
 from omnispectral.product.layout import product_paths
 from omnispectral.product.process import process
@@ -47,7 +48,7 @@ def run_demo(out: str | Path, *, full: bool = False, time_hhmm: str = "12:00", s
     follows the frames and the processing stages.  Returns the summary written to ``OUT/report.json``
     with the product report's full ``accuracy`` (the file keeps the ColorChecker numbers, not its spectra).
     """
-    out = Path(out)
+    out = claim_output_directory(out, "demo")
     step = on_step or (lambda k, n, text: None)
     rig = load_preset("paper-timelapse" if full else "small")
     start = _dt.datetime.combine(DEFAULT_DATE, _dt.time.fromisoformat(time_hhmm), tzinfo=_dt.UTC)

@@ -48,6 +48,7 @@ from omnispectral.apps.render import auto_exposure_reference
 from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.geometry import equirect_pixel_to_lonlat, lonlat_to_equirect_pixel, lonlat_to_ray
 from omnispectral.io import atomic_path, atomic_write_json
+from omnispectral.ownership import check_output_outside_inputs, claim_output_directory
 from omnispectral.product.exports import reinhard_srgb8
 from omnispectral.product.layout import create_band_product, fill_pyramid, open_product, write_level0
 from omnispectral.product.spectra import SunOverlay, estimate_image
@@ -635,9 +636,9 @@ def relight_product(product: str | Path, output: str | Path, whites: list[WhiteR
     """
 
     t0 = time.perf_counter()
-    if Path(output).resolve() == Path(product).resolve():
-        raise ConfigurationError(f"{output}: the relit product needs its own directory (it would replace the input)")
+    check_output_outside_inputs([output], [product])
     index, store, estimator = open_product(product)
+    claim_output_directory(output, "relight")
     relighter = measure_relighter(store, estimator, whites, to, reflectance, 0, sources, method, source_factor)
     R = np.asarray(estimator.system_matrix, np.float32)  # (bands, n): relit spectra back to the bands
     h, w = store.shapes[0]

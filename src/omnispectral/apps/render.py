@@ -48,6 +48,7 @@ from omnispectral.apps.materials import Conductor, Diffuse, load_metal, material
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.imaging.geometry import lonlat_to_ray
 from omnispectral.io import atomic_path, atomic_write_json
+from omnispectral.ownership import check_output_outside_inputs, claim_output_directory
 from omnispectral.product.exports import reinhard_srgb8, write_rgb_exr, write_spectral_exr
 from omnispectral.product.spectra import estimate_image
 from omnispectral.progress import ProgressCallback, report_progress
@@ -764,11 +765,13 @@ def render_product(product: str | Path, out_dir: str | Path, scene: str | None =
     """
 
     t0 = time.perf_counter()
+    check_output_outside_inputs([out_dir], [product])
     sc = scene_from_name(scene, **scene_kwargs)
     width, height, spp = render_settings(sc, width, height, spp)
     report_progress(progress or None, "environment", 0, 1)  # reading the product and its estimator takes seconds
     env, estimator = environment_from_product(product, level, max_env_width)
     report_progress(progress or None, "environment", 1, 1)
+    claim_output_directory(out_dir, "render")  # after the inputs opened: a bad input leaves no empty output
     if fast:
         result = render_fast(env, estimator, sc, width, height, spp, seed, variant, progress=progress)
     else:

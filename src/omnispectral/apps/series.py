@@ -23,6 +23,7 @@ from omnispectral.apps.render import auto_exposure_reference, render_product
 from omnispectral.errors import InputFileError
 from omnispectral.imaging.imageio import read_image
 from omnispectral.io import atomic_path, atomic_write_json
+from omnispectral.ownership import check_output_outside_inputs, claim_output_directory
 from omnispectral.product.exports import reinhard_srgb8
 from omnispectral.product.series import series_products
 from omnispectral.progress import ProgressCallback, report_progress
@@ -151,7 +152,8 @@ def render_series(series: str | Path, output: str | Path, exposure: str = "auto"
 
     if exposure not in ("auto", "common"):
         raise ValueError(f"exposure must be 'auto' or 'common', got {exposure!r}")
-    out = Path(output)
+    check_output_outside_inputs([output], [series])
+    out = claim_output_directory(output, "render-series")
     slots = series_slots(series)
     folders = slot_folder_names([label for label, _ in slots])
     results = []

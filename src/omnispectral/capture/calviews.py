@@ -38,6 +38,7 @@ from omnispectral.imaging.bayer import demosaic
 from omnispectral.imaging.lens import check_board, find_board
 from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text, read_text_file
 from omnispectral.locking import directory_lock
+from omnispectral.ownership import claim_output_directory
 from omnispectral.progress import ProgressCallback
 from omnispectral.rig import Rig, rig_toml
 
@@ -96,7 +97,7 @@ def find_calibration_views(session: str | Path) -> Path | None:
 def clear_views(folder: str | Path) -> list[Path]:
     """Remove the pairs and the record of earlier views from ``folder`` (views are taken again when the cameras
     were mounted again: old and new pairs must not mix); returns what was removed."""
-    folder = Path(folder)
+    folder = claim_output_directory(folder, "calibration views")  # a user's folder: refused, nothing removed
     old = [p for c in ("A", "B") if (folder / c).is_dir() for p in (folder / c).iterdir()
            if p.suffix.lower() in IMAGE_SUFFIXES]
     old += [p for p in (folder / CAPTURE_FILE, folder / "ground_truth" / "views.json") if p.is_file()]

@@ -49,8 +49,9 @@ from pathlib import Path
 import numpy as np
 
 from omnispectral.capture.plan import Direction, Plan
-from omnispectral.capture.session import Session, sha256_of
+from omnispectral.capture.session import Session
 from omnispectral.capture.sourcefiles import IMAGE_SUFFIXES, RAW_SUFFIXES, decode_source_image
+from omnispectral.checksums import file_sha256
 from omnispectral.choices import RESPONSES
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.imaging.bracket import exif_exposure_s, parse_exposure_s, read_times_list
@@ -349,7 +350,8 @@ def _write_one(session: Session, cam, camera: str, index: int, k: int, e: ImageE
         header = image_header(e.path)  # a size other than the sensor's (a sensor is within the limits) is refused
         if header is not None and tuple(header[0][:2]) != (cam.height_px, cam.width_px):
             raise InputFileError(e.path, _size_problem(tuple(header[0]), cam, camera))
-    frame, raw_meta = decode_source_image(e.path)
+    sensor = (cam.height_px, cam.width_px)  # a camera raw file's sizes are checked from its metadata, undecoded
+    frame, raw_meta = decode_source_image(e.path, sensor if e.path.suffix.lower() in RAW_SUFFIXES else None)
     if raw_meta:
         response = "linear"
     if frame.shape[:2] != (cam.height_px, cam.width_px) or (frame.ndim == 3 and frame.shape[2] != 3):
@@ -360,7 +362,7 @@ def _write_one(session: Session, cam, camera: str, index: int, k: int, e: ImageE
                                      f"{bit_depth} bits")
     if response == "auto":
         response = "srgb" if bit_depth == 8 else "linear"
-    meta = {"source_file": str(e.path.resolve()), "source_sha256": sha256_of(e.path),
+    meta = {"source_file": str(e.path.resolve()), "source_sha256": file_sha256(e.path),
             "exposure_source": time_and_source[1], "response": response, "direction_source": e.where, **raw_meta}
     if response == "srgb":  # the largest code means the camera's full scale: radiance in the rig's DN/s
         meta["full_scale_dn"] = cam.max_dn

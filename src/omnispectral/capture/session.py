@@ -9,7 +9,11 @@ Layout of a session directory::
       journal.jsonl     one JSON line per frame, appended, flushed and fsynced
       events.jsonl      start / resume / stop / complete events with reasons
       frames/dNNNN/{A,B}_eKK.tif   16-bit raw frames (tifffile), metadata as JSON in the description
-                        (camera B only in sessions of two-camera rigs)
+                        (camera B only in sessions of two-camera rigs); the description's record holds
+                        ``pixels_sha256``, the SHA-256 of the decoded pixels (:func:`pixels_sha256`; frames
+                        written before it existed lack it)
+      quarantine/frames/dNNNN/{A,B}_eKK.tif   frames ``session repair --apply`` refused as damaged, moved
+                        aside (never deleted) and out of the journal, so that a resume shoots them again
       ground_truth/     simulated sessions only (see omnispectral.sim.simulate)
       calibration/      chessboard views for camera B's mounting, once per mounting of the cameras
                         (omnispectral.capture.calviews; not part of the plan: verify and repair leave it alone)
@@ -45,6 +49,7 @@ import tifffile
 
 from omnispectral.capture.plan import Plan
 from omnispectral.capture.sourcefiles import decode_source_image
+from omnispectral.checksums import file_sha256
 from omnispectral.errors import InputFileError
 from omnispectral.fingerprint import differences
 from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text, is_temp_name, jsonable
@@ -53,13 +58,16 @@ from omnispectral.locking import LOCK_NAME, directory_lock
 from omnispectral.rig import CAMERA_NAMES, SUN_EXPOSURE_BASE, Rig, rig_from_dict, rig_toml
 from omnispectral.threads import ordered_thread_map
 
-__all__ = ["CALIBRATION_DIR", "CAMERAS", "FORMAT_VERSION", "FRAME_NAME", "JournalReadout", "Session", "decode_frame",
-           "frame_relpath", "half_created_leftovers", "read_journal", "record_key", "referenced_problem", "sha256_of",
-           "sun_bracket_keys", "sun_directions", "utc_now_iso", "verify_session"]
+__all__ = ["CALIBRATION_DIR", "CAMERAS", "FORMAT_VERSION", "FRAME_NAME", "QUARANTINE_DIR", "JournalReadout", "Session",
+           "decode_frame", "frame_relpath", "half_created_leftovers", "pixel_problem", "pixels_sha256", "read_journal",
+           "record_key", "referenced_problem", "sun_bracket_keys", "sun_directions", "utc_now_iso",
+           "verify_session"]
 
 FORMAT_VERSION = 1
 #: The folder of a session's calibration views (:mod:`omnispectral.capture.calviews`).
 CALIBRATION_DIR = "calibration"
+#: The folder of the frames ``session repair --apply`` refused as damaged (``quarantine/frames/dNNNN/…``).
+QUARANTINE_DIR = "quarantine"
 #: Every camera a session may hold; a session's own are its rig's (:meth:`Session.cameras`: A, or A and B).
 CAMERAS = CAMERA_NAMES
 
@@ -93,12 +101,40 @@ def half_created_leftovers(path: Path) -> list[Path] | None:
 
 
 
-def sha256_of(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
+def pixels_sha256(pixels: np.ndarray) -> str:
+    """SHA-256 (hex) of a frame's decoded pixels: their values as little-endian uint16 in C order.
+
+    Embedded as ``pixels_sha256`` in the record a frame's TIFF description holds (:meth:`Session.write_frame`), it
+    says whether the pixels are still those the camera delivered even when the frame's journal line is lost.
+    """
+    return hashlib.sha256(np.ascontiguousarray(pixels, dtype="<u2").tobytes()).hexdigest()
+
+
+def pixel_problem(pixels: np.ndarray, record: dict, max_dn: int | None = None) -> str | None:
+    """What is wrong with a frame's decoded pixels against the record its TIFF embeds (``None``: nothing).
+
+    Parameters
+    ----------
+    pixels
+        The decoded frame (16-bit codes; any other type is damage).
+    record
+        The frame record from its TIFF description: its ``shape`` and, when present, its ``pixels_sha256``
+        (frames written before that field existed are checked for shape and full scale only).
+    max_dn
+        The camera's full scale (``2**bit_depth - 1`` of the session's rig); a larger value is damage.
+        ``None``: not checked.
+    """
+    if pixels.dtype.kind != "u" or pixels.dtype.itemsize != 2:
+        return f"decodes to {pixels.dtype} pixels, not 16-bit raw codes"
+    if "shape" in record and list(pixels.shape) != list(record["shape"]):
+        return f"shape {list(pixels.shape)}, the frame's record says {record['shape']}"
+    expected = record.get("pixels_sha256")
+    if expected is not None and pixels_sha256(pixels) != expected:
+        return "pixel checksum mismatch (the pixels changed after the capture)"
+    top_dn = int(pixels.max()) if max_dn is not None and pixels.size else 0
+    if max_dn is not None and top_dn > max_dn:
+        return f"holds {top_dn} DN, above the camera's full scale of {max_dn} DN (damaged pixels)"
+    return None
 
 
 def utc_now_iso() -> str:
@@ -250,6 +286,11 @@ class Session:
         """The cameras of the session's rig, in band order: ``("A", "B")``, or ``("A",)`` for one RGB camera."""
         return self.rig().camera_names
 
+    def full_scale_dn(self) -> dict[str, int]:
+        """The largest code each camera of the session's rig can deliver (``2**bit_depth - 1``), by camera."""
+        rig = self.rig()
+        return {c: rig.cameras[c].max_dn for c in rig.camera_names}
+
     def rig(self) -> Rig:
         p = self.path / "rig.toml"
         try:
@@ -317,7 +358,11 @@ class Session:
     def write_frame(self, frame: np.ndarray, *, direction: int, camera: str, exposure_index: int, exposure_s: float,
                     pan_deg_commanded: float, tilt_deg_commanded: float, pan_deg_reported: float,
                     tilt_deg_reported: float, timestamp: str, bit_depth: int, extra: dict | None = None) -> dict:
-        """Write one raw frame (atomic) and then its journal line (fsynced); returns the record."""
+        """Write one raw frame (atomic) and then its journal line (fsynced); returns the record.
+
+        The record (embedded in the TIFF description, and the journal line with the file's ``sha256`` and
+        ``bytes``) holds ``pixels_sha256``, the checksum of ``frame``'s pixels (:func:`pixels_sha256`).
+        """
 
         if frame.dtype != np.uint16 or frame.ndim not in (2, 3):
             raise ValueError(f"raw frames are (H, W[, C]) uint16, got {frame.shape} {frame.dtype}")
@@ -327,12 +372,13 @@ class Session:
                   "tilt_deg_commanded": tilt_deg_commanded, "pan_deg_reported": pan_deg_reported,
                   "tilt_deg_reported": tilt_deg_reported, "timestamp": timestamp, "bit_depth": bit_depth,
                   "shape": list(frame.shape), "file": rel, **(extra or {})}
+        record["pixels_sha256"] = pixels_sha256(frame)
         target = self.path / rel
         target.parent.mkdir(parents=True, exist_ok=True)
         with atomic_path(target) as tmp:
             tifffile.imwrite(tmp, frame, photometric="rgb" if frame.ndim == 3 else "minisblack",
                              description=json.dumps(record), metadata=None)
-        record["sha256"] = sha256_of(target)
+        record["sha256"] = file_sha256(target)
         record["bytes"] = target.stat().st_size
         self._append_line(self.journal_path, record)
         return record
@@ -350,7 +396,7 @@ class Session:
                   "tilt_deg_commanded": tilt_deg_commanded, "pan_deg_reported": pan_deg_reported,
                   "tilt_deg_reported": tilt_deg_reported, "timestamp": timestamp, "bit_depth": bit_depth,
                   "shape": list(shape), "file": str(src), "referenced": True, **(extra or {}),
-                  "sha256": sha256_of(src), "bytes": st.st_size, "mtime_ns": st.st_mtime_ns}
+                  "sha256": file_sha256(src), "bytes": st.st_size, "mtime_ns": st.st_mtime_ns}
         self._append_line(self.journal_path, record)
         if self._records is not None:
             self._records[(direction, camera, exposure_index)] = record
@@ -417,7 +463,7 @@ def referenced_problem(rec: dict, checksum: bool = True) -> str | None:
     if "bytes" in rec and st.st_size != rec["bytes"]:
         return f"referenced frame changed since the import: {st.st_size} bytes, the journal recorded {rec['bytes']}"
     if checksum:
-        if sha256_of(p) != rec.get("sha256"):
+        if file_sha256(p) != rec.get("sha256"):
             return "referenced frame changed since the import: checksum mismatch"
     elif "mtime_ns" in rec and st.st_mtime_ns != rec["mtime_ns"]:
         return "referenced frame changed since the import: modified after it (the journal holds its mtime)"
@@ -425,8 +471,9 @@ def referenced_problem(rec: dict, checksum: bool = True) -> str | None:
 
 
 def _frame_problem(s: Session, key: tuple[int, str, int], rec: dict | None, checksums: bool,
-                   check_pixels: bool) -> tuple[str, str, str] | None:
-    """``("missing" | "damaged", file, problem)`` of one planned frame against its journal line, or None."""
+                   check_pixels: bool, max_dn: int | None = None) -> tuple[str, str, str] | None:
+    """``("missing" | "damaged", file, problem)`` of one planned frame against its journal line, or None
+    (``max_dn``: the camera's full scale, checked with ``check_pixels``)."""
     rel = frame_relpath(*key)
     if rec is None:
         return "missing", rel, "not in the journal"
@@ -454,11 +501,16 @@ def _frame_problem(s: Session, key: tuple[int, str, int], rec: dict | None, chec
             return "damaged", rel, "checksum mismatch (file changed or truncated)"
     if check_pixels:
         try:
-            data, _ = decode_frame(p, content)
+            data, embedded = decode_frame(p, content)
         except InputFileError as exc:
             return "damaged", rel, exc.problem
         if "shape" in rec and list(data.shape) != list(rec["shape"]):
             return "damaged", rel, f"shape {list(data.shape)}, the journal recorded {rec['shape']}"
+        if content is not None:  # the file's SHA-256 matched the journal: its pixels need no second hash
+            embedded = {k: v for k, v in embedded.items() if k != "pixels_sha256"}
+        problem = pixel_problem(data, embedded, max_dn)
+        if problem:
+            return "damaged", rel, problem
     return None
 
 
@@ -485,7 +537,9 @@ def verify_session(path: str | Path, check_pixels: bool = False, checksums: bool
     checksum or (``check_pixels``) decoding disagrees with its journal line.
 
     Checks: every planned frame has a journal line, its file exists and its SHA-256 matches; journal
-    lines that do not parse; a cut last line.  ``check_pixels`` also decodes each TIFF.  With
+    lines that do not parse; a cut last line.  ``check_pixels`` also decodes each TIFF and checks its
+    pixels (:func:`pixel_problem`: the ``pixels_sha256`` its description embeds, when present, and no value
+    above the camera's full scale).  With
     ``checksums=False`` only the file size recorded in the journal is compared (catches truncation;
     a fast check before processing, which decodes every frame anyway).  ``workers``: threads (default
     :func:`~omnispectral.threads.kernel_threads`).
@@ -497,8 +551,10 @@ def verify_session(path: str | Path, check_pixels: bool = False, checksums: bool
     expected = [(d.index, c, k) for d in plan.directions for c in cameras for k in range(len(plan.exposures_s))]
     expected += sun_bracket_keys(s, plan, j.records, cameras)
 
+    full_scale = s.full_scale_dn()
+
     def check(key):
-        return _frame_problem(s, key, j.records.get(key), checksums, check_pixels)
+        return _frame_problem(s, key, j.records.get(key), checksums, check_pixels, full_scale.get(key[1]))
 
     missing, damaged = [], []
     # each frame is read once (hash and decode from the same bytes); SHA-256 and the decoder release the

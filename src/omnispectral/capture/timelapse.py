@@ -19,9 +19,10 @@ from pathlib import Path
 from omnispectral.capture.devices import Clock
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.io import atomic_write_json
+from omnispectral.ownership import claim_output_directory
 from omnispectral.progress import ProgressCallback, report_progress
 
-__all__ = ["INDEX", "parse_hhmm", "parse_interval_s", "run_timelapse", "slot_name", "slot_times"]
+__all__ = ["INDEX", "parse_hhmm", "parse_interval_s", "run_timelapse", "slot_duration_s", "slot_name", "slot_times"]
 
 INDEX = "series.json"
 
@@ -57,13 +58,39 @@ def slot_name(t: _dt.datetime) -> str:
     return f"slot_{t:%H%M}" + (f"{t:%S}" if t.second else "")
 
 
+def slot_duration_s(result: dict, started: _dt.datetime, finished: _dt.datetime) -> float:
+    """The capture time (s) a slot's frames took: the capture's ``capture_s`` when it states it (a resumed capture
+    counts the runs an interruption cut short: the time up to their last recorded frame), else the time this run
+    took on the clock (``finished - started``), which is all of it for a capture that was never interrupted.
+
+    Parameters
+    ----------
+    result : dict
+        What ``capture_slot`` returned.
+    started, finished : datetime.datetime
+        The series' clock before and after this run of the capture.
+
+    Returns
+    -------
+    float
+        Seconds.
+    """
+    stated = result.get("capture_s")
+    if isinstance(stated, (int, float)) and not isinstance(stated, bool) and stated >= 0:
+        return float(stated)
+    return (finished - started).total_seconds()
+
+
 def run_timelapse(series_dir: str | Path, slots: list[_dt.datetime], clock: Clock,
                   capture_slot: Callable[[Path, _dt.datetime], dict], meta: dict | None = None,
                   on_slot: Callable[[dict], None] | None = None, progress: ProgressCallback | None = None) -> dict:
     """Capture every slot that is still to come; returns the index (also written to ``series.json``).
 
     ``capture_slot(session_dir, slot_time)`` runs one capture and returns at least ``{"complete": bool}``;
-    it reports its own frames (e.g. passes the caller's progress callback on to the capture).
+    it reports its own frames (e.g. passes the caller's progress callback on to the capture).  A slot whose capture
+    was interrupted (the series killed during it) is captured again on resume: the capture resumes its session,
+    and the slot's ``duration_s`` is the capture time of all its frames (:func:`slot_duration_s`: the capture's
+    ``capture_s``, which a simulated capture states; a capture that does not state it is timed on the clock).
 
     Parameters
     ----------
@@ -76,7 +103,8 @@ def run_timelapse(series_dir: str | Path, slots: list[_dt.datetime], clock: Cloc
         The clock the loop waits on (``now``, ``sleep`` in seconds).
     capture_slot : callable
         ``capture_slot(session_dir, slot_time) -> dict`` runs one capture; ``"complete"`` (bool) and
-        ``"stopped_reason"`` of its result are recorded.
+        ``"stopped_reason"`` of its result are recorded, and ``"capture_s"`` (optional, seconds) is the capture
+        time of the session's frames over every run of it.
     meta : dict, optional
         Extra fields of a new index (e.g. the rig and the interval).
     on_slot : callable, optional
@@ -103,8 +131,7 @@ def run_timelapse(series_dir: str | Path, slots: list[_dt.datetime], clock: Cloc
        J. Imaging 4(4):53, 2018, Sec. 5.3, Fig. 12 (a time-lapse sequence captured from 6:00 to 17:00 at
        5-min intervals), Table 2 (about 180 s per omnidirectional capture).
     """
-    series = Path(series_dir)
-    series.mkdir(parents=True, exist_ok=True)
+    series = claim_output_directory(series_dir, "timelapse")  # a folder of the user's: refused
     index = _load_index(series) or {"format": "omnispectral-series", "format_version": 1, **(meta or {}),
                                     "slots": [{"time": t.isoformat(), "session": slot_name(t), "status": "pending"}
                                               for t in slots]}
@@ -129,7 +156,7 @@ def run_timelapse(series_dir: str | Path, slots: list[_dt.datetime], clock: Cloc
         result = capture_slot(series / entry["session"], t)
         finished = clock.now()
         entry.update(status="complete" if result.get("complete") else "incomplete", started=started.isoformat(),
-                     finished=finished.isoformat(), duration_s=(finished - started).total_seconds(),
+                     finished=finished.isoformat(), duration_s=slot_duration_s(result, started, finished),
                      reason=result.get("stopped_reason"))
         settled.add(i)
         for j, (later_entry, lt) in enumerate(zip(entries[i + 1:], slots[i + 1:], strict=True), start=i + 1):

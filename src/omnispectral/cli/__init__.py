@@ -28,6 +28,7 @@ from omnispectral import __version__
 from omnispectral.cli import _common
 from omnispectral.errors import ConfigurationError, InputFileError, OmnispectralError, describe_os_error
 from omnispectral.extras import missing_extra_message
+from omnispectral.ownership import check_output_outside_inputs
 
 #: Exit status of a command line that is wrong (argparse uses it too) and of work that failed.
 EXIT_USAGE, EXIT_FAILURE = 2, 1
@@ -36,6 +37,24 @@ EXIT_USAGE, EXIT_FAILURE = 2, 1
 #: command runs in the module of ``omnispectral.cli`` of the same name).
 COMMAND_MODULES = ("spectral", "hdr", "lens", "capture", "register", "simulate", "devices", "importer", "mosaic",
                    "product", "view", "apps")
+
+
+#: Argument names (argparse ``dest``) of what a command writes and of what it reads: no output may be, or lie
+#: inside, an input (:mod:`omnispectral.ownership`).  Values that are not existing paths (a scene's name) are
+#: ignored on the input side.
+OUTPUT_DESTS = ("output", "out", "json_out", "save_response", "tradeoff", "plot")
+INPUT_DESTS = ("session", "product", "series", "rig", "rig_calibration", "chessboard", "reference", "moving",
+               "input", "images", "files", "scene", "times_list", "response", "directions", "exposures",
+               "dark_frames", "cube", "prior_set", "cti")
+
+
+def paths_of(args: argparse.Namespace, dests: tuple[str, ...]) -> list:
+    """The values of ``args`` under ``dests``, lists flattened (non-path values are left to the caller)."""
+    out = []
+    for dest in dests:
+        value = getattr(args, dest, None)
+        out.extend(value if isinstance(value, list | tuple) else [value])
+    return out
 
 
 def exit_status(exc: OmnispectralError) -> int:
@@ -73,6 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(words)
     _common.QUIET = bool(getattr(args, "quiet", False))
     try:
+        check_output_outside_inputs(paths_of(args, OUTPUT_DESTS), paths_of(args, INPUT_DESTS))
         return command_function(args.func)(args)  # the command's module is imported here, inside the handlers
     except OmnispectralError as exc:
         _common.err_console.print(f"[bold red]error:[/bold red] {escape(str(exc))}")  # user text is not markup

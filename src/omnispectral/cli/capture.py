@@ -83,6 +83,9 @@ def cmd_session_verify(args) -> int:
         if report["journal_bad_lines"]:
             console.print(f"  (omnispectral session repair {escape(report['session'])} rebuilds the journal from "
                           f"the frames)")
+        if any(item["file"].startswith("frames/") for item in report["damaged"]):
+            console.print(f"  (omnispectral session repair {escape(report['session'])} --apply quarantines damaged "
+                          f"frames; a resume captures them again)")
     return 0 if report["complete"] else 1
 
 
@@ -93,13 +96,17 @@ def cmd_session_repair(args) -> int:
         print_json(out)
         return 0
     s = escape(out["session"])
+    moved = "quarantined" if out["applied"] else "to be quarantined"
     console.print(f"{s}: {out['n_frames']} frames decode with their records; the journal lists "
                   f"{out['n_journal_records']} ({len(out['journal_bad_lines'])} bad lines"
                   + (", cut last line" if out["journal_partial_last_line"] else "") + f"); "
                   f"{out['n_recovered']} frames would be added, {out['n_dropped']} records dropped, "
-                  f"{out['n_changed']} changed")
+                  f"{out['n_changed']} changed, {out['n_quarantined']} damaged frames {moved}")
     for d in out["damaged_frames"][:20]:
-        console.print(escape(f"  {d['file']}: {d['problem']} (captured again on resume)"))
+        console.print(escape(f"  {d['file']}: {d['problem']} ({moved} as {d['quarantine']}; "
+                             "captured again on resume)"))
+    if out["n_quarantined"] > 20:
+        console.print(f"  … and {out['n_quarantined'] - 20} more damaged frames {moved}")
     if not out["needed"]:
         console.print("The journal already matches the frames; nothing to do.")
     elif out["applied"]:

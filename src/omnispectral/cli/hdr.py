@@ -8,7 +8,9 @@ from pathlib import Path
 import numpy as np
 from rich.markup import escape
 
+from omnispectral.capture.sourcefiles import RAW_SUFFIXES
 from omnispectral.cli._common import console, err_console, print_json
+from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.imaging.bracket import (
     auto_weight,
     exposure_time_mismatches,
@@ -17,20 +19,23 @@ from omnispectral.imaging.bracket import (
     write_float_image,
 )
 from omnispectral.imaging.response import CameraResponse
-from omnispectral.limits import refuse_overwriting_inputs
+from omnispectral.limits import memory_budget
 
 __all__ = ["cmd_hdr_merge"]
 
 
 def cmd_hdr_merge(args) -> int:
     t0 = time.perf_counter()
-    refuse_overwriting_inputs(args.output, [*args.files, *([args.times_list] if args.times_list else [])])
-    if args.save_response:
-        refuse_overwriting_inputs(args.save_response, [*args.files, args.output])
-    bracket = load_bracket(args.files, times=args.times, times_list=args.times_list)
+    # outputs that are inputs are refused for every command (omnispectral.cli.main); here two outputs, one file
+    if args.save_response and Path(args.save_response).resolve() == Path(args.output).resolve():
+        raise ConfigurationError(f"{args.save_response}: is also the merged image's output; choose another file")
+    _refuse_camera_raw(args.files)
+    budget = memory_budget(args.memory_gb)  # the merge's memory is checked from the headers, before decoding
     response = args.response
     if response not in ("auto", "linear", "debevec"):
         response = CameraResponse.load(response)
+    bracket = load_bracket(args.files, times=args.times, times_list=args.times_list, memory=budget,
+                           response=response, deghost=args.deghost, with_variance=args.with_variance)
     weight = auto_weight(bracket, args.response) if args.weight == "auto" else args.weight
     result, resp, depth = merge_bracket(bracket, bit_depth=args.bit_depth, weight=weight, response=response,
                                         deghost=args.deghost, reference=args.reference)
@@ -74,6 +79,15 @@ def cmd_hdr_merge(args) -> int:
                   + ("" if result.ghost is None else f", ghosts {100 * summary['fraction_ghost']:.2f} %") + ".")
     console.print(f"Wrote {out}" + (f" and {args.save_response}" if args.save_response else ""))
     return 0
+
+
+def _refuse_camera_raw(files: list[str]) -> None:
+    """Camera raw files (DNG, NEF, CR2…) are not frames ``hdr merge`` decodes: refused by name before any decoder
+    parses them (``import`` reads them through LibRaw, its sizes checked from their metadata first)."""
+    for f in files:
+        if Path(f).suffix.lower() in RAW_SUFFIXES:
+            raise InputFileError(f, "a camera raw file: hdr merge reads TIFF/PNG/JPEG frames (import raw files "
+                                    "into a session with omnispectral import, or convert them to 16-bit TIFF)")
 
 
 def _warn_exposure_times(mismatches: list[str], sources: tuple[str, ...]) -> None:

@@ -1,4 +1,5 @@
-"""``omnispectral process | spectrum | export | report | demo``: from a session to a spectral panorama and files."""
+"""``omnispectral process | spectrum | export | report | product verify | demo``: from a session to a spectral
+panorama and files."""
 
 from __future__ import annotations
 
@@ -21,10 +22,11 @@ from omnispectral.product.rigsession import calibrate_session
 from omnispectral.product.series import DEFAULT_REGIONS, parse_region, process_series
 from omnispectral.product.spectra import spectrum_at
 from omnispectral.product.sun_reference import parse_sun_reference
+from omnispectral.product.verify import verify_product
 from omnispectral.sim.truth import GroundTruth
 
-__all__ = ["cmd_calibrate_rig", "cmd_demo", "cmd_export", "cmd_process", "cmd_process_series", "cmd_report",
-           "cmd_spectrum"]
+__all__ = ["cmd_calibrate_rig", "cmd_demo", "cmd_export", "cmd_process", "cmd_process_series", "cmd_product_verify",
+           "cmd_report", "cmd_spectrum"]
 
 
 def cmd_process(args) -> int:
@@ -54,6 +56,20 @@ def _registration_summary(registration: dict) -> str:
     return f"camera B registered by POC in {len(reg) - n_fb}, calibrated offset in {n_fb}"
 
 
+def _print_repaired(repaired: dict) -> None:
+    """One line per kind of file a resumed run found missing or damaged (checksums) and made again."""
+    for kind, noun, what in (("merged", "merged file", "merged again"), ("chunks", "panorama chunk", "rendered again")):
+        items = repaired.get(kind) or []
+        if items:
+            names = ", ".join(Path(i["file"]).name if kind == "merged" else i["file"] for i in items[:5])
+            more = f" and {len(items) - 5} more" if len(items) > 5 else ""
+            plural = "s" if len(items) > 1 else ""
+            console.print(f"[yellow]repaired:[/yellow] {len(items)} {noun}{plural} {what} ({escape(names)}{more}: "
+                          f"{escape(items[0]['problem'])})", soft_wrap=True)
+    if repaired.get("panorama_rebuilt"):
+        console.print("[yellow]repaired:[/yellow] a merged file came out different: the panorama was rebuilt")
+
+
 def _print_summary(index: dict) -> None:
     registration = index["registration"]
     reg = registration["directions"]
@@ -81,6 +97,7 @@ def _print_summary(index: dict) -> None:
     console.print(t)
     for d in index["skipped_directions"]:
         console.print(f"[yellow]skipped direction {d['direction']}:[/yellow] {'; '.join(d['problems'][:3])}")
+    _print_repaired(index.get("repaired") or {})
     _print_accuracy_warnings(index.get("accuracy_warnings") or [])
     if far_warning:  # the last line (README): how far off far content may be
         console.print(f"[bold yellow]warning:[/bold yellow] {escape(far_warning)}")
@@ -170,7 +187,7 @@ def cmd_report(args) -> int:
 
 def _print_accuracy(acc: dict | None, holes: dict | None = None) -> None:
     if not acc:
-        console.print("No ground truth: accuracy not measured (not a simulated session).")
+        console.print("No readable ground truth: accuracy not measured (a real capture, or its truth is damaged).")
         return
     t = Table(title="Accuracy against the simulator's ground truth")
     for col in ("measure", "value", "spectral core (chart level)"):
@@ -286,3 +303,20 @@ def cmd_calibrate_rig(args) -> int:
     console.print(f"Written: {args.output} (use: omnispectral process SESSION -o PRODUCT --rig-calibration "
                   f"{args.output})")
     return 0
+
+
+def cmd_product_verify(args) -> int:
+    """``product verify``: one line per missing or damaged file, then a summary; exit 1 when there is any."""
+    report = verify_product(args.product)
+    if args.json:
+        print_json(report)
+    else:
+        for problem in report["problems"]:
+            console.print(escape(f"{problem['file']}: {problem['problem']}"), soft_wrap=True)
+        state = "[green]all good[/green]" if report["ok"] else f"[red]{len(report['problems'])} problems[/red]"
+        console.print(f"{escape(report['product'])}: {state}: {report['n_merged_files']} merged files and "
+                      f"{report['n_chunks']} chunks checked ({report['bytes_checked'] / 1e6:.1f} MB in "
+                      f"{report['seconds']:.2f} s)" + ("" if report["ok"] else
+                                                       "; 'omnispectral process' on the product repairs them"),
+                      soft_wrap=True)
+    return 0 if report["ok"] else 1

@@ -208,7 +208,9 @@ def cmd_timelapse(args) -> int:
         res = simulate_session(session_dir, rig, scene, start=clock.now(), noise=args.noise == "on",
                                seed=args.seed, ground_truth_width=args.gt_width, progress=bars,
                                mounting_error_deg=args.mounting_error, raw=args.raw, calibration_views=views)
-        clock.sleep(res["simulated_s"])
+        # the series' clock goes on to where the slot's (resumed) session ends: the capture time of all its frames,
+        # an interrupted run's included (this run's simulated_s alone would lose that run's time)
+        clock.sleep(res.get("capture_s", res["simulated_s"]))
         return res
 
     def report(entry: dict) -> None:

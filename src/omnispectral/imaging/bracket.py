@@ -29,12 +29,20 @@ from omnispectral.imaging.hdr import merge_exposures
 from omnispectral.imaging.imageio import decode_with_opencv, read_exr  # noqa: F401  (read_exr: re-exported)
 from omnispectral.imaging.response import CameraResponse, recover_response
 from omnispectral.io import atomic_path
-from omnispectral.limits import check_bit_depth, check_exposure_times, check_image_header, image_header
+from omnispectral.limits import (
+    MemoryBudget,
+    check_bit_depth,
+    check_exposure_times,
+    check_image_header,
+    check_memory,
+    image_header,
+)
 
 __all__ = ["EXIF_EXPOSURE_TIME", "EXIF_IFD_POINTER", "EXPOSURE_RATIO_TOLERANCE", "FLOAT_IMAGE_SUFFIXES", "Bracket",
-           "ExposureMismatch", "auto_weight", "exif_exposure_s", "exposure_time_mismatches", "exposure_times_for",
-           "guess_bit_depth", "load_bracket", "measured_exposure_ratio", "merge_bracket", "parse_exposure_s",
-           "read_frame", "read_times_list", "write_float_image"]
+           "ExposureMismatch", "auto_weight", "bracket_headers", "check_bracket_memory", "exif_exposure_s",
+           "exposure_time_mismatches", "exposure_times_for", "guess_bit_depth", "load_bracket",
+           "measured_exposure_ratio", "merge_bracket", "merge_memory_bytes", "parse_exposure_s", "read_frame",
+           "read_times_list", "write_float_image"]
 
 #: EXIF tag numbers (EXIF 2.32, CIPA DC-008): the Exif sub-IFD pointer and ExposureTime in it.
 EXIF_IFD_POINTER = 0x8769
@@ -184,18 +192,46 @@ def _sample_type(itemsize: int) -> str:
     return {1: "uint8", 2: "uint16", 4: "float32"}.get(int(itemsize), f"{itemsize}-byte samples")
 
 
-def load_bracket(paths: Sequence[str | Path], times: Sequence[str | float] | None = None,
-                 times_list: str | Path | None = None) -> Bracket:
-    """Read a bracket: every frame (same size, type and channels) and its exposure time."""
-    paths = tuple(Path(p) for p in paths)
-    if len(paths) < 2:
-        raise ConfigurationError("an exposure bracket needs at least two frames")
-    for p in paths:  # the first thing wrong is said first: a missing frame, not its missing EXIF
-        if not p.is_file():
-            raise InputFileError(p, "file not found" if not p.exists() else "is not a file")
-    table = read_times_list(times_list) if times_list is not None else None
-    exposure_s, sources = exposure_times_for(paths, times, table)
-    headers = []  # every size from its header, checked before any frame is decoded
+def merge_memory_bytes(shape: tuple[int, ...], bytes_per_sample: int, n_frames: int, recover_response: bool = False,
+                       deghost: bool = False, with_variance: bool = False) -> int:
+    """The memory (bytes) ``hdr merge`` holds at its peak for a bracket of ``n_frames`` frames of ``shape``.
+
+    The decoded frames (``n_frames × pixels × channels × bytes_per_sample``, held through the merge) and one more
+    frame while the next is decoded; their stacked copy when the response is recovered (8-bit frames,
+    :func:`~omnispectral.imaging.response.recover_response`); the merge's output (float32 radiance and variance,
+    saturated and dark flags: 10 bytes per pixel and channel; the ghost mask and its scores with ``deghost``); the
+    image written (float32, with ``with_variance`` the variances and a validity channel too) and its per-channel
+    copies for the writer.
+
+    Parameters
+    ----------
+    shape : tuple of int
+        ``(H, W)`` or ``(H, W, C)`` of one frame, from its header.
+    bytes_per_sample : int
+        Bytes of one decoded sample (1 for 8-bit frames, 2 for 16-bit).
+    n_frames : int
+        Frames in the bracket.
+    recover_response, deghost, with_variance : bool
+        The merge's options that add memory.
+
+    Returns
+    -------
+    int
+        Bytes.
+    """
+    px = int(shape[0]) * int(shape[1])
+    c = int(shape[2]) if len(shape) > 2 else 1
+    frame = px * c * int(bytes_per_sample)
+    frames = (n_frames + 1) * frame + (n_frames * frame if recover_response else 0)
+    merged = px * c * (4 + 4 + 1 + 1) + (px * (1 + 4 + 1) if deghost else 0)
+    written = px * ((2 * c + 1) if with_variance else c) * 4 * 2
+    return frames + merged + written
+
+
+def bracket_headers(paths: Sequence[Path]) -> list[tuple[tuple[int, ...], int] | None]:
+    """Every frame's ``(shape, bytes per sample)`` from its header (``None`` for a format without a header reader),
+    each checked against the limits, and all of one size: refused naming the first frame that differs."""
+    headers = []
     for p in paths:
         check_image_header(p)
         headers.append(image_header(p))
@@ -204,6 +240,45 @@ def load_bracket(paths: Sequence[str | Path], times: Sequence[str | float] | Non
             (shape, size), (shape0, size0) = header, headers[0]
             raise InputFileError(p, f"is {tuple(shape)} {_sample_type(size)} but {paths[0].name} is {tuple(shape0)} "
                                     f"{_sample_type(size0)}; a bracket must match")
+    return headers
+
+
+def check_bracket_memory(paths: Sequence[Path], headers: Sequence[tuple[tuple[int, ...], int] | None],
+                         budget: MemoryBudget | None, response: str | CameraResponse = "auto", deghost: bool = False,
+                         with_variance: bool = False) -> None:
+    """Refuse a bracket whose merge (:func:`merge_memory_bytes`, from the headers) needs more than ``budget``,
+    naming its first frame and the memory; frames whose headers say nothing are not checked."""
+    known = [h for h in headers if h is not None]
+    if budget is None or not known:
+        return
+    shape, itemsize = max(known, key=lambda h: int(np.prod(h[0])) * h[1])
+    recover = isinstance(response, str) and response in ("auto", "debevec") and (itemsize == 1 or response == "debevec")
+    need = merge_memory_bytes(shape, itemsize, len(paths), recover, deghost, with_variance)
+    size = f"{shape[1]}x{shape[0]} px" + (f" x {shape[2]}" if len(shape) > 2 else "")
+    check_memory(paths[0], need, budget, f"merging {len(paths)} frames of {size} ({_sample_type(itemsize)})")
+
+
+def load_bracket(paths: Sequence[str | Path], times: Sequence[str | float] | None = None,
+                 times_list: str | Path | None = None, memory: MemoryBudget | None = None,
+                 response: str | CameraResponse = "auto", deghost: bool = False,
+                 with_variance: bool = False) -> Bracket:
+    """Read a bracket: every frame (same size, type and channels) and its exposure time.
+
+    Sizes come from the headers first (:func:`bracket_headers`); with a ``memory`` budget
+    (:func:`omnispectral.limits.memory_budget`) the merge's memory is checked from them too
+    (:func:`check_bracket_memory`, with the merge's ``response``, ``deghost`` and ``with_variance``), all before
+    any frame is decoded.
+    """
+    paths = tuple(Path(p) for p in paths)
+    if len(paths) < 2:
+        raise ConfigurationError("an exposure bracket needs at least two frames")
+    for p in paths:  # the first thing wrong is said first: a missing frame, not its missing EXIF
+        if not p.is_file():
+            raise InputFileError(p, "file not found" if not p.exists() else "is not a file")
+    table = read_times_list(times_list) if times_list is not None else None
+    exposure_s, sources = exposure_times_for(paths, times, table)
+    headers = bracket_headers(paths)  # every size from its header, checked before any frame is decoded
+    check_bracket_memory(paths, headers, memory, response, deghost, with_variance)
     frames = []
     for p in paths:
         f = read_frame(p)

@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 from omnispectral.errors import InputFileError
+from omnispectral.locking import directory_lock
 from omnispectral.mosaic.blending import DEFAULT_MULTIBAND_LEVELS, blend_method
 from omnispectral.mosaic.gain import estimate_gains
 from omnispectral.mosaic.metadata import fingerprint, panorama_attributes, summarise
@@ -106,7 +107,9 @@ def mosaic(source: str | Path | MergedDirections, output: str | Path, *, options
     Returns
     -------
     dict
-        The run's summary.
+        The run's summary, with ``repaired_chunks``: the chunks of a resumed store that were marked done but
+        missing or damaged (their checksums, :meth:`~omnispectral.mosaic.store.PanoramaStore.chunk_problems`)
+        and were computed again.
 
     References
     ----------
@@ -129,6 +132,14 @@ def mosaic(source: str | Path | MergedDirections, output: str | Path, *, options
     progress = optional_progress(progress)
     t_start = time.perf_counter()
     output = Path(output).absolute()  # tasks may run in Dask worker processes started in other directories
+    # the folder holding the store is locked (reentrant): a product's lock keeps a mosaic out while it is processed
+    with directory_lock(output.parent, "mosaic"):
+        return _mosaic_locked(source, output, options, progress, t_start)
+
+
+def _mosaic_locked(source, output: Path, options: MosaicOptions, progress: ProgressCallback,
+                   t_start: float) -> dict:
+    """:func:`mosaic` while holding the lock of the store's folder."""
     merged = open_input(source)
     merged.check_files()
     gains = None
@@ -141,11 +152,16 @@ def mosaic(source: str | Path | MergedDirections, output: str | Path, *, options
     store = PanoramaStore.create(output, width // 2, width, job.n_bands, options.tile, attrs, fingerprint(merged, job),
                                  overwrite=options.overwrite, compression=options.compression,
                                  quality_bands=N_QUALITY if quality else 0)
+    damaged = store.unmark_damaged()  # a resumed store: chunks whose files are missing or damaged are redone
     t_tiles = time.perf_counter()
     tiles = tiles_in(store, options.region)
     computed = run_level0(job, store, tiles, options, progress)
     t_pyramid = time.perf_counter()
     run_pyramid(store, tiles, options, progress)
+    store.set_display_windows()  # what OME-Zarr viewers open the panorama with
     t_end = time.perf_counter()
-    return summarise(store, tiles, computed, {"prepare": t_tiles - t_start, "tiles": t_pyramid - t_tiles,
-                                              "pyramid": t_end - t_pyramid, "total": t_end - t_start}, job)
+    summary = summarise(store, tiles, computed, {"prepare": t_tiles - t_start, "tiles": t_pyramid - t_tiles,
+                                                 "pyramid": t_end - t_pyramid, "total": t_end - t_start}, job)
+    summary["repaired_chunks"] = [{"file": str(p["path"].relative_to(store.path)), "problem": p["problem"]}
+                                  for p in damaged]
+    return summary

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from omnispectral.checksums import verified
 from omnispectral.imaging.geometry import lonlat_to_equirect_pixel, ray_to_lonlat
 from omnispectral.mosaic.blending import feather_weight
 from omnispectral.mosaic.interp import remap
@@ -46,6 +47,7 @@ def read_decimated(img: SourceImage, decimate: int) -> np.ndarray:
     """Every ``decimate``-th row and column of a source (float32 DN/s), read row by row."""
 
     h = npy_shape(img.path)[0][0]
+    verified(img.path, img.checksum)
     rows = [read_npy_rows(img.path, r, r + 1)[0, ::decimate] for r in range(0, h, decimate)]
     return np.stack(rows).astype(np.float32) * np.float32(img.scale)
 

@@ -5,7 +5,8 @@ a store, and the summary the run returns.
 of exposure), the bands' spectral sensitivities and the estimator recorded by the merge, the rig and session,
 the equirectangular geometry (row 0 at latitude +90°, column 0 at longitude −180°, pixel centres at +0.5) and
 the method (interpolation, blending, gains, B's predictor).  :func:`fingerprint` hashes what determines the
-pixels (inputs' files, sizes, mtimes, poses, offsets, scales, camera models, parallax maps; grid and method):
+pixels (inputs' names and checksums, or paths, sizes and mtimes for inputs written without checksums; poses,
+offsets, scales, camera models, parallax maps; grid and method):
 another fingerprint makes another panorama.  :func:`summarise` reports sizes, tiles computed and skipped,
 holes, timings in seconds, throughput in megapixels per second and the peak resident memory in MiB.
 """
@@ -72,7 +73,8 @@ def panorama_attributes(merged: MergedDirections, job: MosaicJob, gain_compensat
 
 
 def fingerprint(merged: MergedDirections, job: MosaicJob) -> dict:
-    """What determines the output: inputs (files, sizes, mtimes, poses, offsets, scales), grid and method.
+    """What determines the output: inputs (names and checksums, or paths, sizes and mtimes; poses, offsets,
+    scales), grid and method.
 
     Parameters
     ----------
@@ -88,17 +90,23 @@ def fingerprint(merged: MergedDirections, job: MosaicJob) -> dict:
     """
     h = hashlib.sha256()
     for img, geo in zip(job.images, job.geometry, strict=True):
-        st = img.path.stat()
-        par = None
-        if img.parallax is not None:
-            ps = img.parallax.stat()
-            par = [str(img.parallax.resolve()), ps.st_size, ps.st_mtime_ns]
-        h.update(json.dumps([str(img.path.resolve()), st.st_size, st.st_mtime_ns, img.pan_deg, img.tilt_deg,
+        par = None if img.parallax is None else _file_identity(img.parallax, img.parallax_checksum)
+        h.update(json.dumps([*_file_identity(img.path, img.checksum), img.pan_deg, img.tilt_deg,
                              img.scale, list(img.offset_px), geo.model.to_dict(), par], sort_keys=True).encode())
     h.update(job.gains.tobytes())
     predictor = job.b_predictor.to_dict() if job.b_predictor is not None else None
     return {"inputs_sha256": h.hexdigest(), "width": job.canvas.width, "tile": job.tile, "interp": job.interp,
             "blend": job.blend, "multiband_levels": job.multiband_levels, "b_predictor": predictor}
+
+
+def _file_identity(path, checksum: dict | None) -> list:
+    """What identifies an input file: its name and checksum when the merge recorded one (a product moved to
+    another directory, or a direction merged again into the same bytes, still resumes), else its absolute path,
+    size and modification time (merged directions written before checksums were recorded)."""
+    if checksum:
+        return [path.name, checksum.get("crc32"), checksum.get("bytes")]
+    st = path.stat()
+    return [str(path.resolve()), st.st_size, st.st_mtime_ns]
 
 
 def peak_rss_mb() -> float:

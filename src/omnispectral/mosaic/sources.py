@@ -28,6 +28,13 @@ float32.  ``.npy`` is deliberately uncompressed: float HDR data compresses poorl
 engine reads row bands of a file with ``pread`` (no decompression, no memory map that would
 inflate the resident set).  ``dtype = "float32"`` (scale 1) is available for exact round trips.
 
+Checksums.  Each image's (and parallax map's) entry records ``checksum``: the file's CRC-32 and size
+(:func:`omnispectral.checksums.file_checksum`), taken when it is written.  Every read checks it first (once per
+process and state of the file): a damaged file raises ``InputFileError(path, "damaged: checksum …")``, never
+returns wrong radiance; :meth:`MergedDirections.problems` lists the missing and damaged files (``product
+verify``, and a resumed ``process``, which merges those directions again).  Entries written before checksums
+have none: their files are checked for presence only.
+
 ``offset_px`` is camera B's registration offset ``(dx, dy)`` in pixels, added to B's sensor
 coordinates (``moving(x, y) ≈ reference(x - dx, y - dy)`` as :mod:`omnispectral.imaging.registration`
 reports); camera A's is ``(0, 0)``.
@@ -47,6 +54,7 @@ from pathlib import Path
 
 import numpy as np
 
+from omnispectral.checksums import checksum_problem, file_checksum, verified
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.imaging.geometry import CameraModel
 from omnispectral.io import atomic_path, atomic_write_json
@@ -158,13 +166,26 @@ class SourceImage:
     #: camera B only: per-pixel parallax on camera A's grid of the same direction, ``(H_A, W_A, 3)``
     #: float16 (inverse depth 1/m, registration confidence 0..1, occluded 0/1); see ``product.direction_parallax``
     parallax: Path | None = None
+    #: the image file's checksum record (:func:`omnispectral.checksums.file_checksum`; ``None``: written before
+    #: checksums were recorded) and the parallax file's
+    checksum: dict | None = None
+    parallax_checksum: dict | None = None
 
     @property
     def bands(self) -> tuple[int, ...]:
         return CAMERA_BANDS[self.camera]
 
+    def read_parallax_rows(self, row0: int, row1: int) -> np.ndarray:
+        """Rows ``[row0, row1)`` of camera B's parallax map (checked against its checksum first, as :meth:`read`)."""
+        return read_npy_rows(verified(self.parallax, self.parallax_checksum), row0, row1)
+
     def read(self, rows: tuple[int, int] | None = None, cols: tuple[int, int] | None = None) -> np.ndarray:
-        """Radiance (DN/s) of a crop, float32 ``(rows, cols, 3)``; the whole image by default."""
+        """Radiance (DN/s) of a crop, float32 ``(rows, cols, 3)``; the whole image by default.
+
+        The file is checked against its checksum first (once per process, :func:`omnispectral.checksums.verified`):
+        a damaged file raises ``InputFileError(path, "damaged: checksum …")``.
+        """
+        verified(self.path, self.checksum)
         if rows is None or cols is None:
             shape = npy_shape(self.path)[0]
             rows, cols = rows or (0, shape[0]), cols or (0, shape[1])
@@ -232,14 +253,40 @@ class MergedDirections:
                 out.append(SourceImage(int(d["index"]), cam, float(d["pan_deg"]), float(d["tilt_deg"]),
                                        self.path / img["file"], float(img.get("scale", 1.0)),
                                        tuple(float(x) for x in img.get("offset_px", (0.0, 0.0))),
-                                       self.path / par["file"] if par else None))
+                                       self.path / par["file"] if par else None, img.get("checksum"),
+                                       par.get("checksum") if par else None))
+        return out
+
+    def files(self) -> list[dict]:
+        """Every file the directions list: ``{"direction", "kind" ("A", "B" or "P": B's parallax), "path",
+        "checksum"}`` (``checksum`` ``None`` for files written before checksums were recorded)."""
+        out = []
+        for s in self.sources():
+            out.append({"direction": s.direction, "kind": s.camera, "path": s.path, "checksum": s.checksum})
+            if s.parallax is not None:
+                out.append({"direction": s.direction, "kind": "P", "path": s.parallax,
+                            "checksum": s.parallax_checksum})
+        return out
+
+    def problems(self) -> list[dict]:
+        """The listed files that are missing or do not match their checksums: the entries of :meth:`files` with
+        ``problem`` (:func:`omnispectral.checksums.checksum_problem`)."""
+        out = []
+        for f in self.files():
+            problem = checksum_problem(f["path"], f["checksum"])
+            if problem is not None:
+                out.append({**f, "problem": problem})
         return out
 
     def check_files(self) -> None:
-        """Every listed file exists with the camera's image shape; names the first one that does not."""
+        """Every listed file exists with the camera's image shape and matches its checksum (camera B's parallax
+        maps too); names the first one that does not (``damaged: checksum …``)."""
         for s in self.sources():
             if not s.path.is_file():
                 raise InputFileError(s.path, "missing from the merged directions")
+            verified(s.path, s.checksum)
+            if s.parallax is not None:
+                verified(s.parallax, s.parallax_checksum)
             shape, dtype = npy_shape(s.path)
             m = self.cameras[s.camera]
             if shape != (m.height, m.width, 3) or dtype.kind != "f":
@@ -310,7 +357,8 @@ class MergedDirectionsWriter:
             with atomic_path(self.path / name) as tmp, open(tmp, "wb") as fh:
                 np.save(fh, stored)
             dx, dy = offsets_px.get(cam, (0.0, 0.0))
-            entry["images"][cam] = {"file": name, "scale": scale, "offset_px": [float(dx), float(dy)]}
+            entry["images"][cam] = {"file": name, "scale": scale, "offset_px": [float(dx), float(dy)],
+                                    "checksum": file_checksum(self.path / name)}
         entry.update(extra or {})
         self.meta["directions"] = [d for d in self.meta["directions"] if int(d["index"]) != int(index)] + [entry]
         self.meta["directions"].sort(key=lambda d: self.meta["planned"].index(int(d["index"])))
@@ -326,9 +374,10 @@ class MergedDirectionsWriter:
         name = f"d{int(index):04d}_P.npy"
         with atomic_path(self.path / name) as tmp, open(tmp, "wb") as fh:
             np.save(fh, np.asarray(data, np.float16))
+        checksum = file_checksum(self.path / name)
         for d in self.meta["directions"]:
             if int(d["index"]) == int(index):
-                d["images"]["B"]["parallax"] = {"file": name, **info}
+                d["images"]["B"]["parallax"] = {"file": name, **info, "checksum": checksum}
                 d["images"]["B"]["offset_px"] = [float(offset_px[0]), float(offset_px[1])]
         self._flush()
 

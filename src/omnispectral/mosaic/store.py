@@ -13,15 +13,25 @@ Layout (format version 2, docs/product.md)::
       0/                 (6, H, W) float32, dimension names (c, y, x), chunks (6, tile, tile): DN/s, NaN uncovered
       1/ 2/ …            levels halved by 2 × 2 box averages (ceil sizes) until the long side ≤ tile
       quality/           (2, H, W) float32, (c, y, x): camera B's registration quality (level 0 only, optional)
-      k/.done/TY_TX.json a chunk's completion marker, with the statistics of the tile
+      k/.done/TY_TX.json a chunk's completion marker, with the statistics of the tile and the chunk file's
+                         checksum ("chunk": {"crc32", "bytes"}; level 0 also "quality_chunk" for the quality
+                         layer's chunk)
+
+Checksums.  Every array's codecs end with Zarr v3's standard ``crc32c`` codec (stores written before it have
+none and still open and resume): every Zarr reader — this package's, xarray's, napari's — refuses a chunk whose
+bytes changed instead of decoding wrong numbers.  The markers' CRC-32 records cover the chunk files as they are
+on disk (:mod:`omnispectral.checksums`): a resume checks them (:meth:`PanoramaStore.unmark_damaged`) and
+recomputes a damaged or missing chunk; ``omnispectral product verify`` checks them all.  Reads through
+:class:`ChannelLast` refuse a chunk that is marked done but whose file is gone, or that fails its checksum, with
+one line naming the chunk file (:class:`~omnispectral.errors.InputFileError`).
 
 In memory nothing changed: :meth:`PanoramaStore.read` and :meth:`PanoramaStore.array` give ``(H, W, C)``
 (:class:`ChannelLast` transposes per request).  Stores of format version 1 (``(H, W, 6)`` on disk, metadata in
 ``zarr.json``) are still read; resuming one is refused with a message (rerun with ``--overwrite``).
 
 Writes.  A chunk is computed whole and written with one Zarr store call (the local store writes a
-temporary file and renames it), then the chunk file is fsynced, then its marker is written
-atomically (temporary name, fsync, rename).  A chunk without a marker is therefore recomputed on
+temporary file and renames it), then the chunk file is fsynced and its CRC-32 taken, then its marker is
+written atomically (temporary name, fsync, rename).  A chunk without a marker is therefore recomputed on
 resume, whatever state its file is in, and a marker never exists for a chunk not fully on disk.
 ``state.json``-like parameters of the run (``fingerprint``) are kept in ``omnispectral/zarr.json``; a
 resume with other parameters is refused unless the store is overwritten.
@@ -40,13 +50,34 @@ from pathlib import Path
 
 import numpy as np
 
-from omnispectral.errors import InputFileError, os_errno, os_problem
+from omnispectral.checksums import checksum_problem, file_checksum
+from omnispectral.errors import InputFileError, OmnispectralError, os_errno, os_problem
 from omnispectral.io import TEMP_MARK, atomic_write_json, follow_umask, jsonable
 from omnispectral.mosaic.kernels import compiled_kernels
+from omnispectral.ownership import STORE_NAMES, remove_owned_tree
 
-__all__ = ["BAND_COLOURS", "DIMENSIONS", "DONE_DIR", "FORMAT", "FORMAT_VERSION", "MARKER_NAME", "METADATA",
-           "OME_VERSION", "QUALITY", "QUALITY_LAYERS", "SUMMARY_KEYS", "ChannelLast", "PanoramaStore",
-           "box_average_2x2", "multiscales_attr", "omero_attr", "pyramid_shapes"]
+__all__ = [
+    "BAND_COLOURS",
+    "CHECKSUM_KEYS",
+    "DIMENSIONS",
+    "DONE_DIR",
+    "FORMAT",
+    "FORMAT_VERSION",
+    "MARKER_NAME",
+    "METADATA",
+    "OME_VERSION",
+    "QUALITY",
+    "QUALITY_LAYERS",
+    "SUMMARY_KEYS",
+    "WINDOW_PERCENTILE",
+    "ChannelLast",
+    "PanoramaStore",
+    "box_average_2x2",
+    "chunk_file",
+    "multiscales_attr",
+    "omero_attr",
+    "pyramid_shapes",
+]
 
 FORMAT = "omnispectral-panorama"
 #: 2: OME-Zarr 0.5, arrays (c, y, x), metadata in ``omnispectral.json``; 1: arrays (y, x, band), all in zarr.json.
@@ -60,6 +91,17 @@ OME_VERSION = "0.5"
 DIMENSIONS = ("c", "y", "x")
 DONE_DIR = ".done"
 MARKER_NAME = re.compile(r"^(\d+)_(\d+)\.json$")
+#: Entries of a completion marker that are checksums, not statistics of the tile.
+CHECKSUM_KEYS = ("chunk", "quality_chunk")
+#: What a damaged chunk's error says to do.
+REPAIR_HINT = "'omnispectral process' on the product repairs it"
+
+
+def chunk_file(array_dir: Path, ty: int, tx: int, channel_first: bool = True) -> Path:
+    """The file of chunk ``(ty, tx)`` of an array (format 2: ``c/0/TY/TX``; format 1: ``c/TY/TX/0``)."""
+    if channel_first:
+        return Path(array_dir) / "c" / "0" / str(ty) / str(tx)
+    return Path(array_dir) / "c" / str(ty) / str(tx) / "0"
 
 
 def pyramid_shapes(height: int, width: int, tile: int) -> list[tuple[int, int]]:
@@ -75,10 +117,14 @@ def pyramid_shapes(height: int, width: int, tile: int) -> list[tuple[int, int]]:
 BAND_COLOURS = {"R": "FF0000", "G": "00FF00", "B": "0000FF"}
 
 
+#: Percentile of a band's finite values that ends its display window (:meth:`PanoramaStore.set_display_windows`).
+WINDOW_PERCENTILE = 99.5
+
+
 def omero_attr(band_names: list[str]) -> dict:
     """OME-NGFF ``omero`` channel metadata: each band's name as its ``label`` (napari and ome-zarr show it), a
-    colour from its channel letter, and a display window (the values are radiances in DN/s, not known when
-    the store is made: 0 to 1e6, which viewers let the user change)."""
+    colour from its channel letter, and a display window (0 to 1e6 DN/s until the panorama is written: then
+    :meth:`PanoramaStore.set_display_windows` sets it from the data)."""
     return {"channels": [{"label": name, "color": BAND_COLOURS.get(name.rsplit(":", 1)[-1], "FFFFFF"),
                           "active": True, "window": {"min": 0.0, "max": 1e6, "start": 0.0, "end": 1e6}}
                          for name in band_names]}
@@ -115,11 +161,15 @@ class ChannelLast:
     for reading and ``a[rows, cols, :] = data`` for writing (integer indices keep their axis out, as NumPy).
     """
 
-    def __init__(self, array, path: Path | str | None = None):
+    def __init__(self, array, path: Path | str | None = None, markers: Path | None = None,
+                 record_key: str = "chunk"):
         self.zarr = array
         self.path = path  # the array's directory: named by a write's operating-system error
         names = tuple(getattr(array.metadata, "dimension_names", None) or ())
         self.channel_first = bool(names) and names[0] == DIMENSIONS[0]
+        # where the completion markers of this array's chunks are, and which of their records is this array's
+        self.markers = Path(markers) if markers is not None and path is not None and self.channel_first else None
+        self.record_key = record_key
 
     @property
     def shape(self) -> tuple[int, int, int]:
@@ -141,8 +191,66 @@ class ChannelLast:
         if not self.channel_first:
             return self.zarr[key]
         rows, cols, bands = self._key(key)
-        data = np.asarray(self.zarr[bands, rows, cols])
+        chunks = self._chunks_of(rows, cols)
+        self._check_present(chunks)
+        try:
+            data = np.asarray(self.zarr[bands, rows, cols])
+        except OmnispectralError:
+            raise
+        except (ValueError, RuntimeError) as exc:  # zarr's crc32c codec (ValueError), a codec fed damaged bytes
+            bad = self._damaged_chunk(chunks)
+            if bad is None:
+                raise
+            raise InputFileError(bad, f"damaged: checksum does not match the chunk's bytes ({type(exc).__name__}); "
+                                      f"{REPAIR_HINT}") from None
         return data if isinstance(bands, (int, np.integer)) else np.moveaxis(data, 0, -1)
+
+    def _chunks_of(self, rows, cols) -> list[tuple[int, int]]:
+        """The chunks ``(ty, tx)`` a read of ``rows × cols`` meets (all of them for indices other than slices)."""
+        _, h, w = self.zarr.shape
+        _, th, tw = self.zarr.chunks
+        spans = []
+        for index, size, side in ((rows, h, th), (cols, w, tw)):
+            if isinstance(index, (int, np.integer)):
+                start = int(index) % size if size else 0
+                spans.append(range(start // side, start // side + 1))
+            elif isinstance(index, slice) and (index.step or 1) > 0:
+                start, stop, _ = index.indices(size)
+                spans.append(range(start // side, (stop - 1) // side + 1) if stop > start else range(0))
+            else:
+                spans.append(range(math.ceil(size / side)))
+        return [(ty, tx) for ty in spans[0] for tx in spans[1]]
+
+    def _record(self, ty: int, tx: int) -> dict | None:
+        """The checksum record of chunk ``(ty, tx)`` in its completion marker (``None``: not marked, or marked
+        before checksums were recorded)."""
+        if self.markers is None:
+            return None
+        try:
+            marker = json.loads((self.markers / f"{ty}_{tx}.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return None
+        record = marker.get(self.record_key) if isinstance(marker, dict) else None
+        return record if isinstance(record, dict) else None
+
+    def _check_present(self, chunks: list[tuple[int, int]]) -> None:
+        """Refuse a read meeting a chunk that is marked done (with a checksum) but whose file is gone."""
+        if self.markers is None or not self.markers.is_dir():
+            return
+        for ty, tx in chunks:
+            path = chunk_file(Path(self.path), ty, tx)
+            if not path.exists() and self._record(ty, tx) is not None:
+                raise InputFileError(path, f"missing: the chunk is marked done but its file is gone; {REPAIR_HINT}")
+
+    def _damaged_chunk(self, chunks: list[tuple[int, int]]) -> Path | None:
+        """The first of ``chunks`` that cannot be decoded, or ``None``."""
+        _, th, tw = self.zarr.chunks
+        for ty, tx in chunks:
+            try:
+                self.zarr[:, ty * th:(ty + 1) * th, tx * tw:(tx + 1) * tw]
+            except Exception:
+                return chunk_file(Path(self.path), ty, tx) if self.path is not None else Path(f"chunk {ty}/{tx}")
+        return None
 
     def __setitem__(self, key, value) -> None:
         try:
@@ -161,15 +269,17 @@ class ChannelLast:
             raise OSError(code, exc.strerror or os_problem(exc), str(self.path)) from exc
 
 
-def _compressors(name: str):
-    from zarr.codecs import BloscCodec, ZstdCodec
+def _compressors(name: str) -> tuple:
+    """The bytes-to-bytes codecs of every array: the compression, then Zarr's standard ``crc32c`` checksum (4
+    bytes per chunk: every Zarr reader refuses a chunk whose bytes changed)."""
+    from zarr.codecs import BloscCodec, Crc32cCodec, ZstdCodec
 
     if name == "none":
-        return None
+        return (Crc32cCodec(),)
     if name == "zstd":
-        return (ZstdCodec(level=1),)
+        return (ZstdCodec(level=1), Crc32cCodec())
     if name == "blosc-zstd":
-        return (BloscCodec(cname="zstd", clevel=1, shuffle="shuffle", typesize=4),)
+        return (BloscCodec(cname="zstd", clevel=1, shuffle="shuffle", typesize=4), Crc32cCodec())
     raise ValueError(f"unknown compression {name!r}")
 
 
@@ -222,7 +332,7 @@ class PanoramaStore:
                     raise InputFileError(path, "holds a panorama made with other inputs or parameters; rerun with "
                                                "--overwrite or choose another output")
                 return existing
-            shutil.rmtree(path)
+            remove_owned_tree(path, STORE_NAMES, "panorama store")  # a user's file inside: refused, nothing removed
         # built under a temporary name and renamed into place: a run killed while creating the store
         # leaves only a ".NAME.omnitmp-…" directory (removed here next time), never a half-made store
         for stale in path.parent.glob(f".{path.name}{TEMP_MARK}*"):
@@ -291,6 +401,28 @@ class PanoramaStore:
         extra = _read_metadata(self.path)
         return {**root, **extra, "omnispectral": {**root.get("omnispectral", {}), **extra.get("omnispectral", {})}}
 
+    def set_display_windows(self, percentile: float = WINDOW_PERCENTILE) -> list[tuple[float, float]]:
+        """Each band's OME ``omero`` display window from the data: ``start`` 0, ``end`` the band's ``percentile``
+        of the finite values of the coarsest level, ``min``/``max`` their range — so that napari and other
+        OME-Zarr viewers open the panorama exposed for its sky rather than for 1e6 DN/s (the sun's few pixels
+        stay above the window).  Returns ``(end, max)`` per band; a store without ``omero`` is left alone."""
+        root = self.path / "zarr.json"
+        meta = json.loads(root.read_text(encoding="utf-8"))
+        channels = meta.get("attributes", {}).get("ome", {}).get("omero", {}).get("channels")
+        if not channels:
+            return []
+        coarse = self.read(len(self.shapes) - 1)
+        windows = []
+        for k, channel in enumerate(channels[: coarse.shape[2]]):
+            values = coarse[..., k][np.isfinite(coarse[..., k])]
+            top = float(values.max()) if values.size else 1e6
+            end = float(np.percentile(values, percentile)) if values.size else 1e6
+            low = min(0.0, float(values.min())) if values.size else 0.0
+            channel["window"] = {"min": low, "max": max(top, end, 1e-30), "start": 0.0, "end": max(end, 1e-30)}
+            windows.append((end, top))
+        atomic_write_json(root, meta)
+        return windows
+
     def update_attrs(self, values: dict) -> None:
         """Replace top-level metadata entries (``omnispectral``, ``fingerprint``, …) atomically."""
         import zarr
@@ -305,7 +437,7 @@ class PanoramaStore:
         import zarr
 
         where = self.path / str(level)
-        return ChannelLast(zarr.open_array(str(where), mode=mode, zarr_format=3), where)
+        return ChannelLast(zarr.open_array(str(where), mode=mode, zarr_format=3), where, where / DONE_DIR)
 
     def to_xarray(self, level: int = 0):
         """Level ``level`` as a lazy (Dask) ``xarray.DataArray`` with dimensions ``(band, lat, lon)``.
@@ -348,16 +480,24 @@ class PanoramaStore:
         return self.path / str(level) / DONE_DIR / f"{ty}_{tx}.json"
 
     def _chunk_file(self, level: int, ty: int, tx: int) -> Path:
-        if self.format_version < 2:
-            return self.path / str(level) / "c" / str(ty) / str(tx) / "0"
-        return self.path / str(level) / "c" / "0" / str(ty) / str(tx)
+        return chunk_file(self.path / str(level), ty, tx, self.format_version >= 2)
+
+    def _quality_file(self, ty: int, tx: int) -> Path | None:
+        """The quality layer's chunk file beside level 0's chunk ``(ty, tx)`` (``None`` without the layer)."""
+        return chunk_file(self.path / QUALITY, ty, tx) if self.format_version >= 2 and self.has_quality() else None
 
     def unmark(self, level: int, ty: int, tx: int) -> None:
         """Forget that a chunk is finished (it will be recomputed)."""
         self._marker(level, ty, tx).unlink(missing_ok=True)
 
     def done_markers(self, level: int) -> dict[tuple[int, int], dict]:
-        """Statistics recorded with every finished chunk of ``level``."""
+        """Statistics recorded with every finished chunk of ``level`` (its checksums left out:
+        :meth:`chunk_records`)."""
+        return {key: {k: v for k, v in marker.items() if k not in CHECKSUM_KEYS}
+                for key, marker in self.chunk_records(level).items()}
+
+    def chunk_records(self, level: int) -> dict[tuple[int, int], dict]:
+        """Every completion marker of ``level`` as written: statistics and checksums (:data:`CHECKSUM_KEYS`)."""
         out = {}
         d = self.path / str(level) / DONE_DIR
         if not d.is_dir():
@@ -382,14 +522,75 @@ class PanoramaStore:
                              f"got {data.shape}")
         arr = array if array is not None else self.array(level, mode="r+")
         arr[r0:r1, c0:c1, :] = np.ascontiguousarray(data, dtype=np.float32)
-        chunk = self._chunk_file(level, ty, tx)
-        if chunk.exists():
-            fd = os.open(chunk, os.O_RDONLY)
+        stats = {k: v for k, v in (stats or {}).items() if k not in CHECKSUM_KEYS}
+        atomic_write_json(self._marker(level, ty, tx), {"level": level, "ty": ty, "tx": tx, **stats,
+                                                        **self._checksums(level, ty, tx)})
+
+    def _checksums(self, level: int, ty: int, tx: int) -> dict:
+        """The chunk's file (and at level 0 the quality layer's chunk), fsynced, as checksum records."""
+        out = {}
+        files = {"chunk": self._chunk_file(level, ty, tx), "quality_chunk": self._quality_file(ty, tx) if level == 0
+                 else None}
+        for key, path in files.items():
+            if path is None or not path.exists():
+                continue
+            fd = os.open(path, os.O_RDONLY)
             try:
                 os.fsync(fd)
             finally:
                 os.close(fd)
-        atomic_write_json(self._marker(level, ty, tx), {"level": level, "ty": ty, "tx": tx, **(stats or {})})
+            out[key] = file_checksum(path)
+        return out
+
+    def refresh_checksums(self, level: int, chunks) -> None:
+        """Record the current checksums in the markers of ``chunks`` (those marked done) of ``level``, after
+        something rewrote them in place (the sun painted into level 0 and its quality layer)."""
+        records = self.chunk_records(level)
+        for ty, tx in chunks:
+            marker = records.get((int(ty), int(tx)))
+            if marker is not None:
+                atomic_write_json(self._marker(level, ty, tx), {**{k: v for k, v in marker.items()
+                                                                   if k not in CHECKSUM_KEYS},
+                                                                **self._checksums(level, int(ty), int(tx))})
+
+    def chunks_meeting(self, level: int, rows: tuple[int, int], cols: tuple[int, int]) -> list[tuple[int, int]]:
+        """Chunks ``(ty, tx)`` of ``level`` meeting the window ``[row0, row1) × [col0, col1)``."""
+        t = self.tile
+        return [(ty, tx) for ty in range(rows[0] // t, (rows[1] - 1) // t + 1)
+                for tx in range(cols[0] // t, (cols[1] - 1) // t + 1)]
+
+    def chunk_problems(self, level: int) -> list[dict]:
+        """The finished chunks of ``level`` whose files are missing or do not match the checksums in their
+        markers (level 0: the quality layer's chunk too).
+
+        Markers written before checksums were recorded are not checked.
+
+        Returns
+        -------
+        list of dict
+            ``{"level", "ty", "tx", "path", "problem"}`` per problem (``problem`` from
+            :func:`omnispectral.checksums.checksum_problem`).
+        """
+        out = []
+        for (ty, tx), marker in sorted(self.chunk_records(level).items()):
+            files = {"chunk": self._chunk_file(level, ty, tx),
+                     "quality_chunk": chunk_file(self.path / QUALITY, ty, tx) if level == 0 else None}
+            for key, path in files.items():
+                record = marker.get(key)
+                if path is None or not isinstance(record, dict):
+                    continue
+                problem = checksum_problem(path, record)
+                if problem is not None:
+                    out.append({"level": level, "ty": ty, "tx": tx, "path": path, "problem": problem})
+        return out
+
+    def unmark_damaged(self) -> list[dict]:
+        """Forget the finished chunks of every level that :meth:`chunk_problems` finds (a resume recomputes
+        them); returns the problems."""
+        problems = [p for level in range(len(self.shapes)) for p in self.chunk_problems(level)]
+        for p in problems:
+            self.unmark(p["level"], p["ty"], p["tx"])
+        return problems
 
     def write_quality(self, ty: int, tx: int, data: np.ndarray) -> None:
         """Write one chunk of the quality layer (before the chunk of bands and its marker)."""
@@ -399,7 +600,8 @@ class PanoramaStore:
     def _quality(self, mode: str = "r") -> ChannelLast:
         import zarr
 
-        return ChannelLast(zarr.open_array(str(self.path / QUALITY), mode=mode, zarr_format=3), self.path / QUALITY)
+        return ChannelLast(zarr.open_array(str(self.path / QUALITY), mode=mode, zarr_format=3), self.path / QUALITY,
+                           self.path / "0" / DONE_DIR, "quality_chunk")
 
     def has_quality(self) -> bool:
         return (self.path / QUALITY / "zarr.json").is_file()

@@ -40,7 +40,7 @@ from omnispectral.mosaic.interp import SPLINE_PREFILTER_MARGIN_PX, interpolation
 from omnispectral.mosaic.maps import Canvas, Rect, SourceGeometry, exact_map, source_map, tile_cone
 from omnispectral.mosaic.options import MosaicOptions
 from omnispectral.mosaic.predict import fill_missing_b, implausible_b
-from omnispectral.mosaic.sources import MergedDirections, SourceImage, read_npy_rows
+from omnispectral.mosaic.sources import MergedDirections, SourceImage
 from omnispectral.mosaic.store import PanoramaStore
 from omnispectral.spectral.conditional import BandPredictor
 
@@ -182,7 +182,7 @@ def parallax_positions(job: MosaicJob, i: int, row0: int, col0: int, u: np.ndarr
     ia = np.clip(np.rint(np.nan_to_num(pa[..., 0], nan=-1.0)), 0, ma.width - 1).astype(np.int64)
     ja = np.clip(np.rint(np.nan_to_num(pa[..., 1], nan=-1.0)), 0, ma.height - 1).astype(np.int64)
     r_lo, r_hi = int(ja.min()), int(ja.max()) + 1
-    par = read_npy_rows(img.parallax, r_lo, r_hi)
+    par = img.read_parallax_rows(r_lo, r_hi)
     sample = par[ja - r_lo, ia].astype(np.float32)
     inv_depth, conf, occ = sample[..., 0], sample[..., 1], sample[..., 2] > 0.5
     near = np.isfinite(inv_depth) & (inv_depth > 0)

@@ -38,6 +38,7 @@ from omnispectral.choices import FORMATS
 from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.bracket import FLOAT_IMAGE_SUFFIXES, write_float_image
 from omnispectral.io import atomic_path
+from omnispectral.ownership import check_output_outside_inputs
 from omnispectral.product.layout import open_product
 from omnispectral.product.saturation import recovered_sun_mask, saturated_mask, saturation_level_dn_s
 from omnispectral.product.spectra import SunOverlay, bands_to_linear_srgb, estimate_image, predicted_b_rel_std
@@ -251,10 +252,7 @@ def check_export_output(fmt: str, output: str | Path, product: str | Path) -> No
     if out.suffix.lower() not in allowed:
         raise ConfigurationError(f"{out}: a {fmt} export is written as {' or '.join(allowed)}, not "
                                  f"{out.suffix or 'a file without extension'}")
-    root = Path(product).resolve()
-    if root in out.resolve().parents or out.resolve() == root:
-        raise ConfigurationError(f"{out}: is inside the product {product}; exports go outside it so that they "
-                                 f"never overwrite the product's own files")
+    check_output_outside_inputs([out], [product])  # exports never overwrite the product's own files
 
 
 #: File extensions of each export format (``uncertainty``: any float image format).

@@ -8,8 +8,9 @@ import json
 from pathlib import Path
 
 from omnispectral.capture.session import Session, read_journal
+from omnispectral.checksums import file_sha256
 from omnispectral.errors import ConfigurationError
-from omnispectral.fingerprint import FINGERPRINT_VERSION, file_sha256
+from omnispectral.fingerprint import FINGERPRINT_VERSION
 from omnispectral.mosaic.sources import FORMAT_VERSION
 
 __all__ = ["REGISTRATION_IDENTITY", "product_fingerprint", "session_identity"]

@@ -162,6 +162,7 @@ def fill_pyramid(store: PanoramaStore) -> None:
         for ty in range(ny):
             for tx in range(nx):
                 store.write_chunk(k, ty, tx, store.downsample_chunk(k, ty, tx), array=arr)
+    store.set_display_windows()
 
 
 def write_band_product(root: str | Path, bands: np.ndarray, index: dict, attrs: dict | None = None,

@@ -28,6 +28,12 @@ Stages (each timed, with progress; the whole run is resumable):
 
 ``PRODUCT/product.json`` indexes it all (see docs/product.md).
 
+A rerun on an existing product repairs instead of keeping damage: the merged files are checked against the
+checksums ``merged.json`` recorded (:func:`omnispectral.product.verify.drop_damaged_merged`: a damaged image's
+direction is merged again from the session's frames, a damaged parallax map measured again), the mosaic checks
+every finished chunk against its marker's checksum and renders again what is damaged or missing, and the index's
+``repaired`` says what was made again (``panorama_rebuilt`` when a merged file came out with other bytes).
+
 Every choice of a run is one :class:`ProcessOptions` (validated once; :func:`process` builds it from its
 keywords); camera B's registration is looked up by name in :data:`REGISTRATIONS`.
 """
@@ -56,12 +62,13 @@ from omnispectral.imaging.geometry import CameraModel
 from omnispectral.imaging.hdr import WEIGHTS
 from omnispectral.imaging.registration import DEFAULT_MIN_CONFIDENCE
 from omnispectral.io import atomic_write_json, clean_temp_files
-from omnispectral.limits import guard_product_output
+from omnispectral.limits import check_memory, guard_product_output, memory_budget, sensor_memory_bytes
 from omnispectral.locking import directory_lock
 from omnispectral.mosaic.engine import mosaic
 from omnispectral.mosaic.options import DEFAULT_TILE, MosaicOptions
 from omnispectral.mosaic.sources import MergedDirections, MergedDirectionsWriter
 from omnispectral.mosaic.store import PanoramaStore
+from omnispectral.ownership import check_output_outside_inputs, claim_output_directory
 from omnispectral.product.align import align_direction
 from omnispectral.product.direction_parallax import FAR_OFFSET_MIN_STD_PX, off_model_warnings, parallax_direction
 from omnispectral.product.estimator import b_predictor, rig_estimator
@@ -77,12 +84,19 @@ from omnispectral.product.rigsource import CalibrationSource, choose_rig_calibra
 from omnispectral.product.sun import SUN_FILE, paint_sun, sun_summary
 from omnispectral.product.sun_methods import recover_sun, sun_method
 from omnispectral.product.sun_reference import SunReference
+from omnispectral.product.verify import changed_files, drop_damaged_merged
 from omnispectral.progress import ProgressCallback, optional_progress, report_progress, under_stage
 from omnispectral.threads import ordered_thread_map
 
-__all__ = ["DEFAULT_INTERP", "REGISTRATIONS", "ProcessOptions", "Registration", "bad_directions",
-           "calibration_source_of", "merge_and_register", "merge_only", "parallax_registration", "process",
-           "register_parallax", "registration_method"]
+__all__ = ["DEFAULT_INTERP", "PROCESS_BASE_BYTES", "PROCESS_BYTES_PER_SENSOR_PX", "REGISTRATIONS", "ProcessOptions",
+           "Registration", "bad_directions", "calibration_source_of", "merge_and_register", "merge_only",
+           "parallax_registration", "process", "register_parallax", "registration_method"]
+
+#: Peak working memory of :func:`process` per pixel of the rig's largest sensor (bytes), and its fixed part:
+#: the merge's brackets, B's registration and the mosaic's tiles at two threads.  Measured as the peak RSS above
+#: the interpreter's: 270 MB for 256 × 136 sensors, 573 MB (1917 B/px) for 768 × 408.
+PROCESS_BYTES_PER_SENSOR_PX = 2000
+PROCESS_BASE_BYTES = 300e6
 
 
 def bad_directions(report: dict) -> dict[int, list[str]]:
@@ -210,7 +224,8 @@ def register_parallax(merged, calibration=None, progress: ProgressCallback | Non
         data = np.stack([par.inv_depth_per_m, par.confidence, par.occluded.astype(np.float32)], axis=-1)
         writer.save_parallax(i, data, reg.stats(), offset_px=reg.offset_px)
         report_progress(progress, "parallax", n_done + k + 1, n_total)
-    stats = [{"direction": int(d["index"]), **{k: v for k, v in d["images"]["B"]["parallax"].items() if k != "file"}}
+    stats = [{"direction": int(d["index"]), **{k: v for k, v in d["images"]["B"]["parallax"].items()
+                                               if k not in ("file", "checksum")}}
              for d in writer.meta["directions"]]
     if timings is not None:
         timings["registration"] = timings.get("registration", 0.0) + time.perf_counter() - t1
@@ -247,6 +262,14 @@ def parallax_registration(calibration: RigCalibration, source: CalibrationSource
     return {"method": "parallax", "rig_calibration": calibration.to_dict(), "rig_calibration_source": source.to_dict(),
             "far_content": summary, "warnings": warnings + ([summary["warning"]] if summary["warning"] else []),
             "directions": stats}
+
+
+def _repaired(dropped: list[dict], summary: dict, stale: list[str]) -> dict:
+    """The index's ``repaired``: the merged files and panorama chunks this run found missing or damaged (against
+    their checksums) and made again, and whether the panorama was rebuilt because a merged file came out
+    different."""
+    return {"merged": [{"file": d["file"], "problem": d["problem"]} for d in dropped],
+            "chunks": list(summary.get("repaired_chunks", [])), "panorama_rebuilt": bool(stale)}
 
 
 # ------------------------------------------------------------------------------------------ registration methods
@@ -571,6 +594,8 @@ def process(session: str | Path, output: str | Path, *, options: ProcessOptions 
     session_path = Path(session)
     paths = product_paths(output)
     guard_product_output(session_path, paths["root"], options.width)
+    check_output_outside_inputs([paths["root"]], [session_path, options.rig_calibration])
+    claim_output_directory(paths["root"], "process")
     with directory_lock(paths["root"], "process"):
         return _process_locked(session_path, paths, options, optional_progress(progress))
 
@@ -585,6 +610,10 @@ def _process_locked(session_path: Path, paths: dict, options: ProcessOptions,
     timings["check"] = time.perf_counter() - t0
     s = Session.open(session_path)  # opened once for the run: the merge reads its frames through it
     rig = s.rig()
+    big = max(rig.cameras.values(), key=lambda c: c.width_px * c.height_px)
+    check_memory(session_path / "rig.toml", sensor_memory_bytes(big.width_px * big.height_px,
+                                                                PROCESS_BYTES_PER_SENSOR_PX, PROCESS_BASE_BYTES),
+                 memory_budget(), f"processing {big.width_px} × {big.height_px} frames")
     models = {c: rig.camera_model(c) for c in rig.camera_names}
     calibration_source = calibration_source_of(session_path, options.registration, options.rig_calibration,
                                                options.calibration_views)
@@ -594,6 +623,8 @@ def _process_locked(session_path: Path, paths: dict, options: ProcessOptions,
                                       skipped_directions=bad)
     state = check_merged(paths["merged"], fingerprint, options.overwrite,
                          dependents=(paths["panorama"], paths["rig_calibration"], paths["index"]))
+    # a resumed run re-checks the merged files against their checksums: damaged or missing ones are made again
+    dropped = drop_damaged_merged(paths["merged"]) if state == "resume" else []
     registration = ONE_CAMERA if "B" not in models else registration_method(options.registration)
     run = _Run(s, paths, bad, options, models, calibration_source, timings, progress)
     merged, registration_entry = registration.register(run)
@@ -601,8 +632,11 @@ def _process_locked(session_path: Path, paths: dict, options: ProcessOptions,
     est, est_info = rig_estimator(rig)
     timings["estimator"] = time.perf_counter() - t2
     t1 = time.perf_counter()
-    # B's bands where B saw nothing (mosaic.predict)
-    mosaic_options = options.mosaic_options(b_predictor(est), overwrite=options.overwrite or state == "overwritten")
+    # B's bands where B saw nothing (mosaic.predict); a merged file made again with other bytes makes the
+    # panorama stale: it is rebuilt
+    stale = changed_files(dropped, merged)
+    mosaic_options = options.mosaic_options(b_predictor(est), overwrite=options.overwrite or state == "overwritten"
+                                            or bool(stale))
     summary = mosaic(merged, paths["panorama"], options=mosaic_options, progress=progress)
     timings["mosaic"] = time.perf_counter() - t1
     t_sun = time.perf_counter()
@@ -629,7 +663,8 @@ def _process_locked(session_path: Path, paths: dict, options: ProcessOptions,
              "skipped_directions": [{"direction": d, "problems": p} for d, p in sorted(bad.items())],
              "session_check": {k: check[k] for k in ("n_planned", "n_ok", "n_missing", "n_damaged")},
              "mosaic": {k: v for k, v in summary.items() if k not in ("output",)},
-             "sun": sun_summary(sun), "timings_s": timings, "fingerprint": fingerprint}
+             "sun": sun_summary(sun), "timings_s": timings, "fingerprint": fingerprint,
+             "repaired": _repaired(dropped, summary, stale)}
     # accuracy limits this run's rig, settings and measurements imply (product.expectations)
     index["accuracy_warnings"] = accuracy_warnings(index, rig, {d.index: d.pan_deg for d in s.plan().directions})
     atomic_write_json(paths["index"], index)

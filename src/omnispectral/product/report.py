@@ -510,7 +510,7 @@ def _accuracy_warnings_html(warnings: list[dict]) -> str:
 def _html(report: dict) -> str:
     acc = report.get("accuracy")
     rows = "".join(f"<tr><td>{k}</td><td>{v:.2f} s</td></tr>" for k, v in report["timings_s"].items())
-    acc_html = "<p>No ground truth (not a simulated session).</p>"
+    acc_html = "<p>No readable ground truth (a real capture, or its truth is damaged).</p>"
     if acc:
         cc = acc.get("colorchecker") or {}
         acc_html = (f"<table><tr><td>{acc['n_bands']}-band PSNR</td><td>{acc['band_psnr_db']:.2f} dB</td></tr>"

@@ -22,13 +22,14 @@ import numpy as np
 from omnispectral.capture.calviews import calibration_folder, has_views
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.io import atomic_path, atomic_write_json
+from omnispectral.ownership import check_output_outside_inputs, claim_output_directory
 from omnispectral.product.irradiance import HORIZONTAL_NORMAL, IRRADIANCE_UNITS, sun_sky_irradiance
 from omnispectral.product.layout import open_product, product_paths, read_index
 from omnispectral.product.process import ProcessOptions, process
 from omnispectral.progress import ProgressCallback, report_progress
 
 __all__ = ["DEFAULT_REGIONS", "parse_region", "process_series", "region_pixels", "series_products",
-           "slot_calibrations"]
+           "slot_calibrations", "slot_finished"]
 
 #: Default regions: the sky high above the horizon and the ground near the rig.
 DEFAULT_REGIONS = {"sky": (-180.0, 180.0, 45.0, 75.0), "ground": (-180.0, 180.0, -75.0, -45.0)}
@@ -44,6 +45,34 @@ def parse_region(text: str) -> tuple[str, tuple[float, float, float, float]]:
     if not (-180 <= lon0 < lon1 <= 180 and -90 <= lat0 < lat1 <= 90):
         raise ConfigurationError(f"region {text!r}: need -180 <= LON0 < LON1 <= 180 and -90 <= LAT0 < LAT1 <= 90")
     return name, (lon0, lon1, lat0, lat1)
+
+
+def slot_finished(product: str | Path) -> bool:
+    """Whether a slot's product went through every stage of :func:`~omnispectral.product.process.process`, the
+    report included: ``product.json`` is readable and lists the report's files, and they exist.
+
+    ``process`` writes ``product.json`` before the report and again with the report's files after it, so a run
+    killed while the report is written leaves a ``product.json`` without them: that slot is not finished.
+
+    Parameters
+    ----------
+    product : str or pathlib.Path
+        A slot's product directory.
+
+    Returns
+    -------
+    bool
+        True when the product and its report are complete.
+    """
+    try:
+        index = json.loads((Path(product) / "product.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    files = index.get("report") if isinstance(index, dict) else None
+    if not isinstance(files, dict) or "json" not in files:
+        return False
+    report = product_paths(product)["report"]  # by name: the product may have moved since its paths were recorded
+    return all(isinstance(f, str) and (report / Path(f).name).is_file() for f in files.values())
 
 
 def slot_calibrations(products: list[Path]) -> dict:
@@ -134,13 +163,14 @@ def process_series(series: str | Path, output: str | Path, regions: dict | None 
     if not slots:
         raise InputFileError(series / "series.json", "no complete slot to process")
     regions = regions or DEFAULT_REGIONS
-    out.mkdir(parents=True, exist_ok=True)
+    check_output_outside_inputs([out], [series, rig_calibration])
+    claim_output_directory(out, "process-series")
     products, times = [], []
     calibration = rig_calibration  # else the series' views, else fitted on the first slot and reused
     series_views = rig_calibration is None and has_views(calibration_folder(series))
     for i, e in enumerate(slots):
         prod = out / e["session"]
-        if not (prod / "product.json").exists():
+        if not slot_finished(prod):  # a slot killed in any stage, its report included, is processed again (resumes)
             options = ProcessOptions(report=True, rig_calibration=calibration,
                                      truth=truth_of(series / e["session"]) if truth_of else None)
             process(series / e["session"], prod, options=options, progress=progress)

@@ -437,6 +437,8 @@ def paint_sun(store, sun: dict, margin_px: int = 2) -> dict:
     quality = store.read_quality(slice(r0, r1))[:, cols] if store.has_quality() else None
     if quality is not None and quality.shape[2] > 2:  # the quality layer's sun flag: 1 where painted
         store.write_quality_layer(2, r0, cols, np.where(region, 1.0, quality[..., 2]))
+    t = store.tile  # the level-0 chunks rewritten in place: their markers' checksums follow
+    store.refresh_checksums(0, {(ty, int(c) // t) for ty in range(r0 // t, (r1 - 1) // t + 1) for c in cols})
     return {"row0": r0, "col0": int(c0 % w), "rows": int(r1 - r0), "cols": int(c1 - c0),
             "mask": region.astype(int).tolist(), "n_pixels": int(region.sum()),
             "background": bg.tolist()}

@@ -10,6 +10,8 @@ equirectangular grids (``SESSION/ground_truth/``, format ``omnispectral-ground-t
 from __future__ import annotations
 
 import json
+import logging
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -22,10 +24,16 @@ from omnispectral.io import atomic_path, atomic_write_json, jsonable
 from omnispectral.rig import Rig, camera_model
 from omnispectral.sim.scenes.base import SunDisk, scene_sun_disk
 
-__all__ = ["GROUND_TRUTH_FORMAT", "GroundTruth", "add_sun_disk_equirect", "default_ground_truth_width",
+__all__ = ["GROUND_TRUTH_FORMAT", "GroundTruth", "add_sun_disk_equirect", "check_ground_truth",
+           "default_ground_truth_width",
            "patch_radiance_spread", "render_equirect_bands", "write_ground_truth"]
 
 GROUND_TRUTH_FORMAT = "omnispectral-ground-truth"
+
+log = logging.getLogger(__name__)
+
+#: Arrays small enough to be read whole when a truth is opened (their values are checked to be finite).
+SMALL_ARRAY_BYTES = 1 << 20
 
 
 def default_ground_truth_width(rig: Rig) -> int:
@@ -233,6 +241,92 @@ def _save_npy(path: Path, array: np.ndarray) -> None:
         np.save(fh, array)
 
 
+def check_ground_truth(directory: str | Path) -> dict:
+    """``ground_truth.json`` of a truth directory, after checking every array it names without decoding the big
+    ones: each ``.npy`` file's header is read (float32, the shape the description states) and the file holds all
+    the bytes of that shape; the small arrays (wavelengths, system matrix, chart spectra) are read and finite.
+
+    Parameters
+    ----------
+    directory : str or pathlib.Path
+        A ground-truth directory (:func:`write_ground_truth`).
+
+    Returns
+    -------
+    dict
+        The description (``ground_truth.json``).
+
+    Raises
+    ------
+    InputFileError
+        Naming the first file that is missing, unreadable, cut, of another type or shape, or not finite.
+    """
+    directory = Path(directory)
+    meta = _read_description(directory / "ground_truth.json")
+    for name, shape in _described_arrays(directory / "ground_truth.json", meta):
+        _check_npy(directory / name, shape)
+    return meta
+
+
+def _read_description(path: Path) -> dict:
+    """``ground_truth.json``, refused unless it is an object of :data:`GROUND_TRUTH_FORMAT`."""
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        problem = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise InputFileError(path, f"not a readable ground truth ({problem})") from None
+    if not isinstance(meta, dict) or meta.get("format") != GROUND_TRUTH_FORMAT:
+        raise InputFileError(path, f"not an {GROUND_TRUTH_FORMAT} file")
+    return meta
+
+
+def _described_arrays(path: Path, meta: dict) -> list[tuple[str, tuple[int, ...] | None]]:
+    """``(file name, expected shape or None)`` of every array the description names, bands and spectra first."""
+    try:
+        bands, spectral = tuple(meta["bands"]["shape"]), tuple(meta["spectral"]["shape"])
+        n_bands, n_wavelengths = int(bands[2]), int(spectral[2])
+        arrays = [(meta["bands"]["file"], bands), (meta["spectral"]["file"], spectral),
+                  (meta["wavelength_nm"], (n_wavelengths,)), (meta["system_matrix"], (n_bands, n_wavelengths))]
+        if meta.get("depth"):
+            arrays.append((meta["depth"]["file"], tuple(meta["depth"]["shape"])))
+        for key in ("colorchecker_radiance", "colorchecker_white"):
+            if meta.get(key):
+                arrays.append((meta[key], None))
+        arrays = [(name, None if shape is None else tuple(int(v) for v in shape)) for name, shape in arrays]
+    except (KeyError, TypeError, ValueError, IndexError) as exc:
+        raise InputFileError(path, f"incomplete ground-truth description ({type(exc).__name__}: {exc})") from None
+    for name, _ in arrays:
+        if not isinstance(name, str) or not name or Path(name).name != name:
+            raise InputFileError(path, f"names {name!r}, not a file of the ground truth's directory")
+    return arrays
+
+
+def _check_npy(path: Path, shape: tuple[int, ...] | None) -> None:
+    """Refuse a ``.npy`` file that is not float32 of ``shape`` (any shape when None) or holds fewer bytes than its
+    header says; small arrays are read whole and must be finite (``depth_m.npy`` may hold inf: the sky)."""
+    try:
+        with open(path, "rb") as fh:
+            version = np.lib.format.read_magic(fh)
+            read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                           else np.lib.format.read_array_header_2_0)
+            stated, fortran, dtype = read_header(fh)  # the header only: nothing is decoded
+            offset = fh.tell()
+            size = os.fstat(fh.fileno()).st_size
+    except FileNotFoundError:
+        raise InputFileError(path, "missing (the ground truth names it)") from None
+    except (OSError, ValueError, EOFError, SyntaxError) as exc:
+        raise InputFileError(path, f"damaged NumPy array ({type(exc).__name__}: {exc})") from None
+    if dtype != np.float32 or fortran or (shape is not None and tuple(stated) != shape):
+        raise InputFileError(path, f"holds {dtype} {tuple(stated)}, the ground truth describes float32 "
+                                   f"{shape if shape is not None else 'arrays'}")
+    need = offset + int(np.prod(stated, dtype=np.int64)) * 4
+    if size < need:
+        raise InputFileError(path, f"cut: {size} bytes, its header needs {need}")
+    if need - offset <= SMALL_ARRAY_BYTES and path.name != "depth_m.npy":
+        values = np.load(path)
+        if not np.isfinite(values).all():
+            raise InputFileError(path, "holds values that are not finite")
+
 
 @dataclass
 class GroundTruth:
@@ -247,22 +341,32 @@ class GroundTruth:
 
     @classmethod
     def open(cls, directory: str | Path) -> GroundTruth:
-        """The truth in ``directory``; :class:`~omnispectral.errors.InputFileError` naming the file if unreadable."""
+        """The truth in ``directory``, checked whole before anything reads it (:func:`check_ground_truth`).
+
+        Raises
+        ------
+        InputFileError
+            Naming the file that is missing, unreadable, cut or not what ``ground_truth.json`` describes.
+        """
         directory = Path(directory)
-        path = directory / "ground_truth.json"
-        try:
-            meta = json.loads(path.read_text())
-        except (OSError, ValueError) as exc:
-            raise InputFileError(f"{path}: not a readable ground truth ({exc})") from exc
-        if not isinstance(meta, dict) or meta.get("format") != GROUND_TRUTH_FORMAT:
-            raise InputFileError(f"{path}: not an {GROUND_TRUTH_FORMAT} file")
-        return cls(directory, meta)
+        return cls(directory, check_ground_truth(directory))
 
     @classmethod
     def of_session(cls, session: str | Path) -> GroundTruth | None:
-        """The truth of a simulated session (``SESSION/ground_truth``), or None for a session without one."""
+        """The truth of a simulated session (``SESSION/ground_truth``), or None for a session without one.
+
+        A damaged or unreadable truth is None too, after one warning line naming the file (logged on
+        ``omnispectral.sim.truth``; Python prints it alone on standard error when logging is not configured):
+        the truth only adds the report's accuracy section, so the product is still made, without it.
+        """
         directory = Path(session) / "ground_truth"
-        return cls.open(directory) if (directory / "ground_truth.json").is_file() else None
+        if not (directory / "ground_truth.json").is_file():
+            return None
+        try:
+            return cls.open(directory)
+        except InputFileError as exc:
+            log.warning("warning: %s; the report is written without its accuracy section", exc)
+            return None
 
     @property
     def band_names(self) -> list[str]:

@@ -53,9 +53,9 @@ from omnispectral.view.tiles import MODES, Display, SlotRenderer, TileCache, enc
 
 __all__ = ["BASE_SIZE", "LOCAL_HOSTS", "PORT_RANGE", "STATIC_DIR", "TILE_PX", "BadRequest", "CannotListenError",
            "LoopbackHostMiddleware", "Slot", "ViewerState", "auto_exposure", "bad_request", "base", "bound_port",
-           "check_listen_address", "check_port_number", "create_app", "host_name", "host_port", "http_error",
-           "index_page", "info", "load_static", "no_icon", "probes", "probes_csv", "serve", "spectrum", "static_file",
-           "tile", "unprocessable", "view_slots"]
+           "check_listen_address", "check_port_number", "create_app", "damaged_product", "host_name", "host_port",
+           "http_error", "index_page", "info", "load_static", "no_icon", "probes", "probes_csv", "serve", "spectrum",
+           "static_file", "tile", "unprocessable", "view_slots"]
 
 STATIC_DIR = Path(__file__).parent / "static"
 LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1", "[::1]")
@@ -325,6 +325,12 @@ async def unprocessable(request: Request, exc: Exception) -> Response:
     return JSONResponse({"error": str(exc)}, status_code=422)
 
 
+async def damaged_product(request: Request, exc: Exception) -> Response:
+    """A file of the product that is missing or fails its checksum (a panorama chunk): one line naming it, never
+    a tile made of wrong numbers."""
+    return JSONResponse({"error": str(exc)}, status_code=500)
+
+
 async def http_error(request: Request, exc: HTTPException) -> Response:
     return JSONResponse({"error": exc.detail}, status_code=exc.status_code)
 
@@ -376,7 +382,7 @@ def create_app(path: str | Path, host: str = "127.0.0.1", cache_bytes: int = 64 
         middleware.append(Middleware(LoopbackHostMiddleware))
     app = Starlette(routes=routes, middleware=middleware,
                     exception_handlers={BadRequest: bad_request, ConfigurationError: unprocessable,
-                                        HTTPException: http_error})
+                                        InputFileError: damaged_product, HTTPException: http_error})
     app.state.viewer = state
     app.state.static = load_static()
     return app

@@ -37,14 +37,20 @@ def add_commands(sub) -> None:
                         description="Check completeness against the plan and every frame's SHA-256; name every "
                                     "missing or damaged frame. Exit status 1 when the session is incomplete.")
     v.add_argument("session", metavar="SESSION")
-    v.add_argument("--pixels", action="store_true", help="also decode every frame")
+    v.add_argument("--pixels", action="store_true",
+                   help="also decode every frame and check its pixels (the pixel checksum it embeds, the camera's "
+                        "full scale)")
     v.add_argument("--json", action="store_true", help="print the report as JSON")
     v.set_defaults(func="omnispectral.cli.capture:cmd_session_verify")
     r = ssub.add_parser("repair", help="rebuild a session's journal from its frames (dry run by default)",
                         description="Every raw frame embeds its journal record: rebuild journal.jsonl from the frames "
-                                    "that decode (garbage lines, lost or cut lines). Reports what would change; "
+                                    "that decode (garbage lines, lost or cut lines). Damaged frames (a checksum "
+                                    "mismatch, pixels above full scale) are never given a new checksum: --apply moves "
+                                    "them to SESSION/quarantine/ and a resume captures them again. Reports what would "
+                                    "change; "
                                     "--apply writes it (the old journal is kept as journal.jsonl.bak-TIME).")
     r.add_argument("session", metavar="SESSION")
-    r.add_argument("--apply", action="store_true", help="write the rebuilt journal (default: dry run)")
+    r.add_argument("--apply", action="store_true", help="write the rebuilt journal and quarantine damaged "
+                                                      "frames (default: dry run)")
     r.add_argument("--json", action="store_true", help="print the report as JSON")
     r.set_defaults(func="omnispectral.cli.capture:cmd_session_repair")

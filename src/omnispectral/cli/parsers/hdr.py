@@ -36,6 +36,9 @@ def add_commands(sub) -> None:
                    help="reference exposure for --deghost (index in file order; default the middle exposure time)")
     m.add_argument("--with-variance", action="store_true",
                    help="also store per-pixel variance and a validity channel (EXR/TIFF/NPY)")
+    m.add_argument("--memory-gb", type=float, default=None, metavar="GB",
+                   help="memory the merge may use (GiB); default half of the memory available. A bracket needing "
+                        "more is refused from its headers, before decoding")
     m.add_argument("-o", "--output", required=True, metavar="OUT.exr", help="output .exr, .hdr, .tif or .npy")
     m.add_argument("--json", action="store_true", help="print a JSON summary")
     m.set_defaults(func="omnispectral.cli.hdr:cmd_hdr_merge")

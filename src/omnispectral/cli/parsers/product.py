@@ -1,4 +1,5 @@
-"""``omnispectral process | process-series | spectrum | export | report | demo | calibrate rig``: the arguments;
+"""``omnispectral process | process-series | spectrum | export | report | product verify | demo | calibrate rig``: the
+arguments;
 run by :mod:`omnispectral.cli.product`."""
 
 from __future__ import annotations
@@ -39,8 +40,8 @@ def degrees_in(low: float, high: float):
 
 
 def add_commands(sub) -> None:
-    """Register ``process``, ``process-series``, ``spectrum``, ``export``, ``report``, ``demo`` and
-    ``calibrate rig``."""
+    """Register ``process``, ``process-series``, ``spectrum``, ``export``, ``report``, ``product verify``, ``demo``
+    and ``calibrate rig``."""
 
     c = calibrate_group(sub).add_parser(
         "rig", help="camera B's mounting relative to camera A, from a session's images or from chessboard pairs",
@@ -75,7 +76,10 @@ def add_commands(sub) -> None:
                                    "fitted from the session's own images (then a warning says, per direction, how "
                                    "far off far content may be), and per-pixel parallax (or the paper's one POC "
                                    "offset per direction); mosaic into a six-band Zarr panorama with a "
-                                   "registration-quality layer; Wiener estimator attached; report. Resumable.")
+                                   "registration-quality layer; Wiener estimator attached; report. Resumable: a rerun "
+                                   "re-checks the merged files and the panorama's chunks against their checksums "
+                                   "and makes again what is missing or damaged ('product verify' checks without "
+                                   "repairing).")
     p.add_argument("session", metavar="SESSION")
     p.add_argument("-o", "--output", required=True, metavar="PRODUCT", help="product directory")
     p.add_argument("--width", type=int, default=None, help="panorama width in px (default: the sensor's resolution)")
@@ -159,6 +163,20 @@ def add_commands(sub) -> None:
     r.add_argument("product", metavar="PRODUCT")
     r.add_argument("--json", action="store_true")
     r.set_defaults(func="omnispectral.cli.product:cmd_report")
+
+    pr = sub.add_parser("product", help="check products", description="Check products.")
+    prsub = pr.add_subparsers(dest="product_command", metavar="SUBCOMMAND", required=True)
+    v = prsub.add_parser("verify", help="check every panorama chunk and merged file of a product against its checksum",
+                         description="Checks every merged image and parallax map and every chunk of every level of "
+                                     "the panorama (and its quality layer) for presence and against the size and "
+                                     "CRC-32 recorded when it was written; prints one line per problem and a "
+                                     "summary. Cost: one read of every file, about 1 s per GB from the page cache "
+                                     "(measured on a 40 MB product), bounded by the disk's read speed otherwise. "
+                                     "'process' on the product repairs what it finds. Exit status 1 when anything "
+                                     "is missing or damaged.")
+    v.add_argument("product", metavar="PRODUCT")
+    v.add_argument("--json", action="store_true", help="print the report as JSON")
+    v.set_defaults(func="omnispectral.cli.product:cmd_product_verify")
 
     d = sub.add_parser("demo", help="simulate, process, export and report in one go",
                        description="Simulate the paper's time-lapse geometry on the procedural scene (reduced "

@@ -123,6 +123,13 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
         if renamed is exc:
             raise
         raise renamed from exc
+    except RuntimeError as exc:  # a writer library's own error about the file (OpenEXR: "File too large")
+        _remove_quietly(tmp_path)
+        text = str(exc)
+        if tmp_path.name not in text:
+            raise
+        raise InputFileError(path, "could not be written: " + text.replace(str(tmp_path), str(path))
+                             .replace(tmp_path.name, path.name)) from exc
     except BaseException:
         _remove_quietly(tmp_path)
         raise

@@ -18,6 +18,7 @@ a command allocate tens of GiB or run for days:
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import re
@@ -77,6 +78,11 @@ MAX_PANORAMA_WIDTH_PX = 131_072
 PANORAMA_BYTES_PER_PX = 6 * 4 * 4 / 3  # six float32 bands, pyramid levels add a third
 #: Share of the available memory one command may plan to use (the rest: the system, other programs, estimates' slack).
 MEMORY_FRACTION = 0.5
+
+# tifffile reports a damaged tag on its logger; without a handler Python's last resort prints it to stderr ahead
+# of the one line our readers give for the same file.  A handler here keeps those lines off the terminal (an
+# application's own logging configuration still receives them).
+logging.getLogger("tifffile").addHandler(logging.NullHandler())
 
 
 def gib(n_bytes: float) -> str:

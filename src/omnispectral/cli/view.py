@@ -5,7 +5,7 @@ from __future__ import annotations
 from rich.markup import escape
 
 from omnispectral.cli._common import console, err_console
-from omnispectral.view.server import LOCAL_HOSTS, check_listen_address, check_port_number, serve
+from omnispectral.view.server import LOCAL_HOSTS, check_listen_address, check_port_number, serve, view_slots
 
 __all__ = ["cmd_view"]
 
@@ -17,6 +17,7 @@ def cmd_view(args) -> int:
                           f"this machine on port {args.port} can look at the product (read-only). The default is "
                           "127.0.0.1.")
     check_listen_address(args.host, args.port)  # a busy port: one error line, not the product opened first
+    view_slots(args.product)  # not a product or series: one error line before anything else is printed
     err_console.print(f"opening {escape(str(args.product))} (fitting its estimator takes a few seconds)…")
 
     def ready(url: str) -> None:

@@ -88,6 +88,8 @@ class MosaicOptions:
             if width < MIN_WIDTH_PX or width % 2:
                 raise ConfigurationError(f"width must be an even number ≥ {MIN_WIDTH_PX}, got {width}")
             object.__setattr__(self, "width", width)
+        if self.workers is not None and (isinstance(self.workers, bool) or int(self.workers) < 1):
+            raise ConfigurationError(f"workers must be at least 1 (or None: every core), got {self.workers}")
 
     @classmethod
     def from_keywords(cls, options: MosaicOptions | None = None, **keywords) -> MosaicOptions:

@@ -25,6 +25,17 @@ def seed_arg(text: str) -> int:
     return value
 
 
+def positive_int_arg(text: str) -> int:
+    """argparse type: an integer ≥ 1 (a count: threads, workers)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise _argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    if value < 1:
+        raise _argparse.ArgumentTypeError(f"{value} is not a count (at least 1)")
+    return value
+
+
 def date_arg(text: str) -> str:
     """argparse type: a calendar date ``YYYY-MM-DD`` that exists (``2017-02-30`` is refused), returned as given."""
     try:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 
 from omnispectral.choices import BLEND_NAMES, DEFAULT_INTERP, DEFAULT_MULTIBAND_LEVELS, DEFAULT_TILE, INTERP_NAMES
+from omnispectral.cli.parsers import positive_int_arg
 
 __all__ = ["add_commands"]
 
@@ -31,7 +32,7 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
                    help="equalise per-direction gains in the overlaps (Brown & Lowe 2007)")
     p.add_argument("--scheduler", metavar="ADDRESS", default=None,
                    help="Dask distributed scheduler address (default: local threads)")
-    p.add_argument("--workers", type=int, default=None, help="local threads (default: all cores)")
+    p.add_argument("--workers", type=positive_int_arg, default=None, help="local threads (default: all cores)")
     p.add_argument("--region", type=int, nargs=4, metavar=("ROW0", "ROW1", "COL0", "COL1"), default=None,
                    help="compute only the tiles meeting this pixel window")
     p.add_argument("--merged-dir", default=None, help="where a raw session is merged to (default SESSION/merged)")

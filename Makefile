@@ -1,6 +1,6 @@
-# omnispectral: `make demo` runs the main job on the built-in default, `make test` runs the tests.
-# `make test-fast` leaves out the slow tests. All create (or reuse) the virtual environment .venv and install
-# what is needed from PyPI.
+# omnispectral: `make demo` runs the main job on the built-in default, `make test` runs the tests but the
+# minutes-long ones, `make test-long` those (CI runs both), `make test-fast` leaves out the slow tests. All create
+# (or reuse) the virtual environment .venv and install what is needed from PyPI.
 
 PYTHON ?= python3
 VENV ?= .venv
@@ -8,7 +8,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.omnispectral-installed
 DEMO_OUT ?= demo-output
 
-.PHONY: demo test test-fast lint bench clean venv
+.PHONY: demo test test-long test-fast lint bench clean venv
 
 venv: $(STAMP)
 
@@ -26,9 +26,12 @@ demo: $(STAMP)
 	$(BIN)/omnispectral spectral evaluate --plot $(DEMO_OUT)/spectral_evaluation.png \
 		--json-out $(DEMO_OUT)/spectral_evaluation.json
 
-test: $(STAMP)
+test: $(STAMP)  # everything but the tests marked long (make test-long)
 	$(BIN)/ruff check src tests benchmarks scripts
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -m "not long"
+
+test-long: $(STAMP)  # the tests that run for minutes: every README command line as written
+	$(BIN)/python -m pytest -q -m long
 
 test-fast: $(STAMP)  # the edit-test loop: everything but the tests marked slow
 	$(BIN)/ruff check src tests benchmarks scripts

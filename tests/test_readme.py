@@ -212,6 +212,7 @@ def wait_for_server(line: str, cwd: Path, env: dict, url: str = "http://127.0.0.
 
 
 @pytest.mark.slow
+@pytest.mark.long  # 8–13 min: make test-long (CI runs it after make test)
 def test_readme_command_lines_run_as_written(tmp_path: Path) -> None:
     if not SHARED.is_dir():
         pytest.skip(f"shared data not found at {SHARED} (the Memorial bracket and the chessboard photos)")

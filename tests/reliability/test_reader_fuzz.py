@@ -32,6 +32,9 @@ from omnispectral.spectral.curves import read_spectral_csv
 N_CASES = 50
 MAX_RSS_RISE_KIB = 200_000
 
+#: a reader's library warning (Pillow's "Tag data larger than file") would print ahead of the one error line
+pytestmark = pytest.mark.filterwarnings("error::UserWarning")
+
 
 def _png() -> bytes:
     buf = io.BytesIO()

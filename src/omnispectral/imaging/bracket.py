@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import itertools
 import re
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from fractions import Fraction
@@ -120,9 +121,13 @@ def exif_exposure_s(path: str | Path) -> float | None:
     if Path(path).suffix.lower() in (".png", ".jpg", ".jpeg", ".tif", ".tiff"):
         check_image_header(path)
     try:
-        with Image.open(path) as im:
-            exif = im.getexif()
-            value = exif.get_ifd(EXIF_IFD_POINTER).get(EXIF_EXPOSURE_TIME, exif.get(EXIF_EXPOSURE_TIME))
+        # a damaged tag makes Pillow warn ("Tag data larger than file") and skip it: no time is no time, and the
+        # warning would print ahead of the command's own line
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            with Image.open(path) as im:
+                exif = im.getexif()
+                value = exif.get_ifd(EXIF_IFD_POINTER).get(EXIF_EXPOSURE_TIME, exif.get(EXIF_EXPOSURE_TIME))
     except (OSError, UnidentifiedImageError):
         return None
     if value is None:

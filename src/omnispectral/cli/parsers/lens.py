@@ -7,6 +7,7 @@ import argparse
 import importlib
 
 from omnispectral.choices import DEFAULT_SUBPIX_WINDOW, DETECTORS, LENS_MODEL_NAMES, MIN_IMAGES
+from omnispectral.cli.parsers import positive_int_arg
 from omnispectral.errors import ConfigurationError
 
 __all__ = ["add_commands", "board_arg", "calibrate_group", "positive_mm_arg"]
@@ -47,15 +48,8 @@ def positive_mm_arg(text: str) -> float:
 
 
 def _subpix(text: str) -> int | str:
-    if text == "auto":
-        return text
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a positive integer or 'auto', got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer or 'auto', got {text!r}")
-    return value
+    """argparse type of ``--subpix-window``: ``auto`` or a count of pixels."""
+    return text if text == "auto" else positive_int_arg(text)
 
 
 def add_commands(sub) -> None:

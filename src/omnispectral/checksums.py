@@ -25,7 +25,7 @@ from pathlib import Path
 from omnispectral.errors import InputFileError
 
 __all__ = ["ALGORITHM", "BLOCK_BYTES", "checksum_problem", "file_checksum", "file_crc32", "file_sha256",
-           "forget_verified", "verified"]
+           "forget_verified", "remembered_problem", "verified"]
 
 #: The name of the checksum in every record.
 ALGORITHM = "crc32"
@@ -128,20 +128,45 @@ def verified(path: str | Path, record: dict | None) -> Path:
     path = Path(path)
     if not record or ALGORITHM not in record:
         return path
+    problem = remembered_problem(path, record)
+    if problem == "missing":
+        raise InputFileError(path, "missing; 'omnispectral process' on the product makes it again")
+    if problem is not None:
+        raise InputFileError(path, f"{problem}; 'omnispectral process' on the product repairs it")
+    return path
+
+
+def remembered_problem(path: str | Path, record: dict | None) -> str | None:
+    """:func:`checksum_problem`, remembering a file that matched (for its size, modification time and inode) so
+    that the next check of it in this process, by :func:`verified` or here, reads nothing.
+
+    Parameters
+    ----------
+    path
+        The file.
+    record
+        Its checksum record, or ``None`` (presence only).
+
+    Returns
+    -------
+    str or None
+        As :func:`checksum_problem`.
+    """
     try:
         st = os.stat(path)
     except FileNotFoundError:
-        raise InputFileError(path, "missing; 'omnispectral process' on the product makes it again") from None
-    key = (str(path.absolute()), st.st_size, st.st_mtime_ns, st.st_ino, record[ALGORITHM])
+        return "missing"
+    if not record or ALGORITHM not in record:
+        return None
+    key = (str(Path(path).absolute()), st.st_size, st.st_mtime_ns, st.st_ino, record[ALGORITHM])
     with _lock:
         if key in _verified:
-            return path
+            return None
     problem = checksum_problem(path, record)
-    if problem is not None:
-        raise InputFileError(path, f"{problem}; 'omnispectral process' on the product repairs it")
-    with _lock:
-        _verified.add(key)
-    return path
+    if problem is None:
+        with _lock:
+            _verified.add(key)
+    return problem
 
 
 def forget_verified() -> None:

@@ -268,7 +268,7 @@ def check_directions(n_pan: int, n_tilt: int, where: str = "plan") -> None:
                                  f"{MAX_DIRECTIONS} (check the field of view and the grid)")
 
 
-def guard_product_output(session: str | Path, product: str | Path, width: int | None = None) -> None:
+def guard_product_output(product: str | Path, width: int | None = None) -> None:
     """``process``: the product directory is not a session, and the width is sane (that it lies outside the
     session: :func:`omnispectral.ownership.check_output_outside_inputs`)."""
     p = Path(product).resolve()

@@ -15,6 +15,7 @@ from omnispectral.cli import main
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.imaging.bracket import merge_memory_bytes
 
+from .test_fault_injection import tiny_rig
 from .test_hostile_inputs import bomb_jpeg, peak_rss_kib, small_png
 
 GIB = 2**30
@@ -173,16 +174,8 @@ def test_hdr_merge_names_camera_raw_files_it_does_not_read(tmp_path, capsys):
 
 
 def _rig_file(tmp_path: Path, width_px: int, height_px: int) -> Path:
-    from omnispectral.rig import load_preset
-
-    text = load_preset("small").toml_text
-    for old, new in (("width_px = 256", f"width_px = {width_px}"), ("height_px = 136", f"height_px = {height_px}"),
-                     ("count = 15", "count = 4"), ("shortest_s = 0.000015", "shortest_s = 0.0002"),
-                     ("n_pan = 12", "n_pan = 6"), ("n_tilt = 3", "n_tilt = 2"),
-                     ("hfov_deg = 95.0", "hfov_deg = 120.0")):
-        text = text.replace(old, new)
     path = tmp_path / "rig.toml"
-    path.write_text(text)
+    path.write_text(tiny_rig(width_px, height_px).toml_text)
     return path
 
 

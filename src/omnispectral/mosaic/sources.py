@@ -54,7 +54,7 @@ from pathlib import Path
 
 import numpy as np
 
-from omnispectral.checksums import checksum_problem, file_checksum, verified
+from omnispectral.checksums import file_checksum, remembered_problem, verified
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.imaging.geometry import CameraModel
 from omnispectral.io import atomic_path, atomic_write_json
@@ -270,10 +270,10 @@ class MergedDirections:
 
     def problems(self) -> list[dict]:
         """The listed files that are missing or do not match their checksums: the entries of :meth:`files` with
-        ``problem`` (:func:`omnispectral.checksums.checksum_problem`)."""
+        ``problem`` (:func:`omnispectral.checksums.remembered_problem`)."""
         out = []
         for f in self.files():
-            problem = checksum_problem(f["path"], f["checksum"])
+            problem = remembered_problem(f["path"], f["checksum"])  # the mosaic's check_files reads them no more
             if problem is not None:
                 out.append({**f, "problem": problem})
         return out

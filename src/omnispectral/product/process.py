@@ -593,7 +593,7 @@ def process(session: str | Path, output: str | Path, *, options: ProcessOptions 
         sun_reference=sun_reference, calibration_views=calibration_views, truth=truth)
     session_path = Path(session)
     paths = product_paths(output)
-    guard_product_output(session_path, paths["root"], options.width)
+    guard_product_output(paths["root"], options.width)
     check_output_outside_inputs([paths["root"]], [session_path, options.rig_calibration])
     claim_output_directory(paths["root"], "process")
     with directory_lock(paths["root"], "process"):
@@ -606,14 +606,14 @@ def _process_locked(session_path: Path, paths: dict, options: ProcessOptions,
     clean_temp_files(paths["root"])
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    check, bad = _check_session(session_path, options.skip_bad, options.verify_checksums)
-    timings["check"] = time.perf_counter() - t0
     s = Session.open(session_path)  # opened once for the run: the merge reads its frames through it
     rig = s.rig()
     big = max(rig.cameras.values(), key=lambda c: c.width_px * c.height_px)
     check_memory(session_path / "rig.toml", sensor_memory_bytes(big.width_px * big.height_px,
                                                                 PROCESS_BYTES_PER_SENSOR_PX, PROCESS_BASE_BYTES),
-                 memory_budget(), f"processing {big.width_px} × {big.height_px} frames")
+                 memory_budget(), f"processing {big.width_px} × {big.height_px} frames")  # before any frame is read
+    check, bad = _check_session(session_path, options.skip_bad, options.verify_checksums)
+    timings["check"] = time.perf_counter() - t0
     models = {c: rig.camera_model(c) for c in rig.camera_names}
     calibration_source = calibration_source_of(session_path, options.registration, options.rig_calibration,
                                                options.calibration_views)

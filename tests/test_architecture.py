@@ -265,3 +265,42 @@ def test_every_module_declares_its_public_names():
         wrong += [f"{module}.{e.value}" for e in listed.elts if e.value not in defined]
     assert not missing, f"no __all__: {missing}"
     assert not wrong, f"listed in __all__ but not defined: {wrong}"
+
+
+def _documented_entry_points() -> list[str]:
+    """Every ``omnispectral.…`` name of the paper table and of README (its code and its imports)."""
+    doc = (SRC.parent / "docs" / "architecture.md").read_text(encoding="utf-8")
+    readme = (SRC.parent / "README.md").read_text(encoding="utf-8")
+    names = set(re.findall(r"`(omnispectral(?:\.\w+)+)`", doc[: doc.index("\n## ")]))
+    names |= set(re.findall(r"`(omnispectral(?:\.\w+)+)`", readme))
+    for module, listed in re.findall(r"from (omnispectral[.\w]*) import \(?([\w, ]+)", readme):
+        names |= {f"{module}.{n.strip()}" for n in listed.split(",") if n.strip()}
+    return sorted(names)
+
+
+def test_every_documented_entry_point_has_numpydoc_sections_and_a_citation():
+    """Functions and classes the paper table or README names document their Parameters (and, for functions,
+    Returns) in numpydoc form and cite their source (a References section)."""
+    import inspect
+
+    lacking = {}
+    for name in _documented_entry_points():
+        parts = name.split(".")
+        obj = None
+        for cut in range(len(parts), 0, -1):
+            try:
+                obj = importlib.import_module(".".join(parts[:cut]))
+            except ImportError:
+                continue
+            for attr in parts[cut:]:
+                obj = getattr(obj, attr, None)
+            break
+        if obj is None or inspect.ismodule(obj) or not callable(obj):
+            continue
+        doc = inspect.getdoc(obj) or ""
+        wanted = ("Parameters", "References") if inspect.isclass(obj) else ("Parameters", "Returns", "References")
+        missing = [s for s in wanted if not re.search(rf"^{s}\n-+$", doc, re.M)]
+        if missing:
+            lacking[name] = missing
+    assert len(_documented_entry_points()) >= 40
+    assert not lacking, lacking

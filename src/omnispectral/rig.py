@@ -259,7 +259,7 @@ class GridSpec:
 class Rig:
     """Everything about the hardware a capture needs; ``source`` is where it was read from.
 
-    Attributes
+    Parameters
     ----------
     name, description : str
         The rig's name and a one-line description.

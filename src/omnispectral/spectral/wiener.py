@@ -497,7 +497,7 @@ class WienerEstimator:
     Build with :meth:`fit`.  Attributes hold the stacked component statistics: ``means``
     ``(K, n)``, ``covariances`` ``(K, n, n)`` and ``weights`` ``(K,)`` (prior probabilities).
 
-    Attributes
+    Parameters
     ----------
     wavelength_nm : numpy.ndarray
         ``(n,)`` wavelengths of the spectra (nm).

@@ -82,6 +82,66 @@ def test_spline_kernel_equals_the_definition_everywhere():
         assert np.array_equal(stacked, got[..., list(channels)], equal_nan=True)
 
 
+
+@pytest.mark.parametrize("method", ["cubic", "cubic-clamped"])
+def test_keys_kernel_equals_the_definition_everywhere(method, numpy_only):
+    """The compiled Keys cubic (and its clamp) equals the 4 × 4-tap definition (remap_reference) inside, at and far
+    beyond the borders (replicated), NaN at non-finite positions; and the nine-fetch OpenCV path it replaced."""
+    rng = np.random.default_rng(2)
+    img = hdr_image(rng, (60, 80, 3))
+    u = rng.uniform(-6, 86, (40, 50)).astype(np.float32)
+    v = rng.uniform(-6, 66, (40, 50)).astype(np.float32)
+    u[2, :6] = np.arange(6) + 0.5  # half-way between pixels, where the clamp and the cubic differ most
+    u[0, :4] = [np.nan, np.inf, 1e30, -1e30]
+    v[1, :2] = [np.nan, -np.inf]
+    got = interp.remap(img, u, v, method)
+    ok = np.isfinite(u) & np.isfinite(v)
+    assert np.isnan(got[~ok]).all() and np.isfinite(got[ok]).all()
+    uc, vc = np.where(ok, np.clip(u, -2, 81), 0), np.where(ok, np.clip(v, -2, 61), 0)
+    ref = interp.remap_reference(img, uc, vc, method)
+    assert np.abs(got - ref)[ok].max() <= 2e-6 * img.max()
+    if method == "cubic-clamped":  # the clamp acted somewhere, and every value lies within its neighbours
+        assert (interp.remap(img, u, v, "cubic") != got)[ok].any()
+    for channels in ((0,), (2, 0), (0, 1, 2, 1, 0)):  # other channel counts: each channel as alone
+        assert np.array_equal(interp.remap(img[..., list(channels)], u, v, method), got[..., list(channels)],
+                              equal_nan=True)
+    numpy_only()
+    fetches = interp.remap(img, uc, vc, method)
+    assert np.abs(got - fetches)[ok].max() <= 1e-4 * img.max()
+
+
+
+def test_vote_kernel_rejects_the_same_views_as_the_numpy_median(numpy_only):
+    """reject_inconsistent's compiled vote (insertion-sorted median of the voting views) drops exactly the views the
+    NumPy nanmedian definition drops: odd and even counts of voters, uncovered and faint views, tiles with no
+    three voters."""
+    rng = np.random.default_rng(3)
+    cases = []
+    for n in (3, 4, 5, 6, 9):
+        shape = (23, 31)
+        values, weights, offsets = [], [], []
+        for _ in range(n):
+            h, w = rng.integers(10, 24), rng.integers(12, 32)
+            r, c = rng.integers(0, shape[0] - h + 1), rng.integers(0, shape[1] - w + 1)
+            v = (1 + 0.3 * rng.standard_normal((h, w, 3))).astype(np.float32)
+            wt = rng.random((h, w)).astype(np.float32)
+            wt[rng.random((h, w)) < 0.2] = 0.0
+            wt[rng.random((h, w)) < 0.1] = 1e-6  # too faint to vote
+            values.append(v)
+            weights.append(wt)
+            offsets.append((int(r), int(c)))
+        cases.append((values, weights, offsets, shape))
+    fast = [blending.reject_inconsistent(*case) for case in cases]
+    numpy_only()
+    slow = [blending.reject_inconsistent(*case) for case in cases]
+    changed = 0
+    for a, b, case in zip(fast, slow, cases, strict=True):
+        for x, y, w in zip(a, b, case[1], strict=True):
+            assert np.array_equal(x, y)
+            changed += int((x != w).sum())
+    assert changed > 100  # views were dropped: the comparison is not vacuous
+
+
 def test_linear_blend_kernels_are_the_numpy_sums(numpy_only):
     rng = np.random.default_rng(2)
     parts = [((0, 1, 2), 3, 5, hdr_image(rng, (20, 30, 3)), rng.random((20, 30)).astype(np.float32)),

@@ -297,6 +297,7 @@ def test_a_mirror_ball_lit_by_the_product_matches_one_lit_by_the_truth(product):
         assert img[int(0.70 * size), size // 2].sum() < 0.6 * img[int(0.70 * size), 2].sum()
 
 
+@pytest.mark.slow  # the module's product fixture: a simulation and its processing (~20-30 s)
 def test_every_covered_pixel_holds_six_bands_and_says_which_b_bands_were_predicted(product, tmp_path):
     import OpenEXR
 

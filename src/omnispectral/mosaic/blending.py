@@ -146,16 +146,26 @@ def reject_inconsistent(values: list[np.ndarray], weights: list[np.ndarray], off
     s = np.full((n, h, w), np.nan, np.float32)
     wt = np.zeros((n, h, w), np.float32)
     for i, (v, wi, (r, c)) in enumerate(zip(values, weights, offsets, strict=True)):
-        s[i, r:r + wi.shape[0], c:c + wi.shape[1]] = np.where(wi > 0, v.sum(axis=-1), np.nan)
-        wt[i, r:r + wi.shape[0], c:c + wi.shape[1]] = np.where(np.isfinite(v).all(axis=-1), wi, 0.0)
-    voting = (wt > 1e-3 * wt.max(axis=0, keepdims=True)) & np.isfinite(s)
-    several = voting.sum(axis=0) >= 3
-    if not several.any():
-        return [np.asarray(x) for x in weights]
-    with np.errstate(all="ignore"):
-        ref = np.nanmedian(np.where(voting, s, np.nan)[:, several], axis=0)
+        # the band sum as element-wise additions (NumPy's reduction over a 3-long last axis is ~5x slower; the
+        # same float32 additions in the same order); it is finite exactly where every band is
+        total = v[..., 0].copy()
+        for k in range(1, v.shape[-1]):
+            total += v[..., k]
+        s[i, r:r + wi.shape[0], c:c + wi.shape[1]] = np.where(wi > 0, total, np.nan)
+        wt[i, r:r + wi.shape[0], c:c + wi.shape[1]] = np.where(np.isfinite(total), wi, 0.0)
     disagree = np.zeros((n, h, w), bool)
-    disagree[:, several] = np.abs(s[:, several] - ref) > tol * np.abs(ref)
+    kernels = compiled_kernels()
+    if kernels is not None:  # the same median and comparisons in one pass
+        if not kernels.disagreeing(s, wt, np.float32(tol), disagree):
+            return [np.asarray(x) for x in weights]
+    else:
+        voting = (wt > np.float32(1e-3) * wt.max(axis=0, keepdims=True)) & np.isfinite(s)
+        several = voting.sum(axis=0) >= 3
+        if not several.any():
+            return [np.asarray(x) for x in weights]
+        with np.errstate(all="ignore"):
+            ref = np.nanmedian(np.where(voting, s, np.nan)[:, several], axis=0)
+        disagree[:, several] = np.abs(s[:, several] - ref) > np.float32(tol) * np.abs(ref)
     out = []
     for i, (wi, (r, c)) in enumerate(zip(weights, offsets, strict=True)):
         d = disagree[i, r:r + wi.shape[0], c:c + wi.shape[1]]

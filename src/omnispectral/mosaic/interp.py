@@ -268,14 +268,26 @@ def _remap_linear(src: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return _gather_remap(src, u, v, linear_kernel, 1, normalise=False)
 
 
+def _remap_keys(src: np.ndarray, u: np.ndarray, v: np.ndarray, clamp: bool) -> np.ndarray:
+    """Keys cubic (``clamp``: clipped to the range of the 2 × 2 neighbours): the compiled kernel in one pass, else
+    nine bilinear fetches (and the clamp as a second pass)."""
+    kernels = compiled_kernels()
+    if kernels is not None:
+        out = np.empty((*u.shape, src.shape[2]), np.float32)
+        kernels.keys(src, u, v, clamp, out)
+        return out
+    out = _separable_fetches(src, _keys_taps(u), _keys_taps(v), opencv_is_exact("linear"))
+    return clamp_to_neighbours(out, src, u, v) if clamp else out
+
+
 def _remap_cubic(src: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Keys cubic as nine bilinear fetches."""
-    return _separable_fetches(src, _keys_taps(u), _keys_taps(v), opencv_is_exact("linear"))
+    """Keys cubic."""
+    return _remap_keys(src, u, v, clamp=False)
 
 
 def _remap_cubic_clamped(src: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Keys cubic clipped to the range of the 2 × 2 neighbours."""
-    return clamp_to_neighbours(_remap_cubic(src, u, v), src, u, v)
+    return _remap_keys(src, u, v, clamp=True)
 
 
 def _remap_spline(coef: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -7,6 +7,15 @@ are the same, to float32 rounding where they are not):
     cubic B-spline evaluation at exact positions (Unser, Aldroubi & Eden 1991) from prefiltered
     coefficients: the 4 × 4 taps in one pass (:func:`omnispectral.mosaic.interp.remap`; reference
     :func:`~omnispectral.mosaic.interp.remap_reference`);
+``keys(src, u, v, clamp, out)``
+    Keys cubic convolution (``a = -1/2``) at exact positions, the 4 × 4 taps in one pass, and with ``clamp``
+    the result clipped to the range of the 2 × 2 source pixels around the position (``cubic`` and
+    ``cubic-clamped`` of :func:`omnispectral.mosaic.interp.remap`; reference
+    :func:`~omnispectral.mosaic.interp.remap_reference`; to float32 rounding: the reference sums taps in
+    another order);
+``disagreeing(sums, weights, tol, out)``
+    the views that disagree with the median of the voting views, pixel by pixel
+    (:func:`omnispectral.mosaic.blending.reject_inconsistent`; the same float32 median and comparisons);
 ``accumulate(num, den, row0, col0, band0, values, weight)`` / ``divide(num, den, band0, n, out)``
     the linear blend's ``Σ w x``, ``Σ w`` and ``Σ w x / Σ w``
     (:class:`omnispectral.mosaic.blending.LinearBlend`; the same float32 products and sums);
@@ -101,6 +110,89 @@ def compiled_kernels() -> SimpleNamespace | None:
                     for c in range(nc):
                         out[i, j, c] = spline_taps(r0, r1, r2, r3, x0, x1, x2, x3, wx, wy, c)
 
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False, inline="always")
+    def keys_weights(t):  # pragma: no cover - compiled
+        """Keys' (a = -1/2) weights of the taps at -1, 0, 1, 2 for fraction ``t`` (Keys 1981, Eq. (15))."""
+        half, two, three = np.float32(0.5), np.float32(2.0), np.float32(3.0)
+        four, five = np.float32(4.0), np.float32(5.0)
+        t2 = t * t
+        t3 = t2 * t
+        return ((-t3 + two * t2 - t) * half, (three * t3 - five * t2 + two) * half,
+                (-three * t3 + four * t2 + t) * half, (t3 - t2) * half)
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
+    def keys(src, u, v, clamp, out):  # pragma: no cover - compiled (tested through remap)
+        hs, ws, nc = src.shape
+        lo_x, hi_x = np.float32(-2.0), np.float32(ws + 1)
+        lo_y, hi_y = np.float32(-2.0), np.float32(hs + 1)
+        for i in range(u.shape[0]):
+            for j in range(u.shape[1]):
+                x, y = u[i, j], v[i, j]
+                if not (np.isfinite(x) and np.isfinite(y)):
+                    for c in range(nc):
+                        out[i, j, c] = np.nan
+                    continue
+                # the clamp's 2 x 2 neighbours: floor(position) and the next pixel, both inside the source
+                nx0 = min(max(int(np.floor(x)), 0), ws - 1)
+                ny0 = min(max(int(np.floor(y)), 0), hs - 1)
+                nx1, ny1 = min(nx0 + 1, ws - 1), min(ny0 + 1, hs - 1)
+                # beyond 2 px outside, every tap is the replicated border pixel
+                x = min(max(x, lo_x), hi_x)
+                y = min(max(y, lo_y), hi_y)
+                fx, fy = np.floor(x), np.floor(y)
+                wx = keys_weights(x - fx)
+                wy = keys_weights(y - fy)
+                ix, iy = int(fx), int(fy)
+                x0, x1 = min(max(ix - 1, 0), ws - 1), min(max(ix, 0), ws - 1)
+                x2, x3 = min(max(ix + 1, 0), ws - 1), min(max(ix + 2, 0), ws - 1)
+                r0, r1 = src[min(max(iy - 1, 0), hs - 1)], src[min(max(iy, 0), hs - 1)]
+                r2, r3 = src[min(max(iy + 1, 0), hs - 1)], src[min(max(iy + 2, 0), hs - 1)]
+                for c in range(nc):
+                    value = spline_taps(r0, r1, r2, r3, x0, x1, x2, x3, wx, wy, c)
+                    if clamp:
+                        a, b = src[ny0, nx0, c], src[ny0, nx1, c]
+                        d, e = src[ny1, nx0, c], src[ny1, nx1, c]
+                        lo = min(min(a, b), min(d, e))
+                        hi = max(max(a, b), max(d, e))
+                        if value < lo:
+                            value = lo
+                        elif value > hi:
+                            value = hi
+                        if not (np.isfinite(a) and np.isfinite(b) and np.isfinite(d) and np.isfinite(e)):
+                            value = np.nan
+                    out[i, j, c] = value
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
+    def disagreeing(sums, weights, tol, out):  # pragma: no cover - compiled (tested through reject_inconsistent)
+        n, h, w = sums.shape
+        votes = np.empty(n, np.float32)
+        any_set = False
+        for r in range(h):
+            for q in range(w):
+                top = np.float32(0.0)
+                for i in range(n):
+                    top = max(top, weights[i, r, q])
+                k = 0
+                for i in range(n):
+                    x = sums[i, r, q]
+                    if weights[i, r, q] > np.float32(1e-3) * top and np.isfinite(x):
+                        # insertion into the sorted votes
+                        m = k
+                        while m > 0 and votes[m - 1] > x:
+                            votes[m] = votes[m - 1]
+                            m -= 1
+                        votes[m] = x
+                        k += 1
+                if k < 3:
+                    continue
+                ref = votes[k // 2] if k % 2 else (votes[k // 2 - 1] + votes[k // 2]) / np.float32(2.0)
+                bound = tol * abs(ref)
+                for i in range(n):
+                    if abs(sums[i, r, q] - ref) > bound:
+                        out[i, r, q] = True
+                        any_set = True
+        return any_set
+
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
     def accumulate(num, den, row0, col0, band0, values, weight):  # pragma: no cover - compiled
         nc = values.shape[2]
@@ -164,6 +256,7 @@ def compiled_kernels() -> SimpleNamespace | None:
                 wv = min(max(one - abs(sy * (y + half) - one), zero), one)
                 out[i, j] = wu * wv
 
-    _CACHE["kernels"] = SimpleNamespace(spline=spline, accumulate=accumulate, divide=divide,
-                                        catmull_rom=catmull_rom, box_average=box_average, feather=feather)
+    _CACHE["kernels"] = SimpleNamespace(spline=spline, keys=keys, disagreeing=disagreeing, accumulate=accumulate,
+                                        divide=divide, catmull_rom=catmull_rom, box_average=box_average,
+                                        feather=feather)
     return _CACHE["kernels"]

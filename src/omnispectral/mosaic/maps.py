@@ -30,7 +30,7 @@ from omnispectral.imaging.geometry import CameraModel, equirect_pixel_to_lonlat,
 from omnispectral.mosaic.kernels import compiled_kernels
 
 __all__ = ["MAP_STEP_PX", "MAP_TOL_PX", "Canvas", "Rect", "SourceGeometry", "SourceMap", "catmull_rom_weights",
-           "exact_map", "interpolate_nodes", "source_map", "tile_cone"]
+           "exact_map", "interpolate_nodes", "rect_map", "source_map", "tile_cone"]
 
 #: Node spacing (output pixels) of the first attempt.
 MAP_STEP_PX = 8
@@ -249,6 +249,55 @@ def source_map(source: SourceGeometry, canvas: Canvas, rect: Rect, margin_px: fl
             break
         step = max(1, step // 2)
     return _interpolated_map(source, canvas, rect, nodes, step, window, error)
+
+
+
+def rect_map(source: SourceGeometry, canvas: Canvas, rect: Rect, margin_px: float = 2.0, step: int = MAP_STEP_PX,
+             tol_px: float = MAP_TOL_PX) -> SourceMap:
+    """The composed map of ``source`` on the whole of ``rect`` (not cut to where it lands, unlike :func:`source_map`).
+
+    The same nodes, Catmull–Rom interpolation and error check as :func:`source_map`: within ``tol_px`` of
+    :func:`exact_map` wherever the position lands on the image (± ``margin_px``); beyond it the positions
+    are the interpolation's (off the image by more than the margin).  For a lookup in the source's own
+    grid, e.g. camera A's parallax map under camera B's pixels: ~30x fewer exact projections.
+
+    Parameters
+    ----------
+    source : SourceGeometry
+        The source image's geometry.
+    canvas : Canvas
+        The equirectangular output grid.
+    rect : Rect
+        The output pixels to map.
+    margin_px : float
+        Margin (source px) around the image within which the error is checked.
+    step : int
+        Node spacing (output px) of the first attempt; halved until the error is below ``tol_px``.
+    tol_px : float
+        Largest accepted interpolation error (source px).
+
+    Returns
+    -------
+    SourceMap
+        The map of every pixel of ``rect`` (``u``, ``v`` float32, NaN where the ray has no image point).
+
+    References
+    ----------
+    .. [1] R. G. Keys, "Cubic convolution interpolation for digital image processing", IEEE TASSP 29(6), 1981
+       (the Catmull–Rom weights between nodes).
+    """
+    h, w = rect.shape
+    window = (0, h, 0, w)
+    while step > 1:
+        nodes = exact_map(source, canvas, rect.row0 + (np.arange((h - 1) // step + 4) - 1) * step,
+                          rect.col0 + (np.arange((w - 1) // step + 4) - 1) * step)
+        error = _check_error(source, canvas, rect, nodes, step, margin_px, window)
+        if error <= tol_px:
+            return _interpolated_map(source, canvas, rect, nodes, step, window, error)
+        step //= 2
+    u, v = exact_map(source, canvas, np.arange(rect.row0, rect.row1), np.arange(rect.col0, rect.col1)
+                     ).transpose(2, 0, 1)
+    return SourceMap(rect.row0, rect.col0, u.astype(np.float32), v.astype(np.float32), 1, 0.0)
 
 
 def _window(nodes: np.ndarray, model: CameraModel, margin_px: float, step: int, h: int,

@@ -37,7 +37,7 @@ import numpy as np
 from omnispectral.imaging.geometry import native_width
 from omnispectral.mosaic.blending import LinearBlend, blend_method, feather_weight, multiband_blend, reject_inconsistent
 from omnispectral.mosaic.interp import SPLINE_PREFILTER_MARGIN_PX, interpolation, remap, spline_prefilter
-from omnispectral.mosaic.maps import Canvas, Rect, SourceGeometry, exact_map, source_map, tile_cone
+from omnispectral.mosaic.maps import Canvas, Rect, SourceGeometry, rect_map, source_map, tile_cone
 from omnispectral.mosaic.options import MosaicOptions
 from omnispectral.mosaic.predict import fill_missing_b, implausible_b
 from omnispectral.mosaic.sources import MergedDirections, SourceImage
@@ -177,10 +177,10 @@ def parallax_positions(job: MosaicJob, i: int, row0: int, col0: int, u: np.ndarr
     a_geo = job.geometry[job.partner[i]]
     h, w = u.shape
     rows, cols = np.arange(row0, row0 + h), np.arange(col0, col0 + w)
-    pa = exact_map(a_geo, job.canvas, rows, cols)
+    pa = rect_map(a_geo, job.canvas, Rect(row0, row0 + h, col0, col0 + w))  # A's pixel: within 1e-3 px
     ma = a_geo.model
-    ia = np.clip(np.rint(np.nan_to_num(pa[..., 0], nan=-1.0)), 0, ma.width - 1).astype(np.int64)
-    ja = np.clip(np.rint(np.nan_to_num(pa[..., 1], nan=-1.0)), 0, ma.height - 1).astype(np.int64)
+    ia = np.clip(np.rint(np.nan_to_num(pa.u, nan=-1.0)), 0, ma.width - 1).astype(np.int64)
+    ja = np.clip(np.rint(np.nan_to_num(pa.v, nan=-1.0)), 0, ma.height - 1).astype(np.int64)
     r_lo, r_hi = int(ja.min()), int(ja.max()) + 1
     par = img.read_parallax_rows(r_lo, r_hi)
     sample = par[ja - r_lo, ia].astype(np.float32)

@@ -236,7 +236,7 @@ def test_rect_map_covers_the_whole_rect_and_matches_the_exact_geometry_on_the_im
         ok = geo.model.inside(full[..., 0], full[..., 1], 2.0)
         err = np.hypot(rm.u - full[..., 0], rm.v - full[..., 1])[ok]
         assert err.max(initial=0.0) < 2e-3
-        assert np.mean(np.rint(rm.u[ok]) != np.rint(full[..., 0][ok])) < 0.01  # the nearest pixel: the same
+        assert np.sum(np.rint(rm.u[ok]) != np.rint(full[..., 0][ok])) <= 0.01 * ok.sum()  # the nearest pixel: the same
         checked += err.size
     assert checked > 1000
 

@@ -1,6 +1,7 @@
 """Wiener estimator throughput: the fast stacked kernels against the reference, alternating in one process.
 
     .venv/bin/python benchmarks/bench_estimator.py [--repeat 3] [--rows 1088] [--ref-rows 128] [--json-out FILE]
+    .venv/bin/python benchmarks/bench_estimator.py --versus-matmul [--threads 1 2] [--repeat 5]
 
 A CMV2000 frame of six bands (``--rows`` x 2048 x 6 float32 -> 61 wavelengths) of realistic values:
 the prior's colour signals (nine lights x reflectances) through the six-band system, brightness
@@ -11,6 +12,11 @@ speed-up, and the largest difference relative to each pixel's peak.  The referen
 first ``--ref-rows`` rows only (it is 10-40x slower); Mpx/s are per its own pixel count.  Fast
 paths use ``omnispectral.threads.kernel_threads()`` threads (``OMNISPECTRAL_THREADS``); the load
 average before and after is printed.
+
+``--versus-matmul``: the default mixture estimate (9 components, float32 out) of the whole frame against
+its peer, one plain ``(N, 6) @ (6, 61)`` float32 matmul of the same pixels into a reused output (what a
+linear estimator costs), alternating in this process, for each ``--threads`` count on both sides (ours:
+``OMNISPECTRAL_THREADS``; the matmul: BLAS threads), medians of ``--repeat``.
 """
 
 from __future__ import annotations
@@ -62,14 +68,49 @@ def alternate(fast, reference, repeat: int):
     return float(np.median(t_fast)), float(np.median(t_ref)), fast(), out_ref
 
 
+def versus_matmul(frame: np.ndarray, threads: list[int], repeat: int) -> list[dict]:
+    """The mixture estimate against one plain float32 matmul of the same pixels, alternating, per thread count."""
+    system, prior = six_band_system(), build_prior()
+    mixture = WienerEstimator.fit(system, prior, 1e-5, mixture=True)
+    flat = np.ascontiguousarray(frame.reshape(-1, 6))
+    matrix = np.ascontiguousarray(mixture.linear_map(np.full(mixture.n_components, 1 / mixture.n_components))[0]
+                                  .T.astype(np.float32))  # (6, 61): any linear estimator's cost
+    product = np.empty((flat.shape[0], matrix.shape[1]), np.float32)
+    rows = []
+    for t in threads:
+        os.environ["OMNISPECTRAL_THREADS"] = str(t)
+
+        def ours():
+            return mixture.estimate(frame)
+
+        def matmul(t=t):
+            with threadpool_limits(t, user_api="blas"):
+                return np.matmul(flat, matrix, out=product)
+
+        t_ours, t_peer, _, _ = alternate(ours, matmul, repeat)
+        rows.append({"threads": t, "ours_s": t_ours, "matmul_s": t_peer, "ratio": t_ours / t_peer,
+                     "load": os.getloadavg()[0]})
+        print(f"{t} thread(s): mixture estimate {t_ours:.3f} s, plain matmul {t_peer:.3f} s: "
+              f"{t_ours / t_peer:.2f}x (load {os.getloadavg()[0]:.2f})", flush=True)
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--rows", type=int, default=1088)
     ap.add_argument("--ref-rows", type=int, default=128)
     ap.add_argument("--json-out", default=None)
+    ap.add_argument("--versus-matmul", action="store_true", help="the mixture estimate against a plain matmul")
+    ap.add_argument("--threads", type=int, nargs="+", default=[1, len(os.sched_getaffinity(0))])
     args = ap.parse_args()
     load_before = os.getloadavg()
+    if args.versus_matmul:
+        rows = versus_matmul(realistic_frame(args.rows), args.threads, args.repeat)
+        print(f"medians of {args.repeat}; load {load_before[0]:.2f} -> {os.getloadavg()[0]:.2f}")
+        if args.json_out:
+            Path(args.json_out).write_text(json.dumps({"versus_matmul": rows}, indent=2))
+        return
     system, prior = six_band_system(), build_prior()
     mixture = WienerEstimator.fit(system, prior, 1e-5, mixture=True)
     pooled = WienerEstimator.fit(system, prior, 1e-5)

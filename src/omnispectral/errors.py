@@ -11,7 +11,8 @@ import os
 import re
 from pathlib import Path
 
-__all__ = ["ConfigurationError", "InputFileError", "InvalidFileContent", "OmnispectralError", "describe_os_error",
+__all__ = ["ConfigurationError", "DamagedFrameError", "InputFileError", "InvalidFileContent", "OmnispectralError",
+           "describe_os_error",
            "os_errno", "os_problem"]
 
 
@@ -43,6 +44,11 @@ class InputFileError(OmnispectralError, ValueError):
 class ConfigurationError(OmnispectralError, ValueError):
     """A parameter or a combination of parameters makes no sense."""
 
+
+
+class DamagedFrameError(InputFileError):
+    """A session frame that fails its check as it is read (journal checksum, decoding, pixels): the read that
+    uses a frame checked it (:meth:`omnispectral.capture.session.Session.check_frames_on_read`)."""
 
 class InvalidFileContent(InputFileError, ConfigurationError):
     """A file that was read but holds a value that makes no sense (e.g. a rig file's key).

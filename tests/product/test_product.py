@@ -5,6 +5,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -156,6 +157,40 @@ def test_bad_sessions_name_the_frame_and_skip_bad_processes_the_rest(tiny_sessio
     assert len(index["registration"]["directions"]) == 11 and hole in (3, 5, 11)
     rep = json.loads((tmp_path / "p2" / "report" / "report.json").read_text())
     assert rep["skipped_directions"][0]["direction"] == hole and rep["accuracy"]["six_band_psnr_db"] > 20
+
+
+
+def _flip_pixel_bytes(path):
+    data = bytearray(path.read_bytes())
+    data[-200:-100] = bytes(255 - b for b in data[-200:-100])  # pixel data near the end: same size, decodes
+    path.write_bytes(bytes(data))
+
+
+def test_frames_are_read_once_and_a_same_size_damaged_frame_stops_the_run_before_it_is_merged(
+        tiny_session, tmp_path, monkeypatch):
+    """The check of every frame's SHA-256 and pixels happens in the read that merges it (each frame decoded once,
+    not once to check and once to merge); a frame damaged without changing its size still stops the run naming
+    it, with the whole session's count, and this run's merged directions are removed."""
+    import omnispectral.capture.session as session_module
+
+    decoded = []
+    original = session_module.decode_frame
+
+    def counting(path, content=None):
+        decoded.append(f"{Path(path).parent.name}/{Path(path).name}")
+        return original(path, content)
+
+    monkeypatch.setattr(session_module, "decode_frame", counting)
+    index = process(tiny_session, tmp_path / "ok", progress=False, report=False)
+    frames = index["session_check"]["n_planned"]
+    assert len(decoded) <= frames and len(set(decoded)) == len(decoded)  # sun frames are planned, read once too
+    bad = _damaged_copy(tiny_session, tmp_path / "bad", lambda s: _flip_pixel_bytes(s / "frames/d0007/B_e03.tif"))
+    with pytest.raises(InputFileError, match=r"d0007/B_e03.tif: checksum mismatch.*1 damaged frames in 1 "
+                                             r"directions; --skip-bad"):
+        process(bad, tmp_path / "p", progress=False, report=False)
+    assert not (tmp_path / "p" / "merged").exists()
+    index = process(bad, tmp_path / "p2", progress=False, report=False, skip_bad=True)
+    assert [d["direction"] for d in index["skipped_directions"]] == [7]
 
 
 def test_cli_process_reports_a_bad_session_in_one_line(tiny_session, tmp_path, capsys):

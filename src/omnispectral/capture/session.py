@@ -50,7 +50,7 @@ import tifffile
 from omnispectral.capture.plan import Plan
 from omnispectral.capture.sourcefiles import decode_source_image
 from omnispectral.checksums import file_sha256
-from omnispectral.errors import InputFileError
+from omnispectral.errors import DamagedFrameError, InputFileError
 from omnispectral.fingerprint import differences
 from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text, is_temp_name, jsonable
 from omnispectral.limits import check_image_shape
@@ -203,6 +203,7 @@ class Session:
     def __init__(self, path: str | Path):
         self.path = Path(path)
         self._records: dict | None = None  # journal records, read when a frame is not under frames/
+        self._checked_reads: dict | None = None  # full scale by camera once check_frames_on_read() is called
 
     # ------------------------------------------------------------------ create / open
     @classmethod
@@ -419,7 +420,27 @@ class Session:
         if not p.exists():
             raise InputFileError(p, f"frame missing (direction {direction}, camera {camera}, "
                                     f"exposure {exposure_index})")
+        if self._checked_reads is not None:
+            return self._read_checked((direction, camera, exposure_index))
         return decode_frame(p)
+
+    def check_frames_on_read(self) -> Session:
+        """From now on :meth:`read_frame` checks each frame as :func:`verify_session` with ``check_pixels`` does
+        (journal SHA-256, decoding, shape, full scale), from the bytes it decodes: a session read once, by the
+        stage that uses it, instead of once to check and once to use.  A failing frame raises
+        :class:`~omnispectral.errors.DamagedFrameError` naming it.  Returns the session."""
+        self._checked_reads = self.full_scale_dn()
+        if self._records is None:
+            self._records = read_journal(self.journal_path).records
+        return self
+
+    def _read_checked(self, key: tuple[int, str, int]) -> tuple[np.ndarray, dict]:
+        found, data, meta = _checked_frame(self, key, self._records.get(key), True, True,
+                                           self._checked_reads.get(key[1]))
+        if found is not None:
+            _, file, problem = found
+            raise DamagedFrameError(self.path / file if not Path(file).is_absolute() else Path(file), problem)
+        return data, meta
 
     @staticmethod
     def _read_referenced(rec: dict) -> tuple[np.ndarray, dict]:
@@ -474,44 +495,53 @@ def _frame_problem(s: Session, key: tuple[int, str, int], rec: dict | None, chec
                    check_pixels: bool, max_dn: int | None = None) -> tuple[str, str, str] | None:
     """``("missing" | "damaged", file, problem)`` of one planned frame against its journal line, or None
     (``max_dn``: the camera's full scale, checked with ``check_pixels``)."""
+    return _checked_frame(s, key, rec, checksums, check_pixels, max_dn)[0]
+
+
+def _checked_frame(s: Session, key: tuple[int, str, int], rec: dict | None, checksums: bool, check_pixels: bool,
+                   max_dn: int | None = None) -> tuple[tuple[str, str, str] | None, np.ndarray | None, dict | None]:
+    """:func:`_frame_problem` and, when ``check_pixels`` decoded it without a problem, the frame's pixels and
+    record (else ``None``): every check from one read of the file."""
     rel = frame_relpath(*key)
     if rec is None:
-        return "missing", rel, "not in the journal"
+        return ("missing", rel, "not in the journal"), None, None
     if rec.get("referenced"):  # a file left where it was made (import --reference): named by its own path
-        problem = referenced_problem(rec, checksum=checksums)
+        problem, data, meta = referenced_problem(rec, checksum=checksums), None, None
         if problem is None and check_pixels:
             try:
-                s.read_frame(*key)
+                data, meta = Session._read_referenced(rec)
             except InputFileError as exc:
                 problem = exc.problem
         if problem:
-            return ("missing" if "missing" in problem else "damaged"), rec["file"], problem
-        return None
+            return (("missing" if "missing" in problem else "damaged"), rec["file"], problem), None, None
+        return None, data, meta
     p = s.path / rel
     if not p.exists():  # journalled, then deleted: missing (there is nothing to be damaged)
-        return "missing", rel, "file missing"
+        return ("missing", rel, "file missing"), None, None
     size = p.stat().st_size
     if "bytes" in rec and size != rec["bytes"]:  # the plainer message when sizes differ
-        return "damaged", rel, (f"size {size} bytes, the journal recorded {rec['bytes']} (truncated or changed"
-                                + ("; checksum mismatch)" if checksums else ")"))
+        return ("damaged", rel, (f"size {size} bytes, the journal recorded {rec['bytes']} (truncated or changed"
+                                 + ("; checksum mismatch)" if checksums else ")"))), None, None
     content = None
     if checksums or "bytes" not in rec:
         content = p.read_bytes()
         if hashlib.sha256(content).hexdigest() != rec.get("sha256"):
-            return "damaged", rel, "checksum mismatch (file changed or truncated)"
-    if check_pixels:
-        try:
-            data, embedded = decode_frame(p, content)
-        except InputFileError as exc:
-            return "damaged", rel, exc.problem
-        if "shape" in rec and list(data.shape) != list(rec["shape"]):
-            return "damaged", rel, f"shape {list(data.shape)}, the journal recorded {rec['shape']}"
-        if content is not None:  # the file's SHA-256 matched the journal: its pixels need no second hash
-            embedded = {k: v for k, v in embedded.items() if k != "pixels_sha256"}
-        problem = pixel_problem(data, embedded, max_dn)
-        if problem:
-            return "damaged", rel, problem
-    return None
+            return ("damaged", rel, "checksum mismatch (file changed or truncated)"), None, None
+    if not check_pixels:
+        return None, None, None
+    try:
+        data, embedded = decode_frame(p, content)
+    except InputFileError as exc:
+        return ("damaged", rel, exc.problem), None, None
+    if "shape" in rec and list(data.shape) != list(rec["shape"]):
+        return ("damaged", rel, f"shape {list(data.shape)}, the journal recorded {rec['shape']}"), None, None
+    checked = embedded
+    if content is not None:  # the file's SHA-256 matched the journal: its pixels need no second hash
+        checked = {k: v for k, v in embedded.items() if k != "pixels_sha256"}
+    problem = pixel_problem(data, checked, max_dn)
+    if problem:
+        return ("damaged", rel, problem), None, None
+    return None, data, embedded
 
 
 def sun_directions(session: Session, records: dict) -> list[int]:

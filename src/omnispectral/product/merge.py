@@ -13,6 +13,7 @@ merged directions (:func:`omnispectral.product.process.register_parallax`).
 from __future__ import annotations
 
 from collections.abc import Callable, Collection
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -31,8 +32,8 @@ from omnispectral.progress import ProgressCallback, report_progress
 from omnispectral.rig import RawSpec, rig_toml
 from omnispectral.spectral.colour import srgb_decode
 
-__all__ = ["RAW_ORDERS", "Bracket", "RawSettings", "RegisterFn", "calibrated_offset", "merge_direction",
-           "merge_session", "read_bracket", "srgb_response"]
+__all__ = ["RAW_ORDERS", "READ_THREADS", "Bracket", "RawSettings", "RegisterFn", "calibrated_offset",
+           "merge_direction", "merge_session", "read_bracket", "read_direction", "srgb_response"]
 
 #: ``register(direction, image_a, image_b) -> (dx, dy)``: camera B's offset for one direction; it may also
 #: return ``(dx, dy, extra)`` with a dict recorded in the direction's entry of ``merged.json``.
@@ -111,14 +112,15 @@ class Bracket:
 
 
 def read_bracket(session, direction: int, camera: str, indices, raw: RawSettings | None = None,
-                 **merge_options) -> Bracket:
+                 read: dict | None = None, **merge_options) -> Bracket:
     """Read the frames ``indices`` of one camera in one direction: raw frames corrected
     (:func:`omnispectral.imaging.bayer.correct_raw`: the exposure's dark frame, else the black level), the
-    response of imported 8-bit images added to ``merge_options``."""
+    response of imported 8-bit images added to ``merge_options``.  ``read``: frames already read, by exposure
+    index (``(pixels, record)`` as ``session.read_frame`` returns them; :func:`read_direction`)."""
     raw = raw or RawSettings()
     frames, times, pans, tilts, bit_depth, pattern, filt = [], [], [], [], 12, None, None
     for k in indices:
-        frame, meta = session.read_frame(direction, camera, k)
+        frame, meta = read[k] if read is not None and k in read else session.read_frame(direction, camera, k)
         camera_meta = meta.get("camera_metadata") or {}
         if camera_meta.get("response") == "srgb":  # imported 8-bit images (omnispectral.capture.importer)
             merge_options = {**merge_options, "response": srgb_response(int(meta.get("bit_depth", 8)),
@@ -162,8 +164,26 @@ RAW_ORDERS: dict[str, Callable[[Bracket, RawSpec], np.ndarray]] = {
 }
 
 
+#: Threads reading (and checking) the next direction's frames: file reads, SHA-256 and TIFF decoding release the GIL.
+READ_THREADS = 2
+
+
+def read_direction(session, direction: int, cameras, n_exposures: int) -> dict[str, dict]:
+    """Every frame of one direction's brackets, ``{camera: {exposure index: (pixels, record)}}``, read (and checked,
+    :meth:`~omnispectral.capture.session.Session.check_frames_on_read`) as ``session.read_frame`` does, on
+    :data:`READ_THREADS` threads: what :func:`merge_session` reads for the next direction while the current one
+    merges."""
+    keys = [(c, k) for c in cameras for k in range(n_exposures)]
+    with ThreadPoolExecutor(max_workers=READ_THREADS, thread_name_prefix="frame") as pool:
+        frames = list(pool.map(lambda key: session.read_frame(direction, *key), keys))
+    out: dict[str, dict] = {c: {} for c in cameras}
+    for (c, k), frame in zip(keys, frames, strict=True):
+        out[c][k] = frame
+    return out
+
+
 def merge_direction(session, direction: int, camera: str, n_exposures: int, raw: RawSettings | None = None,
-                    **merge_options) -> tuple[np.ndarray, tuple[float, float]]:
+                    read: dict | None = None, **merge_options) -> tuple[np.ndarray, tuple[float, float]]:
     """HDR merge (Eqs. (1)-(2)) of one camera's bracket; returns radiance (H, W, 3) and the reported pan/tilt.
 
     Frames are read and corrected by :func:`read_bracket`; Bayer mosaics are merged and then demosaiced once,
@@ -182,6 +202,8 @@ def merge_direction(session, direction: int, camera: str, n_exposures: int, raw:
         Exposures of the bracket (indices ``0 .. n_exposures - 1``).
     raw : RawSettings, optional
         The camera's black level (DN), dark frames and raw layout (default: no correction, RGB frames).
+    read : dict, optional
+        The bracket's frames already read, by exposure index (:func:`read_direction`); others are read here.
     **merge_options
         Keyword arguments of :func:`~omnispectral.imaging.hdr.merge_exposures` (``weight``, ``noise``,
         ``deghost``, ...); imported sRGB images add their ``response``.
@@ -201,7 +223,7 @@ def merge_direction(session, direction: int, camera: str, n_exposures: int, raw:
        decision", IEEE TIP 16(1), 2007 (the default demosaicing of raw mosaics).
     """
     raw = raw or RawSettings()
-    b = read_bracket(session, direction, camera, range(n_exposures), raw, **merge_options)
+    b = read_bracket(session, direction, camera, range(n_exposures), raw, read, **merge_options)
     if b.pattern is None:  # RGB frames
         return _merged_radiance(b, b.frames), b.pose
     spec = raw.raw or RawSpec()
@@ -270,19 +292,31 @@ def merge_session(session: Session | str | Path, output: str | Path, *, register
         session={"path": str(session.path.resolve()), **_session_summary(session)}, dtype=dtype,
         system=_system_or_none(rig))
     done = writer.done()
-    n = len(directions)
-    for i, d in enumerate(directions):
-        if d.index not in done:
-            images, (pan, tilt) = {}, (0.0, 0.0)
-            for c in names:
-                images[c], pose = merge_direction(session, d.index, c, len(plan.exposures_s), raw[c], **merge_options)
-                if c == "A":
-                    pan, tilt = pose
-            dx, dy, *rest = register(d.index, images["A"], images["B"]) if "B" in images else (0.0, 0.0)
-            writer.add(d.index, pan, tilt, images, {"B": (dx, dy)} if "B" in images else {},
-                       {"pan_deg_commanded": d.pan_deg, "tilt_deg_commanded": d.tilt_deg, **(rest[0] if rest else {})})
-            del images
-        report_progress(progress, "merge", i + 1, n)
+    n, n_exposures = len(directions), len(plan.exposures_s)
+    todo = [d for d in directions if d.index not in done]
+    # the next direction's frames are read (decoded, checked) on a worker thread while this one merges: file
+    # reads, SHA-256 and TIFF decoding release the GIL; memory holds one direction's frames more
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="frames") as reader:
+        ahead = reader.submit(read_direction, session, todo[0].index, names, n_exposures) if todo else None
+        for i, d in enumerate(directions):
+            if d.index not in done:
+                frames = ahead.result()
+                later = todo.index(d) + 1
+                ahead = reader.submit(read_direction, session, todo[later].index, names, n_exposures) \
+                    if later < len(todo) else None
+                images, (pan, tilt) = {}, (0.0, 0.0)
+                for c in names:
+                    images[c], pose = merge_direction(session, d.index, c, n_exposures, raw[c], frames[c],
+                                                      **merge_options)
+                    if c == "A":
+                        pan, tilt = pose
+                del frames
+                dx, dy, *rest = register(d.index, images["A"], images["B"]) if "B" in images else (0.0, 0.0)
+                writer.add(d.index, pan, tilt, images, {"B": (dx, dy)} if "B" in images else {},
+                           {"pan_deg_commanded": d.pan_deg, "tilt_deg_commanded": d.tilt_deg,
+                            **(rest[0] if rest else {})})
+                del images
+            report_progress(progress, "merge", i + 1, n)
     return MergedDirections.open(output)
 
 

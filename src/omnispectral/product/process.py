@@ -56,7 +56,7 @@ from omnispectral.choices import (
     method_from,
     options_or_keywords,
 )
-from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.errors import ConfigurationError, DamagedFrameError, InputFileError
 from omnispectral.fingerprint import check_merged
 from omnispectral.imaging.geometry import CameraModel
 from omnispectral.imaging.hdr import WEIGHTS
@@ -68,7 +68,7 @@ from omnispectral.mosaic.engine import mosaic
 from omnispectral.mosaic.options import DEFAULT_TILE, MosaicOptions
 from omnispectral.mosaic.sources import MergedDirections, MergedDirectionsWriter
 from omnispectral.mosaic.store import PanoramaStore
-from omnispectral.ownership import check_output_outside_inputs, claim_output_directory
+from omnispectral.ownership import MERGED_NAMES, check_output_outside_inputs, claim_output_directory, remove_owned_tree
 from omnispectral.product.align import align_direction
 from omnispectral.product.direction_parallax import FAR_OFFSET_MIN_STD_PX, off_model_warnings, parallax_direction
 from omnispectral.product.estimator import b_predictor, rig_estimator
@@ -93,8 +93,10 @@ __all__ = ["DEFAULT_INTERP", "PROCESS_BASE_BYTES", "PROCESS_BYTES_PER_SENSOR_PX"
            "parallax_registration", "process", "register_parallax", "registration_method"]
 
 #: Peak working memory of :func:`process` per pixel of the rig's largest sensor (bytes), and its fixed part:
-#: the merge's brackets, B's registration and the mosaic's tiles at two threads.  Measured as the peak RSS above
-#: the interpreter's: 270 MB for 256 × 136 sensors, 573 MB (1917 B/px) for 768 × 408.
+#: the merge's brackets (and the next direction's, read ahead), B's registration and the mosaic's tiles at two
+#: threads.  Measured as the peak RSS above the interpreter's: 270 MB for 256 × 136 sensors, 573 MB (1917 B/px)
+#: for 768 × 408 before the read-ahead (it adds 6 B/px per frame of a direction: 180 B/px for the paper's
+#: 2 × 15), 3.1–3.5 GiB for 2048 × 1088 with it (docs/benchmarks.md, Processing).
 PROCESS_BYTES_PER_SENSOR_PX = 2000
 PROCESS_BASE_BYTES = 300e6
 
@@ -107,10 +109,22 @@ def bad_directions(report: dict) -> dict[int, list[str]]:
     return out
 
 
-def _check_session(session_path: Path, skip_bad: bool, verify_checksums: bool) -> tuple[dict, dict[int, list[str]]]:
-    # by default every frame's SHA-256 is checked and its TIFF decoded (docs/reliability.md: a few % of
-    # the processing time), so a same-size corrupted or undecodable frame counts as damaged (skippable)
-    report = verify_session(session_path, check_pixels=verify_checksums, checksums=verify_checksums)
+def _check_session(session_path: Path, skip_bad: bool, verify_checksums: bool,
+                   full: bool = False) -> tuple[dict, dict[int, list[str]], bool]:
+    """Stage 1.  Returns the check's report, the directions with missing or damaged frames, and whether the
+    frames' checksums and pixels are left to the reads that use them (:meth:`Session.check_frames_on_read`).
+
+    With ``verify_checksums`` every frame's SHA-256 is checked and its TIFF decoded, so a same-size corrupted or
+    undecodable frame counts as damaged.  Without ``skip_bad`` (and unless ``full``) this check happens as the
+    merge reads each frame: the session is read once instead of twice (docs/benchmarks.md, Processing), and a
+    damaged frame still stops the run before it is merged; here only the journal and the sizes are checked.
+    ``skip_bad`` needs the whole list of damaged frames before the merge, so it checks everything first.
+    """
+    on_read = verify_checksums and not skip_bad and not full
+    report = verify_session(session_path, check_pixels=verify_checksums and not on_read,
+                            checksums=verify_checksums and not on_read)
+    if on_read and (report["missing"] or report["damaged"] or report["journal_bad_lines"]):
+        return _check_session(session_path, skip_bad, verify_checksums, full=True)  # name every problem
     bad = bad_directions(report)
     if report["journal_bad_lines"] and not skip_bad:
         first = report["journal_bad_lines"][0]
@@ -123,7 +137,7 @@ def _check_session(session_path: Path, skip_bad: bool, verify_checksums: bool) -
         raise InputFileError(session_path / first.split(":")[0],
                              f"{first.split(': ', 1)[1]} ({report['n_missing']} missing and {report['n_damaged']} "
                              f"damaged frames in {len(bad)} directions; --skip-bad processes the rest)")
-    return report, bad
+    return report, bad, on_read
 
 
 def merge_and_register(session: Session, out: Path, skip: set[int], min_confidence: float,
@@ -612,7 +626,9 @@ def _process_locked(session_path: Path, paths: dict, options: ProcessOptions,
     check_memory(session_path / "rig.toml", sensor_memory_bytes(big.width_px * big.height_px,
                                                                 PROCESS_BYTES_PER_SENSOR_PX, PROCESS_BASE_BYTES),
                  memory_budget(), f"processing {big.width_px} × {big.height_px} frames")  # before any frame is read
-    check, bad = _check_session(session_path, options.skip_bad, options.verify_checksums)
+    check, bad, on_read = _check_session(session_path, options.skip_bad, options.verify_checksums)
+    if on_read:
+        s.check_frames_on_read()
     timings["check"] = time.perf_counter() - t0
     models = {c: rig.camera_model(c) for c in rig.camera_names}
     calibration_source = calibration_source_of(session_path, options.registration, options.rig_calibration,
@@ -627,7 +643,15 @@ def _process_locked(session_path: Path, paths: dict, options: ProcessOptions,
     dropped = drop_damaged_merged(paths["merged"]) if state == "resume" else []
     registration = ONE_CAMERA if "B" not in models else registration_method(options.registration)
     run = _Run(s, paths, bad, options, models, calibration_source, timings, progress)
-    merged, registration_entry = registration.register(run)
+    try:
+        merged, registration_entry = registration.register(run)
+    except DamagedFrameError:
+        # a frame failed its check as the merge read it: what this run merged goes, and the whole session's
+        # check names every damaged frame, as it would have before the merge
+        if state != "resume":
+            remove_owned_tree(paths["merged"], MERGED_NAMES, "merged directions")
+        _check_session(session_path, options.skip_bad, options.verify_checksums, full=True)
+        raise
     t2 = time.perf_counter()
     est, est_info = rig_estimator(rig)
     timings["estimator"] = time.perf_counter() - t2

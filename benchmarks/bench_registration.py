@@ -236,15 +236,25 @@ def main() -> None:
     ap.add_argument("--json", default=None, help="write all numbers to this file")
     ap.add_argument("--methods", nargs="+", default=None, help="only these methods (the first must be 'ours')")
     ap.add_argument("--pairs", nargs="+", default=list(PAIRS), choices=PAIRS)
+    ap.add_argument("--threads", type=int, default=None,
+                    help="threads on both sides: OpenCV's (cv2.setNumThreads), BLAS and OMNISPECTRAL_THREADS "
+                         "(default: the libraries' own)")
     ap.add_argument("--no-extras", action="store_true", help="skip the confidence and block-disparity measurements")
     args = ap.parse_args()
+    if args.threads:
+        import cv2
+        from threadpoolctl import threadpool_limits
+
+        cv2.setNumThreads(args.threads)
+        os.environ["OMNISPECTRAL_THREADS"] = str(args.threads)
+        threadpool_limits(args.threads)
     panos = [read_image(p).astype(np.float64) for p in sorted(PANORAMAS.glob("*.hdr"))]
     methods = {"ours": method_ours(), "ours_nomask": method_ours(use_mask=False),
                "ours_gradient": method_ours("gradient"), "ours_norefine": method_ours(use_mask=False, refine=0),
                "cv2": method_cv2(), "skimage_up100": method_skimage(), "skimage_hann": method_skimage_hann()}
     if args.methods:
         methods = {k: v for k, v in methods.items() if k in args.methods}
-    report = {"load_before": os.getloadavg(),
+    report = {"load_before": os.getloadavg(), "threads": args.threads,
               "n": args.n, "n_large": args.n_large, "min_confidence": DEFAULT_MIN_CONFIDENCE, "protocols": {}}
     for protocol in args.protocol:
         rng = np.random.default_rng(args.seed)

@@ -233,6 +233,15 @@ def test_referenced_one_camera_import_is_verified_and_processed_in_place(tmp_pat
     assert main(["process", str(tmp_path / "s"), "-o", str(tmp_path / "p2")]) == 1
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and ("A_d0003_e01.tif" in err or "A_d0007_e04.tif" in err), err
+    # the moved file back, the changed one with its recorded modification time: only its SHA-256 tells, and the
+    # read that would merge it checks that
+    os.rename(tmp_path / "elsewhere.tif", moved)
+    record = s.completed()[(3, "A", 1)]
+    os.utime(changed, ns=(record["mtime_ns"], record["mtime_ns"]))
+    assert main(["process", str(tmp_path / "s"), "-o", str(tmp_path / "p3")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "A_d0003_e01.tif" in err and "checksum" in err, err
+    assert not (tmp_path / "p3" / "merged").exists()
 
 
 def _nona_equirect(pto: Path, width: int) -> np.ndarray:

@@ -414,14 +414,14 @@ class Session:
     def read_frame(self, direction: int, camera: str, exposure_index: int) -> tuple[np.ndarray, dict]:
         """A raw frame and the metadata stored inside it; a damaged file is named in the error."""
 
+        if self._checked_reads is not None:  # frames under frames/ and referenced originals alike
+            return self._read_checked((direction, camera, exposure_index))
         p = self.path / frame_relpath(direction, camera, exposure_index)
         if not p.exists() and (ref := self.reference_record(direction, camera, exposure_index)) is not None:
             return self._read_referenced(ref)
         if not p.exists():
             raise InputFileError(p, f"frame missing (direction {direction}, camera {camera}, "
                                     f"exposure {exposure_index})")
-        if self._checked_reads is not None:
-            return self._read_checked((direction, camera, exposure_index))
         return decode_frame(p)
 
     def check_frames_on_read(self) -> Session:

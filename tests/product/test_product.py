@@ -183,7 +183,9 @@ def test_frames_are_read_once_and_a_same_size_damaged_frame_stops_the_run_before
     monkeypatch.setattr(session_module, "decode_frame", counting)
     index = process(tiny_session, tmp_path / "ok", progress=False, report=False)
     frames = index["session_check"]["n_planned"]
-    assert len(decoded) <= frames and len(set(decoded)) == len(decoded)  # sun frames are planned, read once too
+    sun = {d for d in decoded if int(d.rsplit("_e", 1)[1][:-4]) >= 100}  # checked before, read after the mosaic
+    regular = [d for d in decoded if d not in sun]
+    assert sun and len(regular) == len(set(regular)) == frames - len(sun)  # each of the others decoded once
     bad = _damaged_copy(tiny_session, tmp_path / "bad", lambda s: _flip_pixel_bytes(s / "frames/d0007/B_e03.tif"))
     with pytest.raises(InputFileError, match=r"d0007/B_e03.tif: checksum mismatch.*1 damaged frames in 1 "
                                              r"directions; --skip-bad"):
@@ -191,6 +193,13 @@ def test_frames_are_read_once_and_a_same_size_damaged_frame_stops_the_run_before
     assert not (tmp_path / "p" / "merged").exists()
     index = process(bad, tmp_path / "p2", progress=False, report=False, skip_bad=True)
     assert [d["direction"] for d in index["skipped_directions"]] == [7]
+    # a sun bracket's frame (read only after the mosaic) is checked in full before any work
+    sun_frame = next(p for p in sorted(tiny_session.glob("frames/*/A_e101.tif")))
+    bad_sun = _damaged_copy(tiny_session, tmp_path / "bad_sun",
+                            lambda s: _flip_pixel_bytes(s / sun_frame.relative_to(tiny_session)))
+    with pytest.raises(InputFileError, match=rf"{sun_frame.parent.name}/A_e101.tif: checksum mismatch"):
+        process(bad_sun, tmp_path / "p3", progress=False, report=False)
+    assert not (tmp_path / "p3" / "merged").exists()
 
 
 def test_cli_process_reports_a_bad_session_in_one_line(tiny_session, tmp_path, capsys):

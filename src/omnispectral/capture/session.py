@@ -560,7 +560,7 @@ def sun_bracket_keys(session: Session, plan: Plan, records: dict, cameras: tuple
 
 
 def verify_session(path: str | Path, check_pixels: bool = False, checksums: bool = True,
-                   workers: int | None = None) -> dict:
+                   workers: int | None = None, sun_in_full: bool = False) -> dict:
     """Completeness and integrity of a session against its plan; names every missing or damaged frame.
 
     Missing: no journal line, or a journalled file that no longer exists.  Damaged: a file whose size,
@@ -571,8 +571,9 @@ def verify_session(path: str | Path, check_pixels: bool = False, checksums: bool
     pixels (:func:`pixel_problem`: the ``pixels_sha256`` its description embeds, when present, and no value
     above the camera's full scale).  With
     ``checksums=False`` only the file size recorded in the journal is compared (catches truncation;
-    a fast check before processing, which decodes every frame anyway).  ``workers``: threads (default
-    :func:`~omnispectral.threads.kernel_threads`).
+    a fast check before processing, which decodes every frame anyway).  ``sun_in_full``: the sun brackets' frames
+    get every check whatever ``checksums`` and ``check_pixels`` say (``process`` reads them only after the
+    mosaic).  ``workers``: threads (default :func:`~omnispectral.threads.kernel_threads`).
     """
     s = Session.open(path)
     plan = s.plan()
@@ -584,7 +585,9 @@ def verify_session(path: str | Path, check_pixels: bool = False, checksums: bool
     full_scale = s.full_scale_dn()
 
     def check(key):
-        return _frame_problem(s, key, j.records.get(key), checksums, check_pixels, full_scale.get(key[1]))
+        full = sun_in_full and key[2] >= SUN_EXPOSURE_BASE
+        return _frame_problem(s, key, j.records.get(key), checksums or full, check_pixels or full,
+                              full_scale.get(key[1]))
 
     missing, damaged = [], []
     # each frame is read once (hash and decode from the same bytes); SHA-256 and the decoder release the

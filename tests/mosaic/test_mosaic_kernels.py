@@ -223,3 +223,28 @@ def test_canvas_rays_are_the_per_pixel_rays():
         col, row = np.meshgrid(np.asarray(cols, np.float64), np.asarray(rows, np.float64))
         got, ref = canvas.rays(rows, cols), canvas.rays_at(row, col)
         assert got.shape == ref.shape and np.array_equal(got, ref)
+
+
+def test_kernels_compile_once_then_load_from_the_disk_cache():
+    """Numba keys its disk cache on a kernel's closure: a kernel calling helpers held in closure cells compiled
+    again in every process (~1 s per run).  A second process loads every kernel that calls helpers."""
+    import subprocess
+    import sys
+
+    code = """if True:
+        import numpy as np
+        from omnispectral.imaging.distortion_kernel import compiled_undistort
+        from omnispectral.mosaic.interp import remap
+        from omnispectral.mosaic.kernels import compiled_kernels
+        src = np.random.default_rng(0).random((16, 16, 3), dtype=np.float32)
+        u = np.full((4, 4), 5.5, np.float32)
+        for method in ("cubic", "cubic-clamped", "spline"):
+            remap(src, u, u, method)
+        x = np.linspace(-0.5, 0.5, 8)
+        undistort = compiled_undistort()
+        undistort(x, x, np.array([-0.3, 0.1] + [0.0] * 12), 1.0, 1e-12, 60, x.copy(), x.copy(), x.copy())
+        k = compiled_kernels()
+        print(sum(f.stats.cache_misses.get(s, 0) for f in (k.keys, k.spline, undistort) for s in f.signatures))
+        """
+    runs = [subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True) for _ in range(2)]
+    assert int(runs[1].stdout.split()[-1]) == 0, runs[1]

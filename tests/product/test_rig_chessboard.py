@@ -133,8 +133,10 @@ def few_directions_rig():
     return rig_from_dict(tomllib.loads(text), "few", text)
 
 
-def test_process_uses_a_chessboard_calibration_and_says_when_it_no_longer_fits(tmp_path, capsys):
-    from omnispectral.product.process import process
+def test_process_uses_a_chessboard_calibration_and_says_when_it_no_longer_fits(tmp_path, capsys, monkeypatch):
+    from omnispectral.mosaic.sources import MergedDirections
+    from omnispectral.product.parallax_ahead import ParallaxAhead
+    from omnispectral.product.process import process, register_parallax
     from omnispectral.sim.scenes import ProceduralOutdoorScene
     from omnispectral.sim.simulate import simulate_session
     from tests.product.test_product import NOON
@@ -144,7 +146,28 @@ def test_process_uses_a_chessboard_calibration_and_says_when_it_no_longer_fits(t
                      ground_truth_width=256, progress=False, seed=3)
     simulate_board_views(tmp_path / "cb", rig, seed=3, n_views=6)
     calibrate_chessboard_folder(tmp_path / "cb", tmp_path / "cal.json")
+    measured_ahead = []
+    finished = ParallaxAhead.finished
+    monkeypatch.setattr(ParallaxAhead, "finished", lambda self: measured_ahead.append(finished(self)) or
+                        measured_ahead[-1])
     index = process(tmp_path / "s", tmp_path / "p", progress=False, rig_calibration=tmp_path / "cal.json")
+    # the mounting was known before the merge: directions were measured while it went on, and they are what
+    # the stage after the merge measures from the same files
+    assert len(measured_ahead) == 1 and len(measured_ahead[0]) >= 1
+    again = tmp_path / "again"
+    shutil.copytree(tmp_path / "p" / "merged", again)
+    meta = json.loads((again / "merged.json").read_text())
+    for d in meta["directions"]:
+        d["images"]["B"].pop("parallax")
+    meta.pop("rig_calibration")
+    (again / "merged.json").write_text(json.dumps(meta))
+    register_parallax(MergedDirections.open(again), RigCalibration.load(tmp_path / "p" / "rig-calibration.json"))
+    first = json.loads((tmp_path / "p" / "merged" / "merged.json").read_text())["directions"]
+    second = json.loads((again / "merged.json").read_text())["directions"]
+    assert [d["images"]["B"] for d in first] == [d["images"]["B"] for d in second]  # stats, offsets, checksums
+    for i in measured_ahead[0]:
+        name = f"d{i:04d}_P.npy"
+        assert (tmp_path / "p" / "merged" / name).read_bytes() == (again / name).read_bytes()
     reg = index["registration"]
     assert reg["method"] == "parallax" and reg["rig_calibration"]["method"] == "chessboard"
     truth = json.loads((tmp_path / "s" / "ground_truth" / "ground_truth.json").read_text())

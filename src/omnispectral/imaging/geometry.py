@@ -68,6 +68,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.imaging.distortion_kernel import compiled_undistort
 from omnispectral.io import atomic_write_json, read_text_file
 
 __all__ = ["DIST_LENGTHS", "DIST_NAMES", "HEAD_TO_WORLD_AT_ZERO", "JSON_FORMAT", "JSON_VERSION",
@@ -88,6 +89,9 @@ UNDISTORT_TOL = 1e-12
 #: Residual still accepted where float64 rounding stalls the iteration before ``UNDISTORT_TOL`` (≈ 1e-6 px).
 UNDISTORT_ACCEPT_TOL = 1e-9
 _UNDISTORT_MAX_ITER = 60
+#: Fewest points for which :meth:`CameraModel.undistort_normalized` runs the compiled iterations (below, the
+#: array version: no compilation or cache load for a handful of points).
+_COMPILED_UNDISTORT_MIN = 4096
 
 JSON_FORMAT = "omnispectral.camera"
 JSON_VERSION = 1
@@ -659,6 +663,13 @@ class CameraModel:
             return x.reshape(shape), y.reshape(shape), converged.reshape(shape)
         r_max2 = self.max_radius**2
         d = self._d
+        kernel = compiled_undistort() if xd.size >= _COMPILED_UNDISTORT_MIN else None
+        if kernel is not None:  # the same iterations point by point, compiled (distortion_kernel)
+            resid = np.empty(xd.shape)
+            kernel(xd, yd, np.ascontiguousarray(d, np.float64), float(r_max2), float(tol), int(max_iter), x, y,
+                   resid)
+            converged[:] = resid < max(tol, accept_tol)
+            return x.reshape(shape), y.reshape(shape), converged.reshape(shape)
         active = np.flatnonzero(np.isfinite(xd) & np.isfinite(yd))
         xa, ya, ta, tb = x[active], y[active], xd[active], yd[active]
         # Start inside the valid region (the distorted point itself, pulled in if it lies beyond it).

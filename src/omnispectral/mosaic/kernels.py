@@ -55,6 +55,9 @@ def compiled_kernels() -> SimpleNamespace | None:
     except ImportError:  # pragma: no cover - numba is a dependency; the NumPy paths stay correct without it
         _CACHE["kernels"] = None
         return None
+    # the inlined helpers are module globals, not closure cells: Numba keys its disk cache on the pickled
+    # closure, which differs in every process, and would compile the kernels that call them on every run
+    global cubic_weights, spline_taps, tap_grid, keys_weights
 
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False, inline="always")
     def cubic_weights(t):  # pragma: no cover - compiled

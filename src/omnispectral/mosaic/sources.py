@@ -60,8 +60,8 @@ from omnispectral.imaging.geometry import CameraModel
 from omnispectral.io import atomic_path, atomic_write_json
 
 __all__ = ["BAND_NAMES", "CAMERAS", "CAMERA_BANDS", "DTYPES", "FLOAT16_TARGET_MAX", "FORMAT", "FORMAT_VERSION",
-           "UNITS", "MergedDirections", "MergedDirectionsWriter", "SourceImage", "encode_image", "float16_scale",
-           "image_filename", "npy_shape", "read_npy_rows", "read_npy_window"]
+           "UNITS", "MergedDirections", "MergedDirectionsWriter", "SourceImage", "encode_image", "entry_sources",
+           "float16_scale", "image_filename", "npy_shape", "read_npy_rows", "read_npy_window"]
 
 FORMAT = "omnispectral-merged-directions"
 FORMAT_VERSION = 1
@@ -195,6 +195,22 @@ class SourceImage:
         return out
 
 
+def entry_sources(path: Path, entry: dict, cameras=CAMERAS) -> list[SourceImage]:
+    """The images of one direction's ``merged.json`` entry in the directory ``path``, A before B (of ``cameras``)."""
+    out = []
+    for cam in cameras:
+        img = entry["images"].get(cam)
+        if img is None:
+            continue
+        par = img.get("parallax")
+        out.append(SourceImage(int(entry["index"]), cam, float(entry["pan_deg"]), float(entry["tilt_deg"]),
+                               path / img["file"], float(img.get("scale", 1.0)),
+                               tuple(float(x) for x in img.get("offset_px", (0.0, 0.0))),
+                               path / par["file"] if par else None, img.get("checksum"),
+                               par.get("checksum") if par else None))
+    return out
+
+
 @dataclass
 class MergedDirections:
     """A merged-directions directory (see the module docstring); open with :meth:`open`."""
@@ -243,19 +259,7 @@ class MergedDirections:
 
     def sources(self) -> list[SourceImage]:
         """Every (direction, camera) image, in direction order, A before B."""
-        out = []
-        for d in self.directions:
-            for cam in self.cameras:
-                img = d["images"].get(cam)
-                if img is None:
-                    continue
-                par = img.get("parallax")
-                out.append(SourceImage(int(d["index"]), cam, float(d["pan_deg"]), float(d["tilt_deg"]),
-                                       self.path / img["file"], float(img.get("scale", 1.0)),
-                                       tuple(float(x) for x in img.get("offset_px", (0.0, 0.0))),
-                                       self.path / par["file"] if par else None, img.get("checksum"),
-                                       par.get("checksum") if par else None))
-        return out
+        return [s for d in self.directions for s in entry_sources(self.path, d, self.cameras)]
 
     def files(self) -> list[dict]:
         """Every file the directions list: ``{"direction", "kind" ("A", "B" or "P": B's parallax), "path",
@@ -371,10 +375,19 @@ class MergedDirectionsWriter:
         """Camera B's per-pixel parallax of direction ``index`` (``(H_A, W_A, 3)``: inverse depth 1/m,
         confidence, occluded), stored float16 as ``dNNNN_P.npy`` and recorded with ``info``; B's offset at
         infinity becomes ``offset_px``."""
+        self.record_parallax(index, *self.write_parallax(index, data), info, offset_px)
+
+    def write_parallax(self, index: int, data: np.ndarray) -> tuple[str, str]:
+        """The file of :meth:`save_parallax` alone, not yet recorded in ``merged.json`` (safe from another thread
+        while this writer adds directions): returns its name and checksum for :meth:`record_parallax`."""
         name = f"d{int(index):04d}_P.npy"
         with atomic_path(self.path / name) as tmp, open(tmp, "wb") as fh:
             np.save(fh, np.asarray(data, np.float16))
-        checksum = file_checksum(self.path / name)
+        return name, file_checksum(self.path / name)
+
+    def record_parallax(self, index: int, name: str, checksum: str, info: dict,
+                        offset_px: tuple[float, float] = (0.0, 0.0)) -> None:
+        """Record a parallax file written by :meth:`write_parallax` (the rest of :meth:`save_parallax`)."""
         for d in self.meta["directions"]:
             if int(d["index"]) == int(index):
                 d["images"]["B"]["parallax"] = {"file": name, **info, "checksum": checksum}

@@ -233,7 +233,7 @@ def merge_direction(session, direction: int, camera: str, n_exposures: int, raw:
 def merge_session(session: Session | str | Path, output: str | Path, *, register: RegisterFn | None = None,
                   dtype: str = "float16", progress: ProgressCallback | None = None,
                   skip: Collection[int] = (), cameras: dict[str, CameraModel] | None = None,
-                  **merge_options) -> MergedDirections:
+                  written: Callable[[dict], None] | None = None, **merge_options) -> MergedDirections:
     """Stream a raw capture session into a merged-directions directory, one direction at a time.
 
     Each direction's brackets are merged (:func:`omnispectral.imaging.merge_exposures`, options passed
@@ -263,6 +263,9 @@ def merge_session(session: Session | str | Path, output: str | Path, *, register
         Direction indices left out (not planned in the output).
     cameras : dict of str to CameraModel, optional
         The rig's camera models (default: built from the session's rig).
+    written : callable, optional
+        ``written(entry)`` after each direction is written, with its ``merged.json`` entry (e.g. to start the
+        next stage's work on it while the merge goes on).
     **merge_options
         Keyword arguments of :func:`~omnispectral.imaging.hdr.merge_exposures`, for every bracket.
 
@@ -312,10 +315,12 @@ def merge_session(session: Session | str | Path, output: str | Path, *, register
                         pan, tilt = pose
                 del frames
                 dx, dy, *rest = register(d.index, images["A"], images["B"]) if "B" in images else (0.0, 0.0)
-                writer.add(d.index, pan, tilt, images, {"B": (dx, dy)} if "B" in images else {},
-                           {"pan_deg_commanded": d.pan_deg, "tilt_deg_commanded": d.tilt_deg,
-                            **(rest[0] if rest else {})})
+                entry = writer.add(d.index, pan, tilt, images, {"B": (dx, dy)} if "B" in images else {},
+                                   {"pan_deg_commanded": d.pan_deg, "tilt_deg_commanded": d.tilt_deg,
+                                    **(rest[0] if rest else {})})
                 del images
+                if written is not None:
+                    written(entry)
             report_progress(progress, "merge", i + 1, n)
     return MergedDirections.open(output)
 

@@ -23,6 +23,7 @@ file's misalignment (:func:`adjusted_model`).
 from __future__ import annotations
 
 import json
+import threading
 from dataclasses import replace
 
 import cv2
@@ -140,6 +141,20 @@ def b_onto_a_maps(model_a: CameraModel, model_b: CameraModel, pan_deg: float = 0
 
 
 _MAPS_CACHE: dict = {}
+_CACHE_LOCK = threading.Lock()
+
+
+def _computed_once(cache: dict, model_a: CameraModel, model_b: CameraModel, compute):
+    """``cache``'s value for this pair of models, computed by ``compute()`` if it holds another pair's; under a
+    lock, so that the registration's threads, which all ask at once, compute it once (one pair kept)."""
+    key = json.dumps([model_a.to_dict(), model_b.to_dict()], sort_keys=True)
+    with _CACHE_LOCK:
+        value = cache.get(key)
+        if value is None:
+            value = compute()
+            cache.clear()
+            cache[key] = value
+    return value
 
 
 def cached_maps(model_a: CameraModel, model_b: CameraModel) -> tuple[np.ndarray, np.ndarray]:
@@ -156,13 +171,7 @@ def cached_maps(model_a: CameraModel, model_b: CameraModel) -> tuple[np.ndarray,
         ``(map_x_px, map_y_px)`` as :func:`b_onto_a_maps` returns them (shared: do not modify).
     """
 
-    key = json.dumps([model_a.to_dict(), model_b.to_dict()], sort_keys=True)
-    value = _MAPS_CACHE.get(key)  # thread-safe without a lock: at worst two threads compute it
-    if value is None:
-        value = b_onto_a_maps(model_a, model_b)
-        _MAPS_CACHE.clear()
-        _MAPS_CACHE[key] = value
-    return value
+    return _computed_once(_MAPS_CACHE, model_a, model_b, lambda: b_onto_a_maps(model_a, model_b))
 
 
 def warp_b_onto_a(image_b: np.ndarray, maps: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -234,11 +243,6 @@ def cached_epipolar_field(model_a: CameraModel, model_b: CameraModel) -> np.ndar
     """
 
 
-    key = json.dumps([model_a.to_dict(), model_b.to_dict()], sort_keys=True)
-    value = _FIELD_CACHE.get(key)
-    if value is None:
-        # pixels beyond the lens model have no ray: no parallax there
-        value = np.nan_to_num(epipolar_field(model_a, baseline_m(model_b), second_order=True)).astype(np.float32)
-        _FIELD_CACHE.clear()
-        _FIELD_CACHE[key] = value
-    return value
+    # pixels beyond the lens model have no ray: no parallax there
+    return _computed_once(_FIELD_CACHE, model_a, model_b, lambda: np.nan_to_num(
+        epipolar_field(model_a, baseline_m(model_b), second_order=True)).astype(np.float32))

@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -70,13 +71,14 @@ from omnispectral.mosaic.sources import MergedDirections, MergedDirectionsWriter
 from omnispectral.mosaic.store import PanoramaStore
 from omnispectral.ownership import MERGED_NAMES, check_output_outside_inputs, claim_output_directory, remove_owned_tree
 from omnispectral.product.align import align_direction
-from omnispectral.product.direction_parallax import FAR_OFFSET_MIN_STD_PX, off_model_warnings, parallax_direction
+from omnispectral.product.direction_parallax import FAR_OFFSET_MIN_STD_PX, off_model_warnings
 from omnispectral.product.estimator import b_predictor, rig_estimator
 from omnispectral.product.expectations import accuracy_warnings
 from omnispectral.product.far_content import far_content_errors, far_content_warning
 from omnispectral.product.fingerprint import product_fingerprint
 from omnispectral.product.layout import MERGED, PANORAMA, PRODUCT_FORMAT, RIG_CALIBRATION, product_paths
 from omnispectral.product.merge import merge_session
+from omnispectral.product.parallax_ahead import ParallaxAhead, measure_parallax
 from omnispectral.product.report import write_report
 from omnispectral.product.rigfile import RigCalibration
 from omnispectral.product.rigsession import calibrate_from_merged
@@ -86,11 +88,11 @@ from omnispectral.product.sun_methods import recover_sun, sun_method
 from omnispectral.product.sun_reference import SunReference
 from omnispectral.product.verify import changed_files, drop_damaged_merged
 from omnispectral.progress import ProgressCallback, optional_progress, report_progress, under_stage
-from omnispectral.threads import ordered_thread_map
+from omnispectral.threads import ordered_thread_map, single_threaded_libraries
 
 __all__ = ["DEFAULT_INTERP", "PROCESS_BASE_BYTES", "PROCESS_BYTES_PER_SENSOR_PX", "REGISTRATIONS", "ProcessOptions",
-           "Registration", "bad_directions", "calibration_source_of", "merge_and_register", "merge_only",
-           "parallax_registration", "process", "register_parallax", "registration_method"]
+           "Registration", "bad_directions", "calibration_source_of", "far_offset_applies", "merge_and_register",
+           "merge_only", "parallax_registration", "process", "register_parallax", "registration_method"]
 
 #: Peak working memory of :func:`process` per pixel of the rig's largest sensor (bytes), and its fixed part:
 #: the merge's brackets (and the next direction's, read ahead), B's registration and the mosaic's tiles at two
@@ -173,9 +175,10 @@ def merge_and_register(session: Session, out: Path, skip: set[int], min_confiden
 
 
 def merge_only(session: Session, out: Path, skip: set[int], progress: ProgressCallback | None = None,
-               timings: dict | None = None, hdr_weight: str = DEFAULT_HDR_WEIGHT, models: dict | None = None):
+               timings: dict | None = None, hdr_weight: str = DEFAULT_HDR_WEIGHT, models: dict | None = None,
+               written: Callable[[dict], None] | None = None):
     """Stage 2 without registration: the HDR merge of every direction (camera B at the rig file's mounting);
-    ``progress("merge", done, total)`` per direction."""
+    ``progress("merge", done, total)`` per direction, ``written(entry)`` after each (:func:`merge_session`)."""
     t0 = time.perf_counter()
     if (out / "merged.json").is_file():  # a resumed run: nothing to merge when the directory is complete
         try:
@@ -185,21 +188,23 @@ def merge_only(session: Session, out: Path, skip: set[int], progress: ProgressCa
             return done
         except InputFileError:
             pass
-    merged = merge_session(session, out, skip=skip, progress=progress, cameras=models, weight=hdr_weight)
+    merged = merge_session(session, out, skip=skip, progress=progress, cameras=models, weight=hdr_weight,
+                           written=written)
     if timings is not None:
         timings["hdr_merge"] = timings.get("hdr_merge", 0.0) + time.perf_counter() - t0
     return merged
 
 
 def register_parallax(merged, calibration=None, progress: ProgressCallback | None = None,
-                      timings: dict | None = None):
+                      timings: dict | None = None, measured: dict | None = None):
     """Stage 2b: camera B's mounting (``calibration``, or fitted now from every direction,
     :mod:`omnispectral.product.rigfit`), then every direction's per-pixel parallax
     (:func:`~omnispectral.product.direction_parallax.parallax_direction`) saved beside the merged images
     (``progress("parallax", done, total)`` per direction).
 
-    Resumes: directions whose parallax was computed with the same calibration are kept.  Returns the
-    calibration and the per-direction parallax statistics.
+    Resumes: directions whose parallax was computed with the same calibration are kept, and so are those
+    ``measured`` during the merge with this ``calibration`` (:class:`~omnispectral.product.parallax_ahead.
+    ParallaxAhead`, by direction index).  Returns the calibration and the per-direction parallax statistics.
     """
     t0 = time.perf_counter()
     nominal = merged.meta.get("rig_file_camera_b") or merged.meta["cameras"]["B"]  # the rig file's camera B
@@ -223,23 +228,15 @@ def register_parallax(merged, calibration=None, progress: ProgressCallback | Non
     if timings is not None:
         timings["rig_calibration"] = time.perf_counter() - t0
     t1 = time.perf_counter()
-    sources = {(s.direction, s.camera): s for s in MergedDirections(merged.path, writer.meta).sources()}
+    for m in (measured or {}).values():  # measured while the merge went on, with this calibration
+        m.record(writer)
     todo = [d for d in writer.meta["directions"] if "parallax" not in d["images"]["B"]
             or not (merged.path / d["images"]["B"]["parallax"]["file"]).is_file()]
-
-    std_px = calibration.infinity_std_px(model_b)
-    apply_far = std_px is None or std_px > FAR_OFFSET_MIN_STD_PX
-
-    def measure(d: dict):
-        i = int(d["index"])
-        return i, parallax_direction(sources[(i, "A")].read(), sources[(i, "B")].read(), model_a, model_b,
-                                     float(d["pan_deg"]), float(d["tilt_deg"]), apply_far_offset=apply_far)
-
+    apply_far = far_offset_applies(calibration, model_b)
     n_total, n_done = len(writer.meta["directions"]), len(writer.meta["directions"]) - len(todo)
-    for k, (i, reg) in enumerate(ordered_thread_map(measure, todo)):  # written in order, as they come
-        par = reg.parallax
-        data = np.stack([par.inv_depth_per_m, par.confidence, par.occluded.astype(np.float32)], axis=-1)
-        writer.save_parallax(i, data, reg.stats(), offset_px=reg.offset_px)
+    for k, m in enumerate(ordered_thread_map(lambda d: measure_parallax(merged.path, d, model_a, model_b, apply_far),
+                                             todo)):  # recorded in order, as they come
+        m.record(writer)
         report_progress(progress, "parallax", n_done + k + 1, n_total)
     stats = [{"direction": int(d["index"]), **{k: v for k, v in d["images"]["B"]["parallax"].items()
                                                if k not in ("file", "checksum")}}
@@ -322,13 +319,31 @@ def _register_paper(run: _Run) -> tuple[MergedDirections, dict]:
     return merged, {"method": "paper", "min_confidence": min_confidence, "directions": alignments}
 
 
+def far_offset_applies(calibration: RigCalibration, model_b: CameraModel) -> bool:
+    """Whether each direction's measured offset at infinity is applied: unless the rig model is more certain
+    than the offset's measurement (:data:`~omnispectral.product.direction_parallax.FAR_OFFSET_MIN_STD_PX`)."""
+    std_px = calibration.infinity_std_px(model_b)
+    return std_px is None or std_px > FAR_OFFSET_MIN_STD_PX
+
+
 def _register_parallax(run: _Run) -> tuple[MergedDirections, dict]:
     """The default registration: the merge, camera B's mounting (its calibration source), then every direction's
-    per-pixel parallax (:func:`register_parallax`); the index's entry by :func:`parallax_registration`."""
+    per-pixel parallax (:func:`register_parallax`); the index's entry by :func:`parallax_registration`.
+
+    With the mounting known before the merge (chessboard views or a file), the parallax of each direction is
+    measured while the merge goes on (:class:`~omnispectral.product.parallax_ahead.ParallaxAhead`)."""
     source = run.calibration_source
-    merged = merge_only(run.session, run.paths["merged"], set(run.bad), run.progress, run.timings,
-                        run.options.hdr_weight, run.models)
-    merged, calibration, stats = register_parallax(merged, source.calibration, run.progress, run.timings)
+    ahead = None
+    if source.calibration is not None and run.models is not None and "B" in run.models:
+        model_b = source.calibration.apply(run.models["B"])
+        ahead = ParallaxAhead(run.paths["merged"], run.models["A"], model_b,
+                              far_offset_applies(source.calibration, model_b))
+    with ahead or nullcontext(), single_threaded_libraries() if ahead else nullcontext():
+        merged = merge_only(run.session, run.paths["merged"], set(run.bad), run.progress, run.timings,
+                            run.options.hdr_weight, run.models, written=ahead.submit if ahead else None)
+        measured = ahead.finished() if ahead else None
+    merged, calibration, stats = register_parallax(merged, source.calibration, run.progress, run.timings,
+                                                   measured=measured)
     run.timings["rig_calibration"] = run.timings.get("rig_calibration", 0.0) + source.fit_s  # views' fit
     return merged, parallax_registration(calibration, source, stats, merged.cameras["A"], merged.cameras["B"])
 

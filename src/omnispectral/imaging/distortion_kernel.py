@@ -1,0 +1,121 @@
+"""Compiled inversion of the lens distortion (Numba): the Newton iterations of one point at a time.
+
+:meth:`omnispectral.imaging.geometry.CameraModel.undistort_normalized` runs damped Newton iterations on
+whole arrays, taking the converged points out after every step; the fancy indexing that costs dominates
+when a map of every pixel of a sensor is inverted (2.2 Mpx at full scale: ~4 s).  The kernel here runs
+the same iterations point by point (start inside the monotonic region, full Newton step, halved while it
+leaves the region or does not lower the residual, stop below the tolerance or when no step helps), with
+the same float64 operations in the same order, so the results are the array version's (tested against
+it).  Numba is imported on first use; ``compiled_undistort()`` returns ``None`` without it and the
+caller then runs the array version.  The kernel releases the GIL and starts no threads.
+
+References
+----------
+.. [1] OpenCV, ``cv::projectPoints`` and ``cv::undistortPoints``: the distortion model (radial rational,
+   tangential, thin prism) inverted here.
+.. [2] J. Nocedal and S. J. Wright, *Numerical Optimization*, 2nd ed., Springer 2006, Sec. 11.1 (Newton's
+   method for nonlinear equations) and Sec. 3.1 (step-length backtracking).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["compiled_undistort"]
+
+_CACHE: dict = {}
+
+
+def compiled_undistort():
+    """``undistort(xd, yd, d, r_max2, tol, max_iter, x, y, resid)`` compiled, or ``None`` without Numba.
+
+    ``xd, yd``: flat float64 normalised distorted coordinates; ``d``: the 14 distortion coefficients in
+    OpenCV's order; ``r_max2``: the squared radius of the monotonic region; writes the undistorted
+    ``x, y`` and the final residual ``resid`` (``inf`` for non-finite input) into the flat output arrays.
+    """
+    if "undistort" in _CACHE:
+        return _CACHE["undistort"]
+    try:
+        import numba
+    except ImportError:  # pragma: no cover - numba is a dependency; the array version stays correct without it
+        _CACHE["undistort"] = None
+        return None
+    # the inlined helper is a module global, not a closure cell: Numba keys its disk cache on the pickled
+    # closure, which differs in every process (the kernel would compile on every run)
+    global distort
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
+    def distort(x, y, d):  # pragma: no cover - compiled
+        k1, k2, p1, p2, k3, k4, k5, k6 = d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7]
+        s1, s2, s3, s4 = d[8], d[9], d[10], d[11]
+        x2, y2, xy = x * x, y * y, x * y
+        r2 = x2 + y2
+        num = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        dnum = k1 + r2 * (2.0 * k2 + r2 * 3.0 * k3)
+        if k4 == 0.0 and k5 == 0.0 and k6 == 0.0:
+            g = num
+            dg = dnum
+        else:
+            den = 1.0 + r2 * (k4 + r2 * (k5 + r2 * k6))
+            g = num / den
+            dden = k4 + r2 * (2.0 * k5 + r2 * 3.0 * k6)
+            dg = (dnum * den - num * dden) / (den * den)
+        sx = r2 * (s1 + r2 * s2)
+        sy = r2 * (s3 + r2 * s4)
+        xd = x * g + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x2) + sx
+        yd = y * g + p1 * (r2 + 2.0 * y2) + 2.0 * p2 * xy + sy
+        dsx = s1 + 2.0 * s2 * r2
+        dsy = s3 + 2.0 * s4 * r2
+        two_x, two_y = 2.0 * x, 2.0 * y
+        j00 = g + x * dg * two_x + 2.0 * p1 * y + 6.0 * p2 * x + dsx * two_x
+        j01 = x * dg * two_y + 2.0 * p1 * x + 2.0 * p2 * y + dsx * two_y
+        j10 = y * dg * two_x + 2.0 * p1 * x + 2.0 * p2 * y + dsy * two_x
+        j11 = g + y * dg * two_y + 6.0 * p1 * y + 2.0 * p2 * x + dsy * two_y
+        return xd, yd, j00, j01, j10, j11
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy")
+    def undistort(xd, yd, d, r_max2, tol, max_iter, x_out, y_out, resid_out):  # pragma: no cover - compiled
+        for i in range(xd.shape[0]):
+            ta, tb = xd[i], yd[i]
+            if not (np.isfinite(ta) and np.isfinite(tb)):
+                x_out[i], y_out[i], resid_out[i] = ta, tb, np.inf
+                continue
+            xa, ya = ta, tb
+            r2 = xa * xa + ya * ya
+            if r2 >= r_max2:  # start inside the valid region
+                shrink = 0.5 * np.sqrt(r_max2 / r2)
+                xa *= shrink
+                ya *= shrink
+            fx, fy, j00, j01, j10, j11 = distort(xa, ya, d)
+            err = np.hypot(fx - ta, fy - tb)
+            for _ in range(max_iter):
+                if err < tol:
+                    break
+                ex, ey = fx - ta, fy - tb
+                det = j00 * j11 - j01 * j10
+                dx = (j11 * ex - j01 * ey) / det
+                dy = (j00 * ey - j10 * ex) / det
+                if not (np.isfinite(dx) and np.isfinite(dy)):
+                    break  # no step: stalled
+                xn, yn = xa - dx, ya - dy
+                fxn, fyn, n00, n01, n10, n11 = distort(xn, yn, d)
+                errn = np.hypot(fxn - ta, fyn - tb)
+                step = 1.0
+                worse = (xn * xn + yn * yn >= r_max2) or not (errn < err)
+                while worse and step > 1e-9:
+                    step *= 0.5
+                    xw, yw = xa - step * dx, ya - step * dy
+                    fxw, fyw, w00, w01, w10, w11 = distort(xw, yw, d)
+                    ew = np.hypot(fxw - ta, fyw - tb)
+                    if xw * xw + yw * yw < r_max2 and ew < err:
+                        xn, yn, fxn, fyn, errn = xw, yw, fxw, fyw, ew
+                        n00, n01, n10, n11 = w00, w01, w10, w11
+                        worse = False
+                if worse:
+                    break  # no step lowers the residual: stalled
+                xa, ya, fx, fy, err = xn, yn, fxn, fyn, errn
+                j00, j01, j10, j11 = n00, n01, n10, n11
+            x_out[i], y_out[i], resid_out[i] = xa, ya, err
+
+    _CACHE["undistort"] = undistort
+    return undistort

@@ -28,7 +28,7 @@ PACKAGE = "omnispectral"
 
 BASE = {"omnispectral", "omnispectral.errors", "omnispectral.io", "omnispectral.threads", "omnispectral.limits",
         "omnispectral.locking", "omnispectral.fingerprint", "omnispectral.ownership", "omnispectral.extras",
-        "omnispectral.checksums",
+        "omnispectral.checksums", "omnispectral.compiled",
         "omnispectral.progress",
         "omnispectral.choices"}  # names and defaults the command line shows: its parsers import nothing heavy
 SIMULATOR = "omnispectral.sim"

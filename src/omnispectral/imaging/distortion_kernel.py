@@ -21,56 +21,74 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["compiled_undistort"]
+from omnispectral.compiled import built_on_first_use
 
-_CACHE: dict = {}
+__all__ = ["compiled_undistort", "distortion", "distortion_jacobian"]
+
+def distortion(x, y, d):
+    """OpenCV's distortion (radial rational, tangential, thin prism; before the tilt) of normalised ``x, y``.
+
+    Scalars or arrays; ``d`` holds the 14 coefficients in OpenCV's order.  Returns ``(xd, yd)`` and the terms
+    :func:`distortion_jacobian` reuses: ``r²``, the radial numerator and denominator (``1.0`` when the model
+    is not rational) and their ratio ``g``.
+    """
+    k1, k2, p1, p2, k3, k4, k5, k6 = d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7]
+    s1, s2, s3, s4 = d[8], d[9], d[10], d[11]
+    x2, y2, xy = x * x, y * y, x * y
+    r2 = x2 + y2
+    num = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    if k4 == 0.0 and k5 == 0.0 and k6 == 0.0:
+        den = 1.0
+        g = num
+    else:
+        den = 1.0 + r2 * (k4 + r2 * (k5 + r2 * k6))
+        g = num / den
+    sx = r2 * (s1 + r2 * s2)
+    sy = r2 * (s3 + r2 * s4)
+    xd = x * g + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x2) + sx
+    yd = y * g + p1 * (r2 + 2.0 * y2) + 2.0 * p2 * xy + sy
+    return xd, yd, r2, num, den, g
 
 
-def compiled_undistort():
+def distortion_jacobian(x, y, d, r2, num, den, g):
+    """``(J00, J01, J10, J11)`` = ``∂(xd, yd)/∂(x, y)`` of :func:`distortion`, from the terms it returns."""
+    k1, k2, p1, p2, k3, k4, k5, k6 = d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7]
+    s1, s2, s3, s4 = d[8], d[9], d[10], d[11]
+    dnum = k1 + r2 * (2.0 * k2 + r2 * 3.0 * k3)
+    if k4 == 0.0 and k5 == 0.0 and k6 == 0.0:
+        dg = dnum  # d g / d r²
+    else:
+        dden = k4 + r2 * (2.0 * k5 + r2 * 3.0 * k6)
+        dg = (dnum * den - num * dden) / (den * den)
+    dsx = s1 + 2.0 * s2 * r2  # d sx / d r²
+    dsy = s3 + 2.0 * s4 * r2
+    two_x, two_y = 2.0 * x, 2.0 * y
+    j00 = g + x * dg * two_x + 2.0 * p1 * y + 6.0 * p2 * x + dsx * two_x
+    j01 = x * dg * two_y + 2.0 * p1 * x + 2.0 * p2 * y + dsx * two_y
+    j10 = y * dg * two_x + 2.0 * p1 * x + 2.0 * p2 * y + dsy * two_x
+    j11 = g + y * dg * two_y + 6.0 * p1 * y + 2.0 * p2 * x + dsy * two_y
+    return j00, j01, j10, j11
+
+
+@built_on_first_use
+def compiled_undistort(numba):
     """``undistort(xd, yd, d, r_max2, tol, max_iter, x, y, resid)`` compiled, or ``None`` without Numba.
 
     ``xd, yd``: flat float64 normalised distorted coordinates; ``d``: the 14 distortion coefficients in
     OpenCV's order; ``r_max2``: the squared radius of the monotonic region; writes the undistorted
     ``x, y`` and the final residual ``resid`` (``inf`` for non-finite input) into the flat output arrays.
     """
-    if "undistort" in _CACHE:
-        return _CACHE["undistort"]
-    try:
-        import numba
-    except ImportError:  # pragma: no cover - numba is a dependency; the array version stays correct without it
-        _CACHE["undistort"] = None
-        return None
-    # the inlined helper is a module global, not a closure cell: Numba keys its disk cache on the pickled
+    # the inlined helpers are module globals, not closure cells: Numba keys its disk cache on the pickled
     # closure, which differs in every process (the kernel would compile on every run)
-    global distort
+    global distort, distort_nb, jacobian_nb
+
+    distort_nb = numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")(distortion)
+    jacobian_nb = numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")(distortion_jacobian)
 
     @numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")
     def distort(x, y, d):  # pragma: no cover - compiled
-        k1, k2, p1, p2, k3, k4, k5, k6 = d[0], d[1], d[2], d[3], d[4], d[5], d[6], d[7]
-        s1, s2, s3, s4 = d[8], d[9], d[10], d[11]
-        x2, y2, xy = x * x, y * y, x * y
-        r2 = x2 + y2
-        num = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        dnum = k1 + r2 * (2.0 * k2 + r2 * 3.0 * k3)
-        if k4 == 0.0 and k5 == 0.0 and k6 == 0.0:
-            g = num
-            dg = dnum
-        else:
-            den = 1.0 + r2 * (k4 + r2 * (k5 + r2 * k6))
-            g = num / den
-            dden = k4 + r2 * (2.0 * k5 + r2 * 3.0 * k6)
-            dg = (dnum * den - num * dden) / (den * den)
-        sx = r2 * (s1 + r2 * s2)
-        sy = r2 * (s3 + r2 * s4)
-        xd = x * g + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x2) + sx
-        yd = y * g + p1 * (r2 + 2.0 * y2) + 2.0 * p2 * xy + sy
-        dsx = s1 + 2.0 * s2 * r2
-        dsy = s3 + 2.0 * s4 * r2
-        two_x, two_y = 2.0 * x, 2.0 * y
-        j00 = g + x * dg * two_x + 2.0 * p1 * y + 6.0 * p2 * x + dsx * two_x
-        j01 = x * dg * two_y + 2.0 * p1 * x + 2.0 * p2 * y + dsx * two_y
-        j10 = y * dg * two_x + 2.0 * p1 * x + 2.0 * p2 * y + dsy * two_x
-        j11 = g + y * dg * two_y + 6.0 * p1 * y + 2.0 * p2 * x + dsy * two_y
+        xd, yd, r2, num, den, g = distort_nb(x, y, d)
+        j00, j01, j10, j11 = jacobian_nb(x, y, d, r2, num, den, g)
         return xd, yd, j00, j01, j10, j11
 
     @numba.njit(nogil=True, cache=True, error_model="numpy")
@@ -117,5 +135,4 @@ def compiled_undistort():
                 j00, j01, j10, j11 = n00, n01, n10, n11
             x_out[i], y_out[i], resid_out[i] = xa, ya, err
 
-    _CACHE["undistort"] = undistort
     return undistort

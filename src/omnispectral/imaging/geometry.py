@@ -68,7 +68,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from omnispectral.errors import ConfigurationError, InputFileError
-from omnispectral.imaging.distortion_kernel import compiled_undistort
+from omnispectral.imaging.distortion_kernel import compiled_undistort, distortion, distortion_jacobian
 from omnispectral.io import atomic_write_json, read_text_file
 
 __all__ = ["DIST_LENGTHS", "DIST_NAMES", "HEAD_TO_WORLD_AT_ZERO", "JSON_FORMAT", "JSON_VERSION",
@@ -267,38 +267,13 @@ def _distort(x, y, d: np.ndarray, jacobian: bool = False):
     """OpenCV distortion (radial rational + tangential + thin prism, before the tilt) of normalised ``x, y``.
 
     Returns ``(xd, yd)`` and, with ``jacobian=True``, also ``(J00, J01, J10, J11)`` =
-    ``∂(xd, yd)/∂(x, y)``.  ``d`` holds the 14 coefficients in OpenCV's order.
+    ``∂(xd, yd)/∂(x, y)``.  ``d`` holds the 14 coefficients in OpenCV's order
+    (:func:`~omnispectral.imaging.distortion_kernel.distortion`, shared with the compiled unprojection).
     """
-    k1, k2, p1, p2, k3, k4, k5, k6, s1, s2, s3, s4 = d[:12]
-    x2, y2, xy = x * x, y * y, x * y
-    r2 = x2 + y2
-    num = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    if k4 == 0.0 and k5 == 0.0 and k6 == 0.0:
-        den = 1.0
-        g = num
-    else:
-        den = 1.0 + r2 * (k4 + r2 * (k5 + r2 * k6))
-        g = num / den
-    sx = r2 * (s1 + r2 * s2)
-    sy = r2 * (s3 + r2 * s4)
-    xd = x * g + 2.0 * p1 * xy + p2 * (r2 + 2.0 * x2) + sx
-    yd = y * g + p1 * (r2 + 2.0 * y2) + 2.0 * p2 * xy + sy
+    xd, yd, r2, num, den, g = distortion(x, y, d)
     if not jacobian:
         return xd, yd
-    dnum = k1 + r2 * (2.0 * k2 + r2 * 3.0 * k3)
-    if isinstance(den, float):
-        dg = dnum  # d g / d r²
-    else:
-        dden = k4 + r2 * (2.0 * k5 + r2 * 3.0 * k6)
-        dg = (dnum * den - num * dden) / (den * den)
-    dsx = s1 + 2.0 * s2 * r2  # d sx / d r²
-    dsy = s3 + 2.0 * s4 * r2
-    two_x, two_y = 2.0 * x, 2.0 * y
-    j00 = g + x * dg * two_x + 2.0 * p1 * y + 6.0 * p2 * x + dsx * two_x
-    j01 = x * dg * two_y + 2.0 * p1 * x + 2.0 * p2 * y + dsx * two_y
-    j10 = y * dg * two_x + 2.0 * p1 * x + 2.0 * p2 * y + dsy * two_x
-    j11 = g + y * dg * two_y + 6.0 * p1 * y + 2.0 * p2 * x + dsy * two_y
-    return xd, yd, (j00, j01, j10, j11)
+    return xd, yd, distortion_jacobian(x, y, d, r2, num, den, g)
 
 
 def tilt_matrix(tau_x_rad: float, tau_y_rad: float) -> np.ndarray:

@@ -43,6 +43,7 @@ import numpy as np
 from scipy import ndimage
 
 from omnispectral.choices import HDR_WEIGHT_NAMES
+from omnispectral.compiled import built_on_first_use
 from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.response import CameraResponse
 from omnispectral.imaging.weights import triangle_weight
@@ -195,22 +196,10 @@ def _merge_rows(model: _Model, frames: list[np.ndarray], rows: slice):
     return rad, var, den
 
 
-_FUSED: dict = {}
-
-
-def _fused_kernel():
-    """The compiled Eq. (1) kernel for linear sensors, or ``None`` without Numba.
-
-    Numba is imported here, not at module top: compiling costs ~1-2 s once per environment (the
-    result is cached on disk), which modules that import ``hdr`` without merging should not pay.
-    """
-    if "kernel" in _FUSED:
-        return _FUSED["kernel"]
-    try:
-        import numba
-    except ImportError:  # pragma: no cover - numba is a dependency; the NumPy path stays correct without it
-        _FUSED["kernel"] = None
-        return None
+@built_on_first_use
+def _fused_kernel(numba):
+    """The compiled Eq. (1) kernel for linear sensors, or ``None`` without Numba (imported on first use,
+    :mod:`omnispectral.compiled`: modules that import ``hdr`` without merging do not pay for it)."""
 
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
     def merge_linear(frames, start, stop, inv_t, t_squared, top, sat, var_a, var_b, triangle,
@@ -280,7 +269,6 @@ def _fused_kernel():
                     sat_o[i] = is_sat
                     dark_o[i] = is_dark
 
-    _FUSED["kernel"] = merge_linear
     return merge_linear
 
 
@@ -313,7 +301,7 @@ def _merge_rows_fused(model: _Model, flat_frames, shape: tuple[int, int, int], r
     else:
         rad, var = np.empty(hi - lo, np.float32), np.empty(hi - lo, np.float32)
         saturated = dark = np.empty(0, bool)
-    _FUSED["kernel"](flat_frames, lo, hi, (1.0 / model.times).astype(np.float32),
+    _fused_kernel()(flat_frames, lo, hi, (1.0 / model.times).astype(np.float32),
                      (model.times**2).astype(np.float32), np.float32(model.top), np.float32(model.saturation_dn),
                      np.float32(model.var_a), np.float32(model.var_b), not WEIGHTS[model.weight].inverse_variance,
                      float(model.saturation_dn), extremes[0], extremes[1], rad, var, den, saturated, dark)

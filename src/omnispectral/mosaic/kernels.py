@@ -41,20 +41,14 @@ from types import SimpleNamespace
 
 import numpy as np
 
+from omnispectral.compiled import built_on_first_use
+
 __all__ = ["compiled_kernels"]
 
-_CACHE: dict = {}
 
-
-def compiled_kernels() -> SimpleNamespace | None:
+@built_on_first_use
+def compiled_kernels(numba) -> SimpleNamespace | None:
     """The kernels (module docstring), or ``None`` if Numba is not installed."""
-    if "kernels" in _CACHE:
-        return _CACHE["kernels"]
-    try:
-        import numba
-    except ImportError:  # pragma: no cover - numba is a dependency; the NumPy paths stay correct without it
-        _CACHE["kernels"] = None
-        return None
     # the inlined helpers are module globals, not closure cells: Numba keys its disk cache on the pickled
     # closure, which differs in every process, and would compile the kernels that call them on every run
     global cubic_weights, spline_taps, tap_grid, keys_weights
@@ -250,7 +244,5 @@ def compiled_kernels() -> SimpleNamespace | None:
                 wv = min(max(one - abs(sy * (y + half) - one), zero), one)
                 out[i, j] = wu * wv
 
-    _CACHE["kernels"] = SimpleNamespace(spline=spline, keys=keys, disagreeing=disagreeing, accumulate=accumulate,
-                                        divide=divide, catmull_rom=catmull_rom, box_average=box_average,
-                                        feather=feather)
-    return _CACHE["kernels"]
+    return SimpleNamespace(spline=spline, keys=keys, disagreeing=disagreeing, accumulate=accumulate,
+                           divide=divide, catmull_rom=catmull_rom, box_average=box_average, feather=feather)

@@ -307,3 +307,23 @@ def test_cli_session_verify_exit_codes(tmp_path, capsys):
     run_capture(s, *devices(rig, clock), clock, progress=False)
     assert main(["session", "verify", str(s.path)]) == 0
     assert main(["session", "verify", str(tmp_path / "nothing")]) == 1
+
+
+@pytest.mark.parametrize("layout", [dict(), dict(byteorder=">"), dict(compression="zlib"), dict(rowsperstrip=7)])
+def test_frame_pixels_read_from_its_bytes_are_tifffiles(tmp_path, layout):
+    """A plainly stored frame is viewed in the bytes just read (no second copy); any other layout (big-endian,
+    compressed) is decoded by tifffile; both give tifffile's pixels.  A truncated file is named, not viewed."""
+    import tifffile
+
+    from omnispectral.capture.session import decode_frame
+
+    pixels = np.random.default_rng(3).integers(0, 4096, (24, 40, 3), dtype=np.uint16)
+    p = tmp_path / "f.tif"
+    tifffile.imwrite(p, pixels, description=json.dumps({"shape": [24, 40, 3]}), photometric="rgb", **layout)
+    content = p.read_bytes()
+    data, meta = decode_frame(p, content)
+    assert np.array_equal(data, pixels) and meta == {"shape": [24, 40, 3]}
+    plain = not layout or "rowsperstrip" in layout  # strips written one after the other are one run
+    assert (not data.flags.writeable) == plain  # a view of the bytes exactly when stored plainly
+    with pytest.raises(InputFileError, match=r"f\.tif"):
+        decode_frame(p, content[: len(content) - 100])

@@ -37,9 +37,11 @@ import datetime as _dt
 import hashlib
 import io
 import json
+import math
 import os
 import re
 import shutil
+import sys
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -463,7 +465,8 @@ def decode_frame(path: Path, content: bytes | None = None) -> tuple[np.ndarray, 
         with tifffile.TiffFile(path if content is None else io.BytesIO(content)) as tf:
             page = tf.pages[0]
             check_image_shape(path, page.shape)  # before decoding: a hostile header cannot allocate GiB
-            data = page.asarray()
+            data = _plain_pixels(tf, page, content) if content is not None else None
+            data = page.asarray() if data is None else data
             meta = json.loads(page.description)
     except InputFileError:
         raise
@@ -472,6 +475,22 @@ def decode_frame(path: Path, content: bytes | None = None) -> tuple[np.ndarray, 
     if not isinstance(meta, dict):
         raise InputFileError(path, "damaged frame (no frame record in the TIFF description)")
     return data, meta
+
+
+def _plain_pixels(tf: tifffile.TiffFile, page: tifffile.TiffPage, content: bytes) -> np.ndarray | None:
+    """The pixels of a TIFF stored plainly (uncompressed, in one run, native byte order) as a read-only view
+    of the file's bytes ``content``, without decoding or copying them (a frame is read once, by the merge,
+    which only reads its pixels); ``None`` for any other layout (decoded by tifffile)."""
+    native = "<" if sys.byteorder == "little" else ">"
+    if not (page.is_contiguous and page.compression == 1 and page.predictor == 1 and page.fillorder == 1
+            and tf.byteorder == native and page.dtype.isnative
+            and (page.planarconfig == 1 or page.samplesperpixel == 1)):
+        return None
+    count = math.prod(page.shape)
+    offset = int(page.dataoffsets[0])
+    if offset + count * page.dtype.itemsize > len(content):  # truncated: tifffile names the damage
+        return None
+    return np.frombuffer(content, page.dtype, count=count, offset=offset).reshape(page.shape)
 
 
 def referenced_problem(rec: dict, checksum: bool = True) -> str | None:

@@ -460,6 +460,11 @@ def test_float16_encoding_keeps_the_hdr_range():
     assert rel.max() <= 2.0 ** -11
     stored32, scale32 = encode_image(img, "float32")
     assert scale32 == 1.0 and np.array_equal(stored32, img)
+    # non-finite values are kept and do not set the scale; the stored values are the float32 product rounded once
+    img[0, 0, 0], img[1, 1, 1], img[2, 2, 2] = np.nan, np.inf, -np.inf
+    stored, scale_nf = encode_image(img, "float16")
+    expected = (img * np.float32(1 / scale)).astype(np.float16)
+    assert scale_nf == scale and np.array_equal(stored, expected, equal_nan=True)
 
 
 def test_merged_directions_round_trip_and_crop_reads(tmp_path):

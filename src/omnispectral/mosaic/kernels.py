@@ -51,7 +51,7 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
     """The kernels (module docstring), or ``None`` if Numba is not installed."""
     # the inlined helpers are module globals, not closure cells: Numba keys its disk cache on the pickled
     # closure, which differs in every process, and would compile the kernels that call them on every run
-    global cubic_weights, spline_taps, tap_grid, keys_weights
+    global cubic_weights, spline_taps, tap_grid, keys_weights, keys_rows
 
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False, inline="always")
     def cubic_weights(t):  # pragma: no cover - compiled
@@ -121,9 +121,10 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
         return ((-t3 + two * t2 - t) * half, (three * t3 - five * t2 + two) * half,
                 (-three * t3 + four * t2 + t) * half, (t3 - t2) * half)
 
-    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
-    def keys(src, u, v, clamp, out):  # pragma: no cover - compiled (tested through remap)
-        hs, ws, nc = src.shape
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False, inline="always")
+    def keys_rows(src, u, v, clamp, out, nc):  # pragma: no cover - compiled
+        """:func:`keys` for ``nc`` channels (a constant 3 lets LLVM unroll the channel loop: 1.2x faster)."""
+        hs, ws = src.shape[0], src.shape[1]
         for i in range(u.shape[0]):
             for j in range(u.shape[1]):
                 x, y = u[i, j], v[i, j]
@@ -134,12 +135,13 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
                 tx, ty, (x0, x1, x2, x3), (r0, r1, r2, r3), ny0 = tap_grid(src, x, y)
                 wx, wy = keys_weights(tx), keys_weights(ty)
                 # the clamp's 2 x 2 neighbours: floor(position) and the next pixel, both inside the source
-                nx0, nx1, ny1 = x1, min(x1 + 1, ws - 1), min(ny0 + 1, hs - 1)
+                nx0, nx1 = x1, min(x1 + 1, ws - 1)
+                s0, s1 = src[ny0], src[min(ny0 + 1, hs - 1)]
                 for c in range(nc):
                     value = spline_taps(r0, r1, r2, r3, x0, x1, x2, x3, wx, wy, c)
                     if clamp:
-                        a, b = src[ny0, nx0, c], src[ny0, nx1, c]
-                        d, e = src[ny1, nx0, c], src[ny1, nx1, c]
+                        a, b = s0[nx0, c], s0[nx1, c]
+                        d, e = s1[nx0, c], s1[nx1, c]
                         lo = min(min(a, b), min(d, e))
                         hi = max(max(a, b), max(d, e))
                         if value < lo:
@@ -149,6 +151,13 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
                         if not (np.isfinite(a) and np.isfinite(b) and np.isfinite(d) and np.isfinite(e)):
                             value = np.nan
                     out[i, j, c] = value
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
+    def keys(src, u, v, clamp, out):  # pragma: no cover - compiled (tested through remap)
+        if src.shape[2] == 3:  # the engine's case
+            keys_rows(src, u, v, clamp, out, 3)
+        else:
+            keys_rows(src, u, v, clamp, out, src.shape[2])
 
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
     def disagreeing(sums, weights, tol, out):  # pragma: no cover - compiled (tested through reject_inconsistent)

@@ -80,8 +80,8 @@ def image_filename(direction: int, camera: str) -> str:
 
 def float16_scale(image: np.ndarray) -> float:
     """Power-of-two ``scale`` with ``max(image) / scale <= 2¹⁵`` (1 for an image of zeros)."""
-    finite = np.abs(image[np.isfinite(image)]) if image.size else np.zeros(0)
-    peak = float(finite.max()) if finite.size else 0.0
+    image = np.asarray(image)
+    peak = float(np.max(np.abs(image), where=np.isfinite(image), initial=0.0))  # no copy of the finite values
     if peak <= 0:
         return 1.0
     return 2.0 ** math.ceil(math.log2(peak / FLOAT16_TARGET_MAX))
@@ -95,7 +95,9 @@ def encode_image(image: np.ndarray, dtype: str) -> tuple[np.ndarray, float]:
     if dtype != "float16":
         raise ConfigurationError(f"dtype must be one of {DTYPES}, got {dtype!r}")
     scale = float16_scale(image)
-    return (image * np.float32(1.0 / scale)).astype(np.float16), scale
+    stored = np.empty(image.shape, np.float16)  # the float32 product rounded once, without a float32 temporary
+    np.multiply(image, np.float32(1.0 / scale), out=stored, casting="unsafe")
+    return stored, scale
 
 
 # ------------------------------------------------------------------------------------------ reading

@@ -4,7 +4,7 @@
     .venv/bin/python benchmarks/bench_process.py /tmp/full/session [--out /tmp/full/product]
 
 36 directions x 2 cameras x 15 exposures of 2048 x 1088 -> a 7260 x 3630 six-band panorama (the
-paper's time-lapse frame).  Target: <= 90 s on 2 cores (half the paper's 180 s acquisition) with peak
+paper's time-lapse frame).  Target: <= 60 s on 2 idle cores (a third of the paper's 180 s acquisition), with peak
 memory <= 8 GiB.  Prints the per-stage timings and the peak RSS of the process.
 """
 

@@ -16,28 +16,36 @@ sRGB is lifted per pixel onto the first three principal components of the Vrhel 
 reflectances shipped with the package (mean plus three components fitted to the pixel's colour under
 D65, clipped to 0..1): measured spectral shapes, a real scene's texture.
 
-    python benchmarks/bench_texture.py [--cube FILE ...] [--placement near-25 ...] [--noise on off] [--out DIR]
+``--b-variant`` changes camera B step by step towards a twin of camera A (``B_VARIANTS``: B's mounting known
+exactly, then A's filter, then no mounting angles, then no baseline), which tells registration, filter,
+sampling phase and parallax apart; ``--interp`` processes the same frames with other interpolations.
+
+    python benchmarks/bench_texture.py [--cube FILE ...] [--placement near-25 ...] [--noise on off]
+        [--interp spline ...] [--b-variant rig a-twin ...] [--out DIR]
 """
 
 from __future__ import annotations
 
 import argparse
 import datetime as dt
+import itertools
 import json
 import os
 import sys
 import time
+import tomllib
 from pathlib import Path
 
 import numpy as np
 
+from omnispectral.choices import INTERP_NAMES
 from omnispectral.imaging.geometry import lonlat_to_ray
 from omnispectral.product.layout import open_product
 from omnispectral.product.process import process
-from omnispectral.rig import load_preset
+from omnispectral.rig import load_preset, rig_from_dict
 from omnispectral.sim.scenes import ProceduralOutdoorScene
 from omnispectral.sim.scenes.cube import CubeOnWallScene
-from omnispectral.sim.simulate import simulate_session
+from omnispectral.sim.simulate import DEFAULT_MOUNTING_ERROR_DEG, simulate_session
 from omnispectral.sim.truth import GroundTruth
 from omnispectral.spectral.colour import spectra_to_linear_srgb
 from omnispectral.spectral.library import load_reflectances
@@ -106,16 +114,54 @@ def unit_nrmse(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.sqrt(((an - bn) ** 2).mean(axis=-1)) / np.sqrt((bn ** 2).mean(axis=-1))
 
 
-def measure(out: Path, cube, placement: str, noise: bool) -> dict:
+#: Camera B of the ``small`` preset changed to isolate what makes its error differ from A's (``--b-variant``):
+#: the rig file's text replacements, and whether B carries the simulator's unknown mounting error (seed 0).
+B_VARIANTS = {
+    "rig": ((), True),
+    "known-mounting": ((), False),
+    "a-filter": ((('filter = "sp18-standin"', 'filter = "wratten-34a"'),), False),
+    "a-filter-no-angles": ((('filter = "sp18-standin"', 'filter = "wratten-34a"'), ("yaw_deg = 0.15", "yaw_deg = 0.0"),
+                            ("pitch_deg = -0.08", "pitch_deg = 0.0"), ("roll_deg = 0.05", "roll_deg = 0.0")), False),
+    "a-twin": ((('filter = "sp18-standin"', 'filter = "wratten-34a"'), ("yaw_deg = 0.15", "yaw_deg = 0.0"),
+                ("pitch_deg = -0.08", "pitch_deg = 0.0"), ("roll_deg = 0.05", "roll_deg = 0.0"),
+                ("baseline_mm = [60.0, 0.0, 0.0]", "baseline_mm = [0.0, 0.0, 0.0]")), False),
+}
+
+
+def variant_rig(variant: str):
+    """The ``small`` preset with camera B changed as :data:`B_VARIANTS` says, and B's mounting error (deg)."""
+    replacements, unknown_error = B_VARIANTS[variant]
+    rig = load_preset("small")
+    if not replacements:
+        return rig, (DEFAULT_MOUNTING_ERROR_DEG if unknown_error else 0.0)
+    text = rig.toml_text
+    for old, new in replacements:
+        if old not in text:
+            raise SystemExit(f"bench_texture: the small preset no longer has {old!r}; update B_VARIANTS")
+        text = text.replace(old, new)
+    return rig_from_dict(tomllib.loads(text), f"small ({variant})", text), 0.0
+
+
+def simulate(out: Path, cube, placement: str, noise: bool, b_variant: str = "rig"):
+    """Simulate the ``small`` preset (B as ``b_variant`` says) at noon with ``cube`` at ``placement``; (scene,
+    base scene, seconds)."""
     base = ProceduralOutdoorScene(time_hhmm="12:00", day_of_year=172)
     wall, lon, lat, width_m = PLACEMENTS[placement]
     scene = CubeOnWallScene(cube, base=base, wall=wall, lon_deg=lon, lat_deg=lat, width_m=width_m)
+    rig, mounting_error_deg = variant_rig(b_variant)
     t0 = time.perf_counter()
-    simulate_session(out / "s", load_preset("small"), scene, start=NOON, noise=noise, progress=False)
+    simulate_session(out / "s", rig, scene, start=NOON, noise=noise, progress=False,
+                     mounting_error_deg=mounting_error_deg)
+    return scene, base, time.perf_counter() - t0
+
+
+def measure(out: Path, scene, base, placement: str, noise: bool, interp: str | None = None) -> dict:
+    """Process ``out/s`` (``interp``: the mosaic's interpolation, ``None`` the default) and measure the panel."""
     t1 = time.perf_counter()
-    process(out / "s", out / "p", truth=GroundTruth.of_session(out / "s"), progress=False)
+    product = out / f"p-{interp or 'default'}"
+    process(out / "s", product, interp=interp, truth=GroundTruth.of_session(out / "s"), progress=False)
     t2 = time.perf_counter()
-    _, store, est = open_product(out / "p")
+    _, store, est = open_product(product)
     bands = store.read(0)
     truth = np.load(out / "s" / "ground_truth" / "bands.npy", mmap_mode="r")
     h, w = bands.shape[:2]
@@ -129,12 +175,12 @@ def measure(out: Path, cube, placement: str, noise: bool) -> dict:
     added, floor = unit_nrmse(est_p, est_t), unit_nrmse(est_t, spec_t)
     a_err, b_err = float(np.median(rel[:, :3])), float(np.median(rel[:, 3:]))
     distance_m = round(float(np.linalg.norm(scene.centre_m)), 2)
-    return {"placement": placement, "distance_m": distance_m, "noise": noise, "panel_px": int(mask.sum()),
+    return {"placement": placement, "interp": interp or "default", "distance_m": distance_m, "noise": noise, "panel_px": int(mask.sum()),
             "a_band_error": a_err, "b_band_error": b_err, "b_over_a": b_err / a_err,
             "spectral_added_nrmse": float(np.median(added)), "estimator_floor_nrmse": float(np.median(floor)),
             "added_over_floor": float(np.median(added) / np.median(floor)),
             "holes": int((~np.isfinite(bands[mask])).any(axis=-1).sum()),
-            "simulate_s": round(t1 - t0, 1), "process_s": round(t2 - t1, 1)}
+            "process_s": round(t2 - t1, 1)}
 
 
 def main(argv=None) -> int:
@@ -142,6 +188,10 @@ def main(argv=None) -> int:
     ap.add_argument("--cube", action="append", default=None, help="reflectance cube file (repeatable)")
     ap.add_argument("--placement", nargs="+", default=list(PLACEMENTS), choices=list(PLACEMENTS))
     ap.add_argument("--noise", nargs="+", default=["on"], choices=["on", "off"])
+    ap.add_argument("--interp", nargs="+", default=[None], choices=[None, *INTERP_NAMES],
+                    help="the mosaic's interpolation(s), each on the same simulated frames (default: process's)")
+    ap.add_argument("--b-variant", nargs="+", default=["rig"], choices=list(B_VARIANTS),
+                    help="camera B as the preset has it, or changed towards A's (B_VARIANTS)")
     ap.add_argument("--out", default="/tmp/bench_texture")
     ap.add_argument("--json", default=None, help="write the results here")
     args = ap.parse_args(argv)
@@ -150,11 +200,14 @@ def main(argv=None) -> int:
     rows = []
     for name, cube in cubes:
         for d in args.placement:
-            for n in args.noise:
+            for n, variant in itertools.product(args.noise, args.b_variant):
                 out = Path(args.out) / f"{len(rows)}"
-                res = {"cube": str(name), **measure(out, cube, d, n == "on")}
-                rows.append(res)
-                print(json.dumps(res), flush=True)
+                scene, base, simulate_s = simulate(out, cube, d, n == "on", variant)
+                for interp in args.interp:
+                    res = {"cube": str(name), "b_variant": variant,
+                           **measure(out, scene, base, d, n == "on", interp), "simulate_s": round(simulate_s, 1)}
+                    rows.append(res)
+                    print(json.dumps(res), flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
     return 0

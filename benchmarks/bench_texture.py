@@ -8,7 +8,8 @@ its border):
 - per camera, the median relative band error ``|P − T| / T`` (P the product, T the truth's bands);
 - the spectral error the pipeline adds: unit-norm NRMSE between the spectra the product's estimator gives
   from P and from T, next to the estimator's own floor, the NRMSE between its spectra from T and the true
-  spectra (the scene's radiance on the truth's 2 × 2 rays per pixel).
+  spectra (the scene's radiance on the truth's 2 × 2 rays per pixel, the texture filtered over each ray's share
+  of the pixel as the simulator renders it).
 
 Cubes: ``--cube FILE`` (``.npz`` or ENVI, see ``omnispectral.sim.scenes.cube``; repeatable) or, by
 default, one made here from a photograph (scikit-image's ``coffee``, a real scene's texture) whose linear
@@ -44,6 +45,7 @@ from omnispectral.product.layout import open_product
 from omnispectral.product.process import process
 from omnispectral.rig import load_preset, rig_from_dict
 from omnispectral.sim.scenes import ProceduralOutdoorScene
+from omnispectral.sim.scenes.base import footprint_kwargs
 from omnispectral.sim.scenes.cube import CubeOnWallScene
 from omnispectral.sim.simulate import DEFAULT_MOUNTING_ERROR_DEG, simulate_session
 from omnispectral.sim.truth import GroundTruth
@@ -97,13 +99,16 @@ def panel_mask(scene: CubeOnWallScene, base: ProceduralOutdoorScene, height: int
 
 
 def true_spectra(scene, rows: np.ndarray, cols: np.ndarray, height: int, width: int, scale: float) -> np.ndarray:
-    """The scene's spectra on 2 × 2 rays per pixel (as the truth's bands are made), in the truth's units."""
+    """The scene's spectra on 2 × 2 rays per pixel, each filtering the texture over its share of the pixel (as
+    the truth's bands are made), in the truth's units."""
     acc = 0.0
     for dy in (0.25, 0.75):
         for dx in (0.25, 0.75):
             lat = 90 - (rows + dy) / height * 180
             lon = (cols + dx) / width * 360 - 180
-            acc = acc + scene.spectral_radiance(lonlat_to_ray(lon, lat), sun_disk=False)
+            spread_rad = np.sqrt(np.cos(np.radians(lat)) * (2 * np.pi / width) * (np.pi / height)) / 2
+            acc = acc + scene.spectral_radiance(lonlat_to_ray(lon, lat), sun_disk=False,
+                                                **footprint_kwargs(scene, spread_rad))
     return acc / 4.0 * scale
 
 

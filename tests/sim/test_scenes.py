@@ -339,6 +339,71 @@ def test_cube_on_wall_is_reflectance_times_daylight(noon, cube_file, six_bands):
     np.testing.assert_array_equal(scene.spectral_radiance(away), noon.spectral_radiance(away))
 
 
+@pytest.fixture(scope="module")
+def fine_cube():
+    """A 240 × 240 random-texel cube: ~6 × 6 texels per pixel of a 952-px-wide grid at the near wall."""
+    rng = np.random.default_rng(3)
+    wl = np.array([400.0, 550.0, 700.0])
+    cube = rng.uniform(0.05, 0.9, (240, 240, 3)) * rng.uniform(0.5, 1.0, (1, 1, 3))
+    return cube.astype(np.float32), wl
+
+
+def test_cube_ray_footprint_is_the_mean_of_its_texels(noon, fine_cube, six_bands):
+    """A ray with a spread gets the mean of the dense point samples over its angular square (the ground truth of
+    the filtering), at a head-on and an oblique view of the panel."""
+    scene = CubeOnWallScene(fine_cube, base=noon, lon_deg=-40.0, lat_deg=5.0)
+    for lon in (-40.0, -35.0):  # two points of the panel, seen 40° and 35° off its normal
+        d = lonlat_to_direction(lon, 3.0).astype(np.float64)
+        e1 = np.cross(d, [0.0, 1.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(d, e1)
+        spread = 4e-3  # ~3 × 3 texels head on
+        g = (np.arange(64) + 0.5) / 64 - 0.5
+        a, b = np.meshgrid(g, g)
+        dense = d + spread * (a.reshape(-1, 1) * e1 + b.reshape(-1, 1) * e2)
+        dense /= np.linalg.norm(dense, axis=1, keepdims=True)
+        want = scene.band_radiance(dense, six_bands, sun_disk=False).mean(axis=0)
+        got = scene.band_radiance(d[None], six_bands, sun_disk=False, ray_spread_rad=spread)[0]
+        point = scene.band_radiance(d[None], six_bands, sun_disk=False)[0]
+        err, err_point = np.abs(got / want - 1).max(), np.abs(point / want - 1).max()
+        assert err < 0.01, (lon, err)
+        assert err_point > 5 * err, (lon, err_point, err)  # what point sampling would give
+
+
+def test_truth_filters_a_fine_texture_like_many_rays(noon, fine_cube, six_bands):
+    """The truth's 2 × 2 rays per pixel, each filtering the texture over its share of the pixel, give the pixel's
+    mean: they match 8 × 8 filtering rays and 16 × 16 point samples on a texture of ~6 × 6 texels per pixel,
+    where 2 × 2 point samples miss it by ten times as much."""
+    from omnispectral.sim.truth import _fill_equirect, render_equirect_bands
+
+    scene = CubeOnWallScene(fine_cube, base=noon, lon_deg=-40.0, lat_deg=5.0)
+    width, rows = 952, (218, 230)
+    got = render_equirect_bands(scene, six_bands, width, *rows)
+
+    def fill(supersample, filtered):
+        out = np.empty_like(got)
+        _fill_equirect(out, lambda r, s: scene.band_radiance(r, six_bands, sun_disk=False,
+                                                             **({"ray_spread_rad": s} if filtered else {})),
+                       64, supersample=supersample, row_offset=rows[0], height=width // 2)
+        return out
+
+    centres = lonlat_to_direction(*np.meshgrid((np.arange(width) + 0.5) / width * 360 - 180,
+                                               90 - (np.arange(*rows) + 0.5) / (width // 2) * 180)).reshape(-1, 3)
+    on_panel = (np.abs(scene.band_radiance(centres, six_bands, sun_disk=False)
+                       - noon.band_radiance(centres, six_bands, sun_disk=False)).max(axis=-1) > 0).reshape(got.shape[:2])
+    inner = on_panel & np.roll(on_panel, 1, 1) & np.roll(on_panel, -1, 1)
+    inner[1:-1] &= on_panel[:-2] & on_panel[2:]
+    assert inner.sum() > 100
+    reference = fill(8, True)
+
+    def median_error(x):
+        return float(np.median(np.abs(x / reference - 1)[inner]))
+
+    assert median_error(got) < 0.005
+    assert median_error(fill(16, False)) < 0.02  # the reference is the pixels' mean, not the filter's own
+    assert median_error(fill(2, False)) > 10 * median_error(got)
+
+
 def test_cube_bad_inputs(tmp_path, cube_file):
     good = np.load(cube_file)
     cases = {

@@ -179,3 +179,48 @@ def test_cli_capture_runs_the_devices_the_rig_names(tmp_path, capsys):
     assert main(["capture", "--rig", str(tmp_path / "real.toml"), "-o", str(tmp_path / "r")]) == 2
     # a real head with simulated cameras cannot work: the simulated cameras render the simulated head's direction
     assert "simulated cameras render what the simulated head points at" in capsys.readouterr().err
+
+
+def test_camera_rays_filter_a_fine_texture_over_their_footprint():
+    """A frame of a texture finer than the rays (~6 × 6 texels per pixel): 2 × 2 rays per pixel that filter the
+    texture over their share of the pixel give what 6 × 6 such rays give; 2 × 2 point samples miss it by ten
+    times as much."""
+    from omnispectral.sim.scenes import CubeOnWallScene, ProceduralOutdoorScene
+
+    rng = np.random.default_rng(4)
+    cube = (rng.uniform(0.05, 0.9, (240, 240, 3)) * rng.uniform(0.5, 1.0, (1, 1, 3))).astype(np.float32)
+    base = ProceduralOutdoorScene()
+    scene = CubeOnWallScene((cube, np.array([400.0, 550.0, 700.0])), base=base, lon_deg=-40.0, lat_deg=5.0)
+    rig = load_preset("small")
+
+    def frame(supersample, filtered=True):
+        r = RigRenderer(rig, scene if filtered else _PointSampled(scene), noise=False, supersample=supersample)
+        return r.electrons_per_second("A", -40.0, 0.0)
+
+    on_panel = np.abs(frame(1) - RigRenderer(rig, base, noise=False, supersample=1).electrons_per_second(
+        "A", -40.0, 0.0)).max(axis=-1) > 0
+    inner = on_panel.copy()
+    inner[1:-1, 1:-1] &= on_panel[:-2, 1:-1] & on_panel[2:, 1:-1] & on_panel[1:-1, :-2] & on_panel[1:-1, 2:]
+    inner[[0, -1]] = False
+    inner[:, [0, -1]] = False
+    assert inner.sum() > 100
+    reference = frame(6)
+
+    def median_error(x):
+        return float(np.median(np.abs(x / reference - 1)[inner]))
+
+    assert median_error(frame(2)) < 0.005
+    assert median_error(frame(2, filtered=False)) > 10 * median_error(frame(2))
+
+
+class _PointSampled:
+    """A scene seen through renderers that do not pass ray footprints (point sampling)."""
+
+    def __init__(self, scene):
+        self.scene = scene
+        self.wavelength_nm = scene.wavelength_nm
+
+    def __getattr__(self, name):
+        if name == "ray_footprint":
+            return False
+        return getattr(self.scene, name)

@@ -62,7 +62,7 @@ from omnispectral.sim.devices import (
     SimulatedHead,
     resume_simulated_devices,
 )
-from omnispectral.sim.scenes.base import SunDisk, scene_sun_disk
+from omnispectral.sim.scenes.base import SunDisk, footprint_kwargs, scene_sun_disk
 from omnispectral.sim.scenes.chessboard import ChessboardScene
 from omnispectral.sim.truth import default_ground_truth_width, write_ground_truth
 from omnispectral.spectral.library import load_filter
@@ -297,6 +297,25 @@ class RigRenderer:
             self._rays[camera] = (np.nan_to_num(rays).astype(np.float32), valid)
         return self._rays[camera]
 
+    def ray_spread_rad(self, camera: str) -> np.ndarray:
+        """``(H*W*s²,)`` float32, in :meth:`camera_rays`' order: the angular side of the part of its pixel each
+        ray stands for, ``sqrt(α_x α_y) / s`` with ``α_x``, ``α_y`` the angles from the pixel's centre ray to its
+        right and lower neighbours' (a texture finer than the rays is filtered over it,
+        :attr:`omnispectral.sim.scenes.base.Scene.ray_footprint`; cached)."""
+        key = ("spread", camera)
+        if key not in self._rays:
+            m = self.models[camera]
+            s = max(1, int(self.supersample))
+            v, u = np.meshgrid(np.arange(m.height, dtype=np.float64), np.arange(m.width, dtype=np.float64),
+                               indexing="ij")
+            centre = m.unproject(np.stack([u.ravel(), v.ravel()], axis=-1))[0]
+            across = [m.unproject(np.stack([(u + du).ravel(), (v + dv).ravel()], axis=-1))[0]
+                      for du, dv in ((1.0, 0.0), (0.0, 1.0))]
+            angle = [np.arccos(np.clip(np.einsum("ij,ij->i", centre, x), -1.0, 1.0)) for x in across]
+            spread = np.nan_to_num(np.sqrt(angle[0] * angle[1]) / s)
+            self._rays[key] = np.repeat(spread.astype(np.float32), s * s)
+        return self._rays[key]
+
     def pixel_valid(self, camera: str) -> np.ndarray:
         """``(H, W)``: pixels all of whose area has rays (inside the lens model's monotonic region)."""
         m = self.models[camera]
@@ -324,7 +343,9 @@ class RigRenderer:
         no_disk = {"sun_disk": False} if sun is not None else {}
         bands = np.zeros((rays.shape[0], 3), np.float32)
         if valid.any():
-            bands[valid] = self.scene.band_radiance(world[valid], matrix, origin_m=origin_m, **no_disk)
+            spread = self.ray_spread_rad(camera)[valid] if getattr(self.scene, "ray_footprint", False) else None
+            bands[valid] = self.scene.band_radiance(world[valid], matrix, origin_m=origin_m, **no_disk,
+                                                    **footprint_kwargs(self.scene, spread))
         s2 = max(1, int(self.supersample)) ** 2
         img = bands.reshape(m.height, m.width, s2, 3).mean(axis=2)
         if sun is not None:

@@ -22,7 +22,7 @@ from omnispectral.imaging.geometry import equirect_pixel_to_lonlat, lonlat_to_ra
 from omnispectral.imaging.sundisk import disk_samples, n_radial_for_pixel, splat_equirect
 from omnispectral.io import atomic_path, atomic_write_json, jsonable
 from omnispectral.rig import Rig, camera_model
-from omnispectral.sim.scenes.base import SunDisk, scene_sun_disk
+from omnispectral.sim.scenes.base import SunDisk, footprint_kwargs, scene_sun_disk
 
 __all__ = ["GROUND_TRUTH_FORMAT", "GroundTruth", "add_sun_disk_equirect", "check_ground_truth",
            "default_ground_truth_width",
@@ -83,8 +83,9 @@ def write_ground_truth(directory: str | Path, renderer, width: int, spectral_wid
     no_disk = {"sun_disk": False} if sun is not None else {}
     depth_m = np.full((height, width), np.nan, np.float32)
 
-    def bands_and_depth(rays):
-        values, distance_m = _band_radiance_and_depth(scene, rays, matrix, **no_disk)
+    def bands_and_depth(rays, spread_rad):
+        values, distance_m = _band_radiance_and_depth(scene, rays, matrix, **no_disk,
+                                                      **footprint_kwargs(scene, spread_rad))
         return values * np.float32(scale), distance_m
 
     with atomic_path(out / "bands.npy") as tmp:
@@ -97,8 +98,8 @@ def write_ground_truth(directory: str | Path, renderer, width: int, spectral_wid
     sw = min(spectral_width, width)
     sh = sw // 2
     spectral = np.empty((sh, sw, matrix.shape[1]), np.float32)
-    _fill_equirect(spectral, lambda rays: scene.spectral_radiance(rays, **no_disk) * np.float32(scale),
-                   rows_per_chunk)
+    _fill_equirect(spectral, lambda rays, spread_rad: scene.spectral_radiance(
+        rays, **no_disk, **footprint_kwargs(scene, spread_rad)) * np.float32(scale), rows_per_chunk)
     if sun is not None:
         add_sun_disk_equirect(spectral, sun, sun.spectral_radiance * scale)
     _save_npy(out / "spectral.npy", spectral)
@@ -171,7 +172,8 @@ def render_equirect_bands(scene, matrix: np.ndarray, width: int, row_start: int 
     sun = scene_sun_disk(scene)
     no_disk = {"sun_disk": False} if sun is not None else {}
     arr = np.empty((row_stop - row_start, width, np.atleast_2d(matrix).shape[0]), np.float32)
-    _fill_equirect(arr, lambda rays: scene.band_radiance(rays, matrix, **no_disk), rows_per_chunk,
+    _fill_equirect(arr, lambda rays, spread_rad: scene.band_radiance(
+        rays, matrix, **no_disk, **footprint_kwargs(scene, spread_rad)), rows_per_chunk,
                    row_offset=row_start, height=height)
     if sun is not None:
         add_sun_disk_equirect(arr, sun, sun.band_radiance(matrix), row_offset=row_start, height=height)
@@ -212,10 +214,13 @@ def _band_radiance_and_depth(scene, rays: np.ndarray, matrix: np.ndarray, **kwar
 
 def _fill_equirect(arr: np.ndarray, fn, rows_per_chunk: int, supersample: int = 2, row_offset: int = 0,
                    height: int | None = None, nearest_depth_m: np.ndarray | None = None) -> None:
-    """Fill an equirect array with ``fn(rays)`` averaged over ``supersample²`` points spread over each pixel's
-    area: the truth is the mean radiance of the pixel's solid angle, as the simulated sensor's pixels
+    """Fill an equirect array with ``fn(rays, spread_rad)`` averaged over ``supersample²`` points spread over each
+    pixel's area: the truth is the mean radiance of the pixel's solid angle, as the simulated sensor's pixels
     integrate over their area (:attr:`RigRenderer.supersample`), so that edges compare like with like.
-    ``arr`` holds rows ``row_offset:`` of a grid ``height`` rows high (default: all of it).
+    ``spread_rad`` ``(N,)`` is the angular side of each point's share of its pixel (the square root of the share's
+    solid angle over the steradian), for scenes that filter a texture finer than the points
+    (:func:`~omnispectral.sim.scenes.base.footprint_kwargs`).  ``arr`` holds rows ``row_offset:`` of a grid
+    ``height`` rows high (default: all of it).
 
     With ``nearest_depth_m`` (``(rows, W)``), ``fn`` returns ``(values, distance_m or None)`` and the array gets the
     smallest of each pixel's ray distances (left as it is where ``fn`` gives None)."""
@@ -227,8 +232,10 @@ def _fill_equirect(arr: np.ndarray, fn, rows_per_chunk: int, supersample: int = 
     for r0 in range(0, n_rows, rows_per_chunk):
         r1 = min(n_rows, r0 + rows_per_chunk)
         row, col, dr, dc = np.meshgrid(np.arange(r0, r1) + row_offset, np.arange(w), sub, sub, indexing="ij")
-        rays = lonlat_to_ray(*equirect_pixel_to_lonlat((col + dc).ravel(), (row + dr).ravel(), w, h))
-        values = fn(rays)
+        lon, lat = equirect_pixel_to_lonlat((col + dc).ravel(), (row + dr).ravel(), w, h)
+        # a point's share: (2π / W / s) of longitude × cos(lat), (π / H / s) of latitude
+        spread_rad = np.sqrt(np.cos(np.radians(lat)) * (2 * np.pi / w) * (np.pi / h)) / s
+        values = fn(lonlat_to_ray(lon, lat), spread_rad.astype(np.float32))
         if nearest_depth_m is not None:
             values, distance_m = values
             if distance_m is not None:

@@ -34,7 +34,8 @@ from omnispectral.imaging.geometry import lonlat_to_ray, ray_to_lonlat
 
 __all__ = ["BAND_CACHE_SIZE", "MAX_SPECTRAL_CUBE_BYTES", "RAY_BLOCK", "BandProjectionCache", "Scene", "SunDisk",
            "as_directions", "as_origin", "check_wavelengths", "direction_to_lonlat", "equirect_directions",
-           "equirect_lonlat", "lonlat_to_direction", "render_rows", "scene_sun_disk", "sensitivity_key"]
+           "equirect_lonlat", "footprint_kwargs", "lonlat_to_direction", "render_rows", "scene_sun_disk",
+           "sensitivity_key"]
 
 #: Rays processed per internal block: small enough for the per-ray temporaries to stay in cache.
 RAY_BLOCK = 1 << 15
@@ -188,6 +189,12 @@ class SunDisk:
         return np.atleast_2d(np.asarray(sensitivity, np.float64)) @ self.spectral_radiance
 
 
+def footprint_kwargs(scene, ray_spread_rad) -> dict:
+    """``{"ray_spread_rad": ray_spread_rad}`` for a scene whose rendering takes it (:attr:`Scene.ray_footprint`),
+    else ``{}``: what a renderer adds to its rendering calls."""
+    return {"ray_spread_rad": ray_spread_rad} if getattr(scene, "ray_footprint", False) else {}
+
+
 def scene_sun_disk(scene) -> SunDisk | None:
     """``scene.sun_disk()`` for scenes that have the method (any object can be rendered), else None."""
     method = getattr(scene, "sun_disk", None)
@@ -206,6 +213,10 @@ class Scene(ABC):
     kind: str = "scene"
     #: Units of :meth:`spectral_radiance`.
     radiance_units: str = "W sr-1 m-2 nm-1"
+    #: Whether the rendering methods take ``ray_spread_rad`` (each ray's angular footprint, to filter a
+    #: texture finer than the rays: :mod:`omnispectral.sim.scenes.cube`); renderers pass it when True
+    #: (:func:`footprint_kwargs`).
+    ray_footprint: bool = False
 
     def __init__(self, wavelength_nm):
         self.wavelength_nm = check_wavelengths(wavelength_nm)

@@ -3,9 +3,28 @@
 The cube is a flat Lambertian panel on a vertical face of one of the base scene's boxes (by
 default the concrete "near wall" 4 m north-west of the rig): row 0 of the cube at the top, column
 0 at the left as seen from the front.  Each texel's reflectance is resampled linearly onto the
-scene's wavelength grid (no extrapolation) and interpolated bilinearly between texel centres (held
-at the edges).  A point of the panel reflects ``ρ(λ)/π · (E_sun cos θ V + E_sky(n))``, with the
-same sun, sky, shadows and units as the rest of :class:`ProceduralOutdoorScene`.
+scene's wavelength grid (no extrapolation); a texel is a uniform square of the panel (what a pixel of
+a hyperspectral image is: the mean reflectance over its cell).  A point of the panel reflects
+``ρ(λ)/π · (E_sun cos θ V + E_sky(n))``, with the same sun, sky, shadows and units as the rest of
+:class:`ProceduralOutdoorScene`.
+
+Texture filtering
+-----------------
+A cube can hold many texels per pixel of the cameras that look at it (a 512-texel cube 1.2 m wide at
+5 m puts ~14 × 14 texels in a pixel of the ``small`` preset), and a pixel's few rays would then pick a
+few of them: point sampling aliases, in the cameras and in the truth alike.  Renderers that know how
+much of the sphere a ray stands for pass it (``ray_spread_rad``, the angular side of the ray's share of
+the pixel; :attr:`CubeOnWallScene.ray_footprint`), and the ray gets the exact mean of the texels over
+its footprint on the panel: the footprint of the ray's angular square, projected onto the panel's
+plane (the ray differentials of Igehy 1999), as the axis-aligned rectangle in the panel's (right, up)
+axes with the same spread along each, and integrated over the piecewise-constant texels with a summed-area table (Crow
+1984; exact: the table's bilinear interpolation is the integral of a piecewise-constant image).  A
+ray without a spread gets the texel it meets.
+
+References
+----------
+.. [1] H. Igehy, "Tracing ray differentials", SIGGRAPH 1999.
+.. [2] F. C. Crow, "Summed-area tables for texture mapping", SIGGRAPH 1984.
 
 Files
 -----
@@ -35,11 +54,56 @@ from omnispectral.sim.scenes.base import (
 from omnispectral.sim.scenes.procedural import ProceduralOutdoorScene, combine
 from omnispectral.spectral.curves import resample_matrix
 
-__all__ = ["RANGE_TOLERANCE", "CubeOnWallScene", "check_cube", "load_reflectance_cube"]
+__all__ = ["RANGE_TOLERANCE", "CubeOnWallScene", "box_mean", "check_cube", "load_reflectance_cube",
+           "summed_area_table"]
 
 #: Tolerance on the 0..1 range of reflectances (rounding in stored files).
 RANGE_TOLERANCE = 1e-6
 _MICROMETRE_UNITS = ("micrometers", "micrometer", "micrometres", "micrometre", "um", "µm", "microns", "micron")
+
+
+def summed_area_table(image: np.ndarray) -> np.ndarray:
+    """``(H + 1, W + 1, C)`` float64 ``S`` with ``S[j, i]`` the sum of ``image (H, W, C)`` over rows ``< j`` and
+    columns ``< i`` (Crow 1984)."""
+    h, w, c = image.shape
+    table = np.zeros((h + 1, w + 1, c), np.float64)
+    np.cumsum(np.cumsum(image, axis=0, dtype=np.float64), axis=1, out=table[1:, 1:])
+    return table
+
+
+def _integral(table: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """The integral of the piecewise-constant image of ``table`` over ``[0, x] × [0, y]`` (texel units), ``(P, C)``:
+    the table interpolated bilinearly, which is exact for such an image."""
+    h, w = table.shape[0] - 1, table.shape[1] - 1
+    i = np.clip(np.floor(x).astype(np.int64), 0, w - 1)
+    j = np.clip(np.floor(y).astype(np.int64), 0, h - 1)
+    fx, fy = (x - i)[:, None], (y - j)[:, None]
+    return ((1 - fy) * ((1 - fx) * table[j, i] + fx * table[j, i + 1])
+            + fy * ((1 - fx) * table[j + 1, i] + fx * table[j + 1, i + 1]))
+
+
+#: A footprint narrower than this (texels) takes the texel it lies in (a table difference over a sliver loses
+#: precision).
+MIN_FOOTPRINT_TEXELS = 1e-3
+
+
+def box_mean(table: np.ndarray, x0: np.ndarray, x1: np.ndarray, y0: np.ndarray, y1: np.ndarray) -> np.ndarray:
+    """Mean ``(P, C)`` float64 of the piecewise-constant image of the summed-area ``table`` over the rectangles
+    ``[x0, x1] × [y0, y1]`` (texel units); where a side is below :data:`MIN_FOOTPRINT_TEXELS`, the texel at the
+    rectangle's centre (its last row or column for a point on the far edge)."""
+    h, w = table.shape[0] - 1, table.shape[1] - 1
+    out = np.empty((x0.size, table.shape[2]), np.float64)
+    point = ((x1 - x0) < MIN_FOOTPRINT_TEXELS) | ((y1 - y0) < MIN_FOOTPRINT_TEXELS)
+    if point.any():
+        i = np.clip(np.floor(0.5 * (x0[point] + x1[point])).astype(np.int64), 0, w - 1)
+        j = np.clip(np.floor(0.5 * (y0[point] + y1[point])).astype(np.int64), 0, h - 1)
+        out[point] = table[j + 1, i + 1] - table[j, i + 1] - table[j + 1, i] + table[j, i]
+    area = ~point
+    if area.any():
+        a, b, c, d = x0[area], x1[area], y0[area], y1[area]
+        total = _integral(table, b, d) - _integral(table, a, d) - _integral(table, b, c) + _integral(table, a, c)
+        out[area] = total / ((b - a) * (d - c))[:, None]
+    return out
 
 
 def load_reflectance_cube(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
@@ -147,6 +211,8 @@ class CubeOnWallScene(Scene):
     """
 
     kind = "cube-on-wall"
+    #: Renderers pass ``ray_spread_rad`` (module docstring, "Texture filtering").
+    ray_footprint = True
 
     def __init__(self, cube, base: ProceduralOutdoorScene | None = None, wall: str = "near wall",
                  lon_deg: float = -40.0, lat_deg: float = 5.0, width_m: float = 1.2):
@@ -177,6 +243,7 @@ class CubeOnWallScene(Scene):
                        "width_m": float(width_m)}
         self._place(wall, lon_deg, lat_deg, float(width_m))
         self._bands = BandProjectionCache()
+        self._reflectance_table: np.ndarray | None = None
 
     # -- placement --------------------------------------------------------------------------------
     def _place(self, wall: str, lon_deg: float, lat_deg: float, width_m: float) -> None:
@@ -222,96 +289,132 @@ class CubeOnWallScene(Scene):
         return self._resample @ self._texels[row * w + col].astype(np.float64)
 
     # -- rendering --------------------------------------------------------------------------------
-    def spectral_radiance(self, directions, origin_m=(0.0, 0.0, 0.0), sun_disk: bool = True) -> np.ndarray:
+    def spectral_radiance(self, directions, origin_m=(0.0, 0.0, 0.0), sun_disk: bool = True,
+                          ray_spread_rad=None) -> np.ndarray:
         """Spectral radiance (W·sr⁻¹·m⁻²·nm⁻¹) ``(N, n)`` float32: the base scene with the cube on its wall
-        (``sun_disk=False``: without the sun's disk, see :meth:`sun_disk`)."""
+        (``sun_disk=False``: without the sun's disk, see :meth:`sun_disk`; ``ray_spread_rad``, scalar or
+        ``(N,)``: each ray's angular footprint, module docstring)."""
         dl = self.base.daylight
         light = np.stack([dl.sun_spectrum, dl.sky_spectrum]) / math.pi  # (2, n)
+        table = self._texel_table()
 
-        def panel(w, idx, sun, sky):
-            refl = np.einsum("pk,pkb->pb", w, self._texels[idx]) @ self._resample.T.astype(np.float32)
+        def panel(box, sun, sky):
+            refl = box_mean(table, *box).astype(np.float32) @ self._resample.T.astype(np.float32)
             return refl * (sun[:, None] * light[0].astype(np.float32) + sky[:, None] * light[1].astype(np.float32))
 
-        return self._render(directions, origin_m, self.base.material_table, panel, sun_disk)
+        return self._render(directions, origin_m, self.base.material_table, panel, sun_disk,
+                            ray_spread_rad=ray_spread_rad)
 
-    def band_radiance(self, directions, sensitivity, origin_m=(0.0, 0.0, 0.0), sun_disk: bool = True) -> np.ndarray:
+    def band_radiance(self, directions, sensitivity, origin_m=(0.0, 0.0, 0.0), sun_disk: bool = True,
+                      ray_spread_rad=None) -> np.ndarray:
         """``spectral_radiance @ sensitivity.T`` via band projections of the materials and of every texel."""
-        return self._band_render(directions, sensitivity, origin_m, sun_disk)
+        return self._band_render(directions, sensitivity, origin_m, sun_disk, ray_spread_rad=ray_spread_rad)
 
     def band_radiance_and_depth(self, directions, sensitivity, origin_m=(0.0, 0.0, 0.0),
-                                sun_disk: bool = True) -> tuple[np.ndarray, np.ndarray]:
+                                sun_disk: bool = True, ray_spread_rad=None) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`band_radiance` and each ray's hit distance (m; inf for the sky) from the same ray casts (the
         panel is flush with its wall: it adds no depth edge)."""
-        return self._band_render(directions, sensitivity, origin_m, sun_disk, with_depth=True)
+        return self._band_render(directions, sensitivity, origin_m, sun_disk, with_depth=True,
+                                 ray_spread_rad=ray_spread_rad)
 
-    def _band_render(self, directions, sensitivity, origin_m, sun_disk: bool, with_depth: bool = False):
+    def _band_render(self, directions, sensitivity, origin_m, sun_disk: bool, with_depth: bool = False,
+                     ray_spread_rad=None):
         s = self.check_sensitivity(sensitivity)
         base_table = self.base.band_table(s)
         tex_sun, tex_sky = self._bands.get(s, self._project_texels)
 
-        def panel(w, idx, sun, sky):
-            a = np.einsum("pk,pkm->pm", w, tex_sun[idx])
-            b = np.einsum("pk,pkm->pm", w, tex_sky[idx])
-            return a * sun[:, None] + b * sky[:, None]
+        def panel(box, sun, sky):
+            a = box_mean(tex_sun, *box)
+            b = box_mean(tex_sky, *box)
+            return (a * sun[:, None] + b * sky[:, None]).astype(np.float32)
 
-        return self._render(directions, origin_m, base_table, panel, sun_disk, with_depth)
+        return self._render(directions, origin_m, base_table, panel, sun_disk, with_depth, ray_spread_rad)
 
     def sun_disk(self):
         """The base scene's sun (the panel hangs on a wall and hides none of the sky)."""
         return self.base.sun_disk()
 
     def _project_texels(self, sensitivity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Summed-area tables of every texel's band radiance per unit of sun and of sky irradiance."""
         dl = self.base.daylight
         to_bands = self._resample.T  # (B, n)
         sun = (to_bands * (dl.sun_spectrum / math.pi)) @ sensitivity.T  # (B, m)
         sky = (to_bands * (dl.sky_spectrum / math.pi)) @ sensitivity.T
+        h, w = self.cube_shape[:2]
         t = self._texels.astype(np.float64)
-        return (t @ sun).astype(np.float32), (t @ sky).astype(np.float32)
+        return summed_area_table((t @ sun).reshape(h, w, -1)), summed_area_table((t @ sky).reshape(h, w, -1))
 
-    def _render(self, directions, origin_m, table, panel, sun_disk: bool = True, with_depth: bool = False):
+    def _texel_table(self) -> np.ndarray:
+        """Summed-area table of the texels' reflectances in the cube's own bands (built once)."""
+        if self._reflectance_table is None:
+            self._reflectance_table = summed_area_table(self._texels.reshape(self.cube_shape))
+        return self._reflectance_table
+
+    def _render(self, directions, origin_m, table, panel, sun_disk: bool = True, with_depth: bool = False,
+                ray_spread_rad=None):
         """Radiance ``(..., c)``; ``with_depth``: also the rays' hit distances ``(...)`` (m, inf for the sky)."""
         d, lead = as_directions(directions)
         o = as_origin(origin_m)
+        spread = None if ray_spread_rad is None else np.broadcast_to(
+            np.asarray(ray_spread_rad, np.float64).reshape(-1) if np.ndim(ray_spread_rad) else
+            np.float64(ray_spread_rad), (d.shape[0],))
         out = np.empty((d.shape[0], table.shape[1] // 2), dtype=np.float32)
         depth = np.empty(d.shape[0], dtype=np.float32) if with_depth else None
         for b0 in range(0, d.shape[0], RAY_BLOCK):
             b1 = min(d.shape[0], b0 + RAY_BLOCK)
             rec = self.base.shade(d[b0:b1], o, sun_disk)
             block = combine(rec, table)
-            sel, w, idx = self._panel_hits(rec, d[b0:b1], o)
+            sel, box = self._panel_hits(rec, d[b0:b1], o, None if spread is None else spread[b0:b1])
             if sel.size:
-                block[sel] = panel(w, idx, rec.sun[sel], rec.sky[sel])
+                block[sel] = panel(box, rec.sun[sel], rec.sky[sel])
             out[b0:b1] = block
             if depth is not None:
                 depth[b0:b1] = rec.t_m
         out = out.reshape(*lead, out.shape[1])
         return (out, depth.reshape(lead)) if with_depth else out
 
-    def _panel_hits(self, rec, d: np.ndarray, o: np.ndarray):
-        """Rays on the panel, their bilinear weights ``(P, 4)`` and texel indices ``(P, 4)``."""
+    def _panel_hits(self, rec, d: np.ndarray, o: np.ndarray, spread: np.ndarray | None):
+        """Rays on the panel and the texel-space rectangles ``(x0, x1, y0, y1)`` (each ``(P,)``, texel units,
+        column 0 / row 0 at 0) their footprints cover (module docstring; zero-sized without a spread)."""
         on = np.flatnonzero((rec.obj == self.wall_id) & (rec.normal_id == self.normal_id))
         empty = np.zeros(0, np.int64)
+        no_box = (np.zeros(0),) * 4
         if on.size == 0:
-            return empty, np.zeros((0, 4), np.float32), np.zeros((0, 4), np.int64)
-        rel = (o - self.centre_m) + rec.t_m[on, None].astype(np.float64) * d[on].astype(np.float64)
+            return empty, no_box
+        t_m = rec.t_m[on].astype(np.float64)
+        rel = (o - self.centre_m) + t_m[:, None] * d[on].astype(np.float64)
         u = rel @ self.right
         v = rel @ self.up
         inside = (np.abs(u) <= self.half_width_m) & (np.abs(v) <= self.half_height_m)
         if not inside.any():
-            return empty, np.zeros((0, 4), np.float32), np.zeros((0, 4), np.int64)
-        sel, u, v = on[inside], u[inside], v[inside]
+            return empty, no_box
+        sel, u, v, t_m = on[inside], u[inside], v[inside], t_m[inside]
         h, w = self.cube_shape[:2]
-        x = (u + self.half_width_m) * (w / (2.0 * self.half_width_m)) - 0.5
-        y = (self.half_height_m - v) * (h / (2.0 * self.half_height_m)) - 0.5
-        x0 = np.floor(x)
-        y0 = np.floor(y)
-        fx = x - x0
-        fy = y - y0
-        x0i, x1i = np.clip(x0, 0, w - 1).astype(np.int64), np.clip(x0 + 1, 0, w - 1).astype(np.int64)
-        y0i, y1i = np.clip(y0, 0, h - 1).astype(np.int64), np.clip(y0 + 1, 0, h - 1).astype(np.int64)
-        idx = np.stack([y0i * w + x0i, y0i * w + x1i, y1i * w + x0i, y1i * w + x1i], axis=1)
-        wts = np.stack([(1 - fx) * (1 - fy), fx * (1 - fy), (1 - fx) * fy, fx * fy], axis=1).astype(np.float32)
-        return sel, wts, idx
+        per_m_x, per_m_y = w / (2.0 * self.half_width_m), h / (2.0 * self.half_height_m)
+        x = (u + self.half_width_m) * per_m_x
+        y = (self.half_height_m - v) * per_m_y
+        if spread is None:
+            hx = hy = np.zeros_like(x)
+        else:
+            half_u_m, half_v_m = self._footprint_half_m(d[sel].astype(np.float64), t_m, spread[sel])
+            hx, hy = half_u_m * per_m_x, half_v_m * per_m_y
+        return sel, (np.clip(x - hx, 0, w), np.clip(x + hx, 0, w), np.clip(y - hy, 0, h), np.clip(y + hy, 0, h))
+
+    def _footprint_half_m(self, d: np.ndarray, t_m: np.ndarray, spread_rad: np.ndarray):
+        """Half extents (m) along the panel's right and up axes of the footprint of rays ``d (P, 3)`` hitting
+        it at distance ``t_m``, each standing for an angular square of side ``spread_rad``.  The square's edges
+        map to the parallelogram of the ray differentials ``t (e − d (n·e)/(n·d))`` of two unit directions
+        ``e`` across the ray (Igehy 1999); the rectangle has the parallelogram's spread along each axis
+        (side ``sqrt(a_u² + b_u²)`` for edges ``a``, ``b``: exact when they lie along the axes)."""
+        e1 = np.cross(d, self.up)
+        e1 /= np.maximum(np.linalg.norm(e1, axis=1, keepdims=True), 1e-12)
+        e2 = np.cross(d, e1)
+        n_d = d @ self.normal
+        n_d = np.where(np.abs(n_d) < 1e-6, 1e-6, n_d)
+        g1 = e1 - d * ((e1 @ self.normal) / n_d)[:, None]
+        g2 = e2 - d * ((e2 @ self.normal) / n_d)[:, None]
+        scale = 0.5 * spread_rad * t_m
+        return scale * np.hypot(g1 @ self.right, g2 @ self.right), scale * np.hypot(g1 @ self.up, g2 @ self.up)
 
     # -- reports ----------------------------------------------------------------------------------
     def colorchecker_patches(self, origin_m=(0.0, 0.0, 0.0)) -> list[dict]:

@@ -180,7 +180,8 @@ def measure(out: Path, scene, base, placement: str, noise: bool, interp: str | N
     added, floor = unit_nrmse(est_p, est_t), unit_nrmse(est_t, spec_t)
     a_err, b_err = float(np.median(rel[:, :3])), float(np.median(rel[:, 3:]))
     distance_m = round(float(np.linalg.norm(scene.centre_m)), 2)
-    return {"placement": placement, "interp": interp or "default", "distance_m": distance_m, "noise": noise, "panel_px": int(mask.sum()),
+    return {"placement": placement, "interp": interp or "default", "distance_m": distance_m, "noise": noise,
+            "panel_px": int(mask.sum()),
             "a_band_error": a_err, "b_band_error": b_err, "b_over_a": b_err / a_err,
             "spectral_added_nrmse": float(np.median(added)), "estimator_floor_nrmse": float(np.median(floor)),
             "added_over_floor": float(np.median(added) / np.median(floor)),

@@ -17,9 +17,10 @@ much of the sphere a ray stands for pass it (``ray_spread_rad``, the angular sid
 the pixel; :attr:`CubeOnWallScene.ray_footprint`), and the ray gets the exact mean of the texels over
 its footprint on the panel: the footprint of the ray's angular square, projected onto the panel's
 plane (the ray differentials of Igehy 1999), as the axis-aligned rectangle in the panel's (right, up)
-axes with the same spread along each, and integrated over the piecewise-constant texels with a summed-area table (Crow
-1984; exact: the table's bilinear interpolation is the integral of a piecewise-constant image).  A
-ray without a spread gets the texel it meets.
+axes with the same spread along each, and integrated over the piecewise-constant texels with a
+summed-area table (Crow 1984; exact: the table's bilinear interpolation is the integral of a
+piecewise-constant image).  A ray without a spread gets the texel it meets.  The tables are float64:
+a 1024 × 1024 cube of 31 bands takes 260 MB for the spectral truth.
 
 References
 ----------

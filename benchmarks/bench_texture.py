@@ -48,7 +48,7 @@ from omnispectral.sim.scenes import ProceduralOutdoorScene
 from omnispectral.sim.scenes.base import footprint_kwargs
 from omnispectral.sim.scenes.cube import CubeOnWallScene
 from omnispectral.sim.simulate import DEFAULT_MOUNTING_ERROR_DEG, simulate_session
-from omnispectral.sim.truth import GroundTruth
+from omnispectral.sim.truth import GroundTruth, equirect_ray_spread_rad
 from omnispectral.spectral.colour import spectra_to_linear_srgb
 from omnispectral.spectral.library import load_reflectances
 
@@ -106,9 +106,8 @@ def true_spectra(scene, rows: np.ndarray, cols: np.ndarray, height: int, width: 
         for dx in (0.25, 0.75):
             lat = 90 - (rows + dy) / height * 180
             lon = (cols + dx) / width * 360 - 180
-            spread_rad = np.sqrt(np.cos(np.radians(lat)) * (2 * np.pi / width) * (np.pi / height)) / 2
-            acc = acc + scene.spectral_radiance(lonlat_to_ray(lon, lat), sun_disk=False,
-                                                **footprint_kwargs(scene, spread_rad))
+            acc = acc + scene.spectral_radiance(lonlat_to_ray(lon, lat), sun_disk=False, **footprint_kwargs(
+                scene, equirect_ray_spread_rad(lat, width, height, 2)))
     return acc / 4.0 * scale
 
 

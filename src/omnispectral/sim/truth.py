@@ -25,8 +25,8 @@ from omnispectral.rig import Rig, camera_model
 from omnispectral.sim.scenes.base import SunDisk, footprint_kwargs, scene_sun_disk
 
 __all__ = ["GROUND_TRUTH_FORMAT", "GroundTruth", "add_sun_disk_equirect", "check_ground_truth",
-           "default_ground_truth_width",
-           "patch_radiance_spread", "render_equirect_bands", "write_ground_truth"]
+           "default_ground_truth_width", "equirect_ray_spread_rad", "patch_radiance_spread", "render_equirect_bands",
+           "write_ground_truth"]
 
 GROUND_TRUTH_FORMAT = "omnispectral-ground-truth"
 
@@ -212,13 +212,21 @@ def _band_radiance_and_depth(scene, rays: np.ndarray, matrix: np.ndarray, **kwar
     return method(rays, matrix, **kwargs)
 
 
+def equirect_ray_spread_rad(lat_deg, width: int, height: int, supersample: int) -> np.ndarray:
+    """Angular side (rad, float32) of the share of its pixel one of ``supersample²`` points of a ``width`` ×
+    ``height`` equirect grid stands for, at latitude ``lat_deg``: the square root of the share's solid angle,
+    ``(2π / W / s) cos(lat)`` of longitude by ``(π / H / s)`` of latitude."""
+    lat = np.radians(np.asarray(lat_deg, np.float64))
+    return (np.sqrt(np.cos(lat) * (2 * np.pi / width) * (np.pi / height)) / supersample).astype(np.float32)
+
+
 def _fill_equirect(arr: np.ndarray, fn, rows_per_chunk: int, supersample: int = 2, row_offset: int = 0,
                    height: int | None = None, nearest_depth_m: np.ndarray | None = None) -> None:
     """Fill an equirect array with ``fn(rays, spread_rad)`` averaged over ``supersample²`` points spread over each
     pixel's area: the truth is the mean radiance of the pixel's solid angle, as the simulated sensor's pixels
     integrate over their area (:attr:`RigRenderer.supersample`), so that edges compare like with like.
-    ``spread_rad`` ``(N,)`` is the angular side of each point's share of its pixel (the square root of the share's
-    solid angle over the steradian), for scenes that filter a texture finer than the points
+    ``spread_rad`` ``(N,)`` is the angular side of each point's share of its pixel
+    (:func:`equirect_ray_spread_rad`), for scenes that filter a texture finer than the points
     (:func:`~omnispectral.sim.scenes.base.footprint_kwargs`).  ``arr`` holds rows ``row_offset:`` of a grid
     ``height`` rows high (default: all of it).
 
@@ -233,9 +241,7 @@ def _fill_equirect(arr: np.ndarray, fn, rows_per_chunk: int, supersample: int = 
         r1 = min(n_rows, r0 + rows_per_chunk)
         row, col, dr, dc = np.meshgrid(np.arange(r0, r1) + row_offset, np.arange(w), sub, sub, indexing="ij")
         lon, lat = equirect_pixel_to_lonlat((col + dc).ravel(), (row + dr).ravel(), w, h)
-        # a point's share: (2π / W / s) of longitude × cos(lat), (π / H / s) of latitude
-        spread_rad = np.sqrt(np.cos(np.radians(lat)) * (2 * np.pi / w) * (np.pi / h)) / s
-        values = fn(lonlat_to_ray(lon, lat), spread_rad.astype(np.float32))
+        values = fn(lonlat_to_ray(lon, lat), equirect_ray_spread_rad(lat, w, h, s))
         if nearest_depth_m is not None:
             values, distance_m = values
             if distance_m is not None:

@@ -357,8 +357,7 @@ class CubeOnWallScene(Scene):
         d, lead = as_directions(directions)
         o = as_origin(origin_m)
         spread = None if ray_spread_rad is None else np.broadcast_to(
-            np.asarray(ray_spread_rad, np.float64).reshape(-1) if np.ndim(ray_spread_rad) else
-            np.float64(ray_spread_rad), (d.shape[0],))
+            np.asarray(ray_spread_rad, np.float64).reshape(-1), (d.shape[0],))
         out = np.empty((d.shape[0], table.shape[1] // 2), dtype=np.float32)
         depth = np.empty(d.shape[0], dtype=np.float32) if with_depth else None
         for b0 in range(0, d.shape[0], RAY_BLOCK):

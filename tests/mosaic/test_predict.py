@@ -96,3 +96,43 @@ def test_b_from_another_surface_than_a_is_flagged_but_an_unusual_colour_is_not()
     exotic[..., 3:] *= 20.0  # a colour far from the prior, but the whole surface: its own neighbourhood agrees
     assert not implausible_b(exotic, prior).any()
     assert not implausible_b(img, None).any()  # no predictor, no test
+
+
+@pytest.mark.parametrize("code", [1.0, 2.0])
+def test_b_that_shows_another_surface_is_not_used_but_predicted(tmp_path, code):
+    """Every direction's camera B shows another (five times brighter) surface on the left half of its frame.
+    Flagged hidden (1) those views still count where no direction sees the surface, and some pixels keep the
+    wrong bands; flagged as showing another surface (2) they are never used: those pixels are predicted from
+    A and their neighbours, and every covered pixel holds B's true bands."""
+    from omnispectral.capture.plan import direction_grid
+    from omnispectral.mosaic import PanoramaStore, mosaic
+    from omnispectral.mosaic.sources import MergedDirectionsWriter
+    from omnispectral.rig import camera_model, load_preset
+    from omnispectral.sim.synthetic import render_scene
+
+    model = camera_model(load_preset("small"), "A")
+    value = np.asarray([1.0, 2.0, 3.0, 2.0, 3.0, 1.0], np.float32)
+
+    def scene(rays):
+        return np.broadcast_to(value, (*rays.shape[:-1], 6)).copy()
+
+    dirs = [(d.pan_deg, d.tilt_deg) for d in direction_grid(12, 3)]
+    writer = MergedDirectionsWriter.create(tmp_path / "m", {"A": model, "B": model},
+                                           [{"index": k, "pan_deg": p, "tilt_deg": t} for k, (p, t) in enumerate(dirs)])
+    for k, (pan, tilt) in enumerate(dirs):
+        a, b = (render_scene(scene, model, cam, pan, tilt, (0.0, 0.0)) for cam in "AB")
+        b[:, : model.width // 2] *= 5.0
+        writer.add(k, pan, tilt, {"A": a, "B": b})
+        record = np.zeros((model.height, model.width, 3), np.float32)
+        record[..., 1] = 1.0
+        record[:, : model.width // 2 + 2, 2] = code
+        writer.save_parallax(k, record, {})
+    mosaic(writer.close(), tmp_path / "p.zarr", width=256, tile=64, interp="linear", progress=False)
+    bands = PanoramaStore.open(tmp_path / "p.zarr").read(0)
+    covered = np.isfinite(bands[..., :3]).all(axis=-1)
+    assert covered.mean() > 0.9 and np.isfinite(bands[covered]).all()
+    worst = float(np.abs(bands[covered][:, 3:] / value[3:] - 1.0).max())
+    if code == 2.0:
+        assert worst < 1e-3
+    else:
+        assert worst > 1.0

@@ -499,6 +499,36 @@ def test_settle_by_colour_gives_a_uniform_post_its_depth_and_leaves_the_sky():
     assert (sky & (before >= 1e-3)).sum() == 5 * 10
 
 
+def test_sees_another_surface_flags_what_only_b_sees_and_nothing_else():
+    """A near object outside A's frame stands in front of a flat wall in B's view: B shows the object on a
+    patch where A shows the wall, at every depth.  The reliable pixels of the wall's colour in A tell B's
+    colour of the wall, so the patch is flagged (all of it, grown from its rim); a second surface whose B
+    colour fits A's, and the wall itself, are not."""
+    from omnispectral.imaging.parallax import sees_another_surface
+
+    rng = np.random.default_rng(5)
+    h, w = 90, 140
+    a = np.empty((h, w, 3), np.float32)
+    a[:] = (200.0, 300.0, 500.0)                           # the wall
+    a[:, 100:] = (500.0, 300.0, 200.0)                     # another surface, its own colour in B
+    mix = np.asarray([[0.6, 0.3, 0.1], [0.1, 0.2, 0.7], [0.3, 0.1, 0.6]], np.float32)
+    b = a @ mix.T
+    patch = np.zeros((h, w), bool)
+    patch[35:55, 40:75] = True
+    b[patch] = np.asarray([60.0, 50.0, 40.0], np.float32) @ mix.T  # the dark object only B sees
+    a *= 1 + rng.normal(0, 0.01, (h, w, 1)).astype(np.float32)      # shading and noise
+    b *= 1 + rng.normal(0, 0.01, (h, w, 1)).astype(np.float32)
+    reliable = np.zeros((h, w), bool)
+    reliable[::4, ::4] = True                              # distinctive matches scattered over both surfaces
+    reliable[patch] = False
+    field = np.zeros((h, w, 2), np.float32)
+    flagged = sees_another_surface(a, b, field, np.zeros((h, w), np.float32), reliable)
+    assert flagged[patch].mean() >= 0.95
+    assert not flagged[~patch].any()
+    # a B that fits A's colour everywhere flags nothing
+    clean = a @ mix.T
+    assert not sees_another_surface(a, clean, field, np.zeros((h, w), np.float32), reliable).any()
+
 
 def _thin_bar(shift_px: float):
     """A dark uniform bar 10 px thick across a smooth bright sky (a post lying along the image rows),
@@ -553,3 +583,31 @@ def test_an_unmeasured_block_takes_one_neighbours_surface_not_a_blend():
     ground = np.full((6, 8), 0.4)
     assert fill_blocks(bp, ground)[5, 0] == pytest.approx(0.4)  # ... or the ground plane where known
     assert fill_blocks(bp, ground)[1, 3] == filled[1, 3]         # a measured neighbour beats the ground
+
+
+def test_upsampled_depth_follows_a_silhouette_at_full_resolution():
+    """A far building's roof line against the sky, analysed on a 4 × 4 binned grid: nearest upsampling gives
+    the binned grid's staircase (pixels of the building with the sky's depth and back); choosing among the
+    neighbouring cells by colour in A gives every pure pixel its own surface's depth."""
+    from omnispectral.imaging.binning import bin_image
+    from omnispectral.imaging.parallax import upsampled_cells
+
+    h, w, f = 96, 128, 4
+    yy, xx = np.mgrid[0:h, 0:w]
+    building = yy > 40 + 0.37 * xx + 0.5                          # below a slanted roof line
+    a = np.where(building[..., None], (20.0, 25.0, 30.0), (600.0, 800.0, 1200.0)).astype(np.float32)
+    a *= np.float32(1.0) + np.float32(0.002) * (xx % 5)[..., None]  # a little shading
+    binned = bin_image(a, f)
+    bin_building = bin_image(building.astype(np.float32), f) > 0.5
+    inv_depth = np.where(bin_building, 0.05, 0.0).astype(np.float32)  # 50 m, the sky at infinity
+    field = np.zeros((*inv_depth.shape, 2), np.float32)
+    field[..., 0] = 40.0                                              # 2 binned px of parallax at 50 m
+    rows, cols = upsampled_cells(a, binned, inv_depth, field, f)
+    got = inv_depth[rows, cols]
+    nearest = inv_depth[np.minimum(yy // f, inv_depth.shape[0] - 1), np.minimum(xx // f, inv_depth.shape[1] - 1)]
+    truth = np.where(building, 0.05, 0.0).astype(np.float32)
+    assert (nearest != truth).sum() > 100                             # the staircase
+    assert (got != truth).sum() == 0
+    # away from the step every pixel keeps its own cell
+    far = np.abs(yy - (40 + 0.37 * xx)) > 3 * f
+    assert np.array_equal(rows[far], (yy // f)[far]) and np.array_equal(cols[far], (xx // f)[far])

@@ -28,8 +28,10 @@ at every pixel:
    at infinity whose B colour plainly misfits A takes its surface's depth by colour
    (:func:`settle_by_colour`): :func:`sweep_inverse_depth`;
 4. pixels of A that B cannot see because a nearer surface hides them (z-buffer forward warp,
-   :func:`omnispectral.imaging.blockpoc.occlusion_zbuffer`) are flagged as occluded: the mosaic takes
-   B's bands there from other directions.
+   :func:`omnispectral.imaging.blockpoc.occlusion_zbuffer`), and those where B plainly shows another surface
+   than the one A sees (a near object outside A's frame in front of a flat background:
+   :func:`sees_another_surface`), are flagged as occluded: the mosaic takes B's bands there from other
+   directions.
 
 References
 ----------
@@ -51,12 +53,14 @@ from omnispectral.imaging.geometry import CameraModel
 from omnispectral.imaging.registration import as_gray
 from omnispectral.imaging.similarity import NCC_WINDOW_PX, LocalLinearScore, as_channels, local_ncc
 
-__all__ = ["COLOUR_MISFIT_MIN", "MAX_PERPENDICULAR_PX", "MIN_ALONG_WEIGHT", "MIN_BLOCK_SEEN", "OCCLUSION_TOL_PX",
-           "PARALLAX_ANALYSIS_PX", "PARALLAX_MIN_CONFIDENCE", "SAME_SURFACE_COLOUR", "SWEEP_MARGIN_STEPS",
-           "SWEEP_MAX_LEVELS", "SWEEP_MIN_NCC", "SWEEP_RANGE_BLOCKS", "SWEEP_STEP_PX", "SWEEP_ZERO_MARGIN",
-           "BlockParallax", "Parallax", "block_parallax", "colour_map_a_to_b", "epipolar_field", "fill_blocks",
-           "fill_from_neighbours", "moved_by_parallax", "neighbourhood_stack", "parallax_map", "settle_by_colour",
-           "shifted_positions", "sweep_inverse_depth"]
+__all__ = ["COLOUR_MISFIT_MIN", "DEPTH_STEP_PX", "MAX_PERPENDICULAR_PX", "MIN_ALONG_WEIGHT", "MIN_BLOCK_SEEN",
+           "OCCLUSION_HIDDEN", "OCCLUSION_OTHER_SURFACE", "OCCLUSION_TOL_PX", "OTHER_SURFACE_MISFIT",
+           "OTHER_SURFACE_RADIUS_PX", "PARALLAX_ANALYSIS_PX", "PARALLAX_MIN_CONFIDENCE", "SAME_SURFACE_COLOUR",
+           "SWEEP_MARGIN_STEPS", "SWEEP_MAX_LEVELS", "SWEEP_MIN_NCC", "SWEEP_RANGE_BLOCKS", "SWEEP_STEP_PX",
+           "SWEEP_ZERO_MARGIN", "UPSAMPLE_DISTANCE_COST", "BlockParallax", "Parallax", "block_parallax",
+           "colour_map_a_to_b", "epipolar_field", "fill_blocks", "fill_from_neighbours", "moved_by_parallax",
+           "neighbourhood_stack", "parallax_map", "sees_another_surface", "settle_by_colour", "shifted_positions",
+           "sweep_inverse_depth", "upsampled_cells"]
 
 #: A block measures parallax when its structure measures shifts along the epipolar line at least this
 #: well (``eᵀJe / |e|²`` with the normalised structure tensor J: 0 for an edge parallel to the line).
@@ -90,6 +94,22 @@ SAME_SURFACE_COLOUR = 0.1
 MIN_BLOCK_SEEN = 0.95
 #: Minimum POC peak height of a block measurement.
 PARALLAX_MIN_CONFIDENCE = 0.3
+#: :func:`sees_another_surface`: radius and step (px of the analysis grid) of the neighbourhood whose reliable
+#: pixels of the pixel's colour in A tell B's colour of that surface; the fewest such pixels; how far apart
+#: (relative) their B colours may be; how far (relative) B's colour at the pixel must be from theirs.
+OTHER_SURFACE_RADIUS_PX = 24
+OTHER_SURFACE_STEP_PX = 3
+OTHER_SURFACE_MIN_VOTES = 4
+OTHER_SURFACE_MAX_SPREAD = 0.1
+OTHER_SURFACE_MISFIT = 0.3
+#: Occlusion codes of :meth:`Parallax.occlusion_code`: B's view of the pixel hidden by a nearer surface (its
+#: bands count only where no direction sees the surface), or B showing another surface there (not used).
+OCCLUSION_HIDDEN = 1.0
+OCCLUSION_OTHER_SURFACE = 2.0
+#: :func:`upsampled_cells`: parallax span (full-resolution px) over 3 × 3 binned cells that makes a depth step,
+#: and the cost per binned cell of distance added to the colour distance (ties go to the nearest cell).
+DEPTH_STEP_PX = 0.5
+UPSAMPLE_DISTANCE_COST = 0.02
 #: Inverse depth change (1/m) used for the finite difference of the epipolar field.
 _DW_PER_M = 0.01
 
@@ -633,6 +653,113 @@ def settle_by_colour(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarray, 
     return out
 
 
+def _same_colour(p: np.ndarray, q: np.ndarray, p_norm: np.ndarray, q_norm: np.ndarray) -> np.ndarray:
+    """Whether colours ``p`` and ``q`` ``(..., C)`` (with their norms) are one surface's
+    (:data:`SAME_SURFACE_COLOUR`)."""
+    d = p - q
+    return np.einsum("...c,...c->...", d, d) <= (SAME_SURFACE_COLOUR * (p_norm + q_norm)) ** 2
+
+
+def _b_edges_without_a(a: np.ndarray, a_norm: np.ndarray, unit_b: np.ndarray, unit_norm: np.ndarray,
+                       usable: np.ndarray) -> np.ndarray:
+    """Pixels beside a change of B's colour (relative to A's brightness) where A's colour does not change."""
+    h, w = usable.shape
+    out = np.zeros((h, w), bool)
+    for sl_p, sl_q in (((slice(None), slice(0, w - 1)), (slice(None), slice(1, w))),
+                       ((slice(0, h - 1), slice(None)), (slice(1, h), slice(None)))):
+        same_b = _same_colour(unit_b[sl_p], unit_b[sl_q], unit_norm[sl_p], unit_norm[sl_q])
+        step = usable[sl_p] & usable[sl_q] & ~same_b & _same_colour(a[sl_p], a[sl_q], a_norm[sl_p], a_norm[sl_q])
+        out[sl_p] |= step
+        out[sl_q] |= step
+    return out
+
+
+def sees_another_surface(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarray, inv_depth: np.ndarray,
+                         reliable: np.ndarray, radius: int = OTHER_SURFACE_RADIUS_PX,
+                         step: int = OTHER_SURFACE_STEP_PX, grow_passes: int = 16) -> np.ndarray:
+    """Pixels where camera B, at the pixel's parallax, shows another surface than the one A sees there.
+
+    A near object that A's frame does not show (or shows at a wrong depth) can stand in front of the
+    background in B's view: no z-buffer of A's depths flags it, and a flat background matches B equally
+    badly at every depth, so the sweep keeps an unsure depth and B's bands there are the object's.  The
+    surface tells: the reliable pixels (distinctive matches) of the pixel's colour in A within ``radius``
+    show B's colour of that surface (per unit of A's brightness); where they agree among themselves (spread
+    below :data:`OTHER_SURFACE_MAX_SPREAD`) and B's colour at the pixel is plainly another (relative misfit
+    above :data:`OTHER_SURFACE_MISFIT`), B sees something else.  Tested where B's colour changes while A's
+    does not (the edge of such a patch), then grown over the unreliable pixels of the same colours in A and
+    B (``grow_passes`` px).
+
+    Parameters
+    ----------
+    ga_raw, gb_raw
+        ``(H, W, C)`` images of camera A and of camera B resampled onto A's grid.
+    field
+        ``(H, W, 2)`` or ``(H, W, 4)`` :func:`epipolar_field` (px · m).
+    inv_depth
+        ``(H, W)`` inverse depth (1/m) of every pixel.
+    reliable
+        ``(H, W)`` boolean, pixels whose depth was measured distinctively.
+    radius, step
+        Neighbourhood radius and sampling step (px).
+    grow_passes
+        Most growing passes.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(H, W)`` boolean.
+    """
+    a = as_channels(ga_raw).astype(np.float32)
+    seen = moved_by_parallax(as_channels(gb_raw), field, inv_depth.astype(np.float32))
+    bright = a.sum(axis=-1)
+    usable = (bright > 0) & np.isfinite(seen).all(axis=-1) & np.isfinite(a).all(axis=-1)
+    unit = np.where(usable[..., None], seen / np.where(usable, bright, 1.0)[..., None], 0.0).astype(np.float32)
+    a_norm = np.sqrt(np.einsum("...c,...c->...", a, a))
+    u_norm = np.sqrt(np.einsum("...c,...c->...", unit, unit))
+    refs = reliable & usable
+    todo = ~reliable & usable
+    h, w = todo.shape
+    out = np.zeros((h, w), bool)
+    ys, xs = np.nonzero(todo & _b_edges_without_a(a, a_norm, unit, u_norm, usable))
+    if ys.size == 0 or not refs.any():
+        return out
+    ap, ap_norm = a[ys, xs], a_norm[ys, xs]
+    s1 = np.zeros((ys.size, unit.shape[-1]))
+    s2 = np.zeros(ys.size)
+    n = np.zeros(ys.size)
+    for dy in range(-radius, radius + 1, step):
+        for dx in range(-radius, radius + 1, step):
+            yq, xq = np.clip(ys + dy, 0, h - 1), np.clip(xs + dx, 0, w - 1)
+            same = refs[yq, xq] & _same_colour(ap, a[yq, xq], ap_norm, a_norm[yq, xq])
+            u = unit[yq, xq]
+            s1 += np.where(same[:, None], u, 0.0)
+            s2 += np.where(same, u_norm[yq, xq] ** 2, 0.0)
+            n += same
+    has = n >= OTHER_SURFACE_MIN_VOTES
+    mean = s1[has] / n[has, None]
+    norm = np.maximum(np.linalg.norm(mean, axis=1), 1e-30)
+    spread = np.sqrt(np.maximum(s2[has] / n[has] - (mean * mean).sum(axis=1), 0.0)) / norm
+    up = unit[ys[has], xs[has]]
+    misfit = np.linalg.norm(up - mean, axis=1) / (np.linalg.norm(up, axis=1) + norm)
+    flag = (misfit > OTHER_SURFACE_MISFIT) & (spread < OTHER_SURFACE_MAX_SPREAD)
+    out[ys[has][flag], xs[has][flag]] = True
+    kernel = np.ones((3, 3), np.uint8)
+    for _ in range(grow_passes):
+        cy, cx = np.nonzero((cv2.dilate(out.astype(np.uint8), kernel) > 0) & ~out & todo)
+        if cy.size == 0:
+            break
+        add = np.zeros(cy.size, bool)
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                qy, qx = np.clip(cy + dy, 0, h - 1), np.clip(cx + dx, 0, w - 1)
+                add |= out[qy, qx] & _same_colour(a[cy, cx], a[qy, qx], a_norm[cy, cx], a_norm[qy, qx]) \
+                    & _same_colour(unit[cy, cx], unit[qy, qx], u_norm[cy, cx], u_norm[qy, qx])
+        if not add.any():
+            break
+        out[cy[add], cx[add]] = True
+    return out
+
+
 def _sample_moved(image: np.ndarray, field: np.ndarray, ys: np.ndarray, xs: np.ndarray,
                   inv_depth: np.ndarray) -> np.ndarray:
     """:func:`moved_by_parallax` at the pixels ``(ys, xs)`` only, ``(n, C)``."""
@@ -725,15 +852,28 @@ class Parallax:
         ``(H, W)`` float32, the correlation of A with B moved by that parallax, 0..1 (0 where flat or
         ambiguous).
     occluded : numpy.ndarray
-        ``(H, W)`` boolean, A's pixels hidden from B by a nearer surface.
+        ``(H, W)`` boolean, A's pixels hidden from B by a nearer surface, or where B shows another surface
+        than A's (:func:`sees_another_surface`).
     blocks : BlockParallax
         The block measurements (on the analysis grid, binned for large sensors).
+    other_surface : numpy.ndarray or None
+        ``(H, W)`` boolean, the part of ``occluded`` where B shows another surface (on this grid).
     """
 
     inv_depth_per_m: np.ndarray
     confidence: np.ndarray
     occluded: np.ndarray
     blocks: BlockParallax
+    other_surface: np.ndarray | None = None
+
+    def occlusion_code(self) -> np.ndarray:
+        """``(H, W)`` float32 per pixel: 0 seen by B, :data:`OCCLUSION_HIDDEN` hidden from B by a nearer
+        surface, :data:`OCCLUSION_OTHER_SURFACE` B shows another surface (the third layer of the stored
+        parallax records)."""
+        code = self.occluded.astype(np.float32) * np.float32(OCCLUSION_HIDDEN)
+        if self.other_surface is not None:
+            code[self.other_surface] = OCCLUSION_OTHER_SURFACE
+        return code
 
     def stats(self) -> dict:
         """Summary numbers for reports.
@@ -765,8 +905,9 @@ def parallax_map(image_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, mo
     """Steps 1-4 of the module docstring for one direction.
 
     Images larger than about ``target_px`` are analysed binned (inverse depth does not depend on the pixel
-    size; the sweep costs ~50 remaps per pixel), and the result is brought back to every pixel (nearest:
-    never a blend of two surfaces) where the occlusion is evaluated.
+    size; the sweep costs ~50 remaps per pixel), and the result is brought back to every pixel (each takes
+    one binned cell's values, never a blend of two surfaces: its own cell, or beside a depth step the
+    neighbouring cell of its colour in A, :func:`upsampled_cells`) where the occlusion is evaluated.
 
     Parameters
     ----------
@@ -803,14 +944,15 @@ def parallax_map(image_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, mo
         if ground_inv_depth is not None:
             def ground_small(pixels):
                 return ground_inv_depth(binned_to_full_px(pixels, f))
-        low = parallax_map(bin_image(image_a, f), bin_image(warped_b, f), small_seen, model_a, baseline_m,
+        binned_a = bin_image(image_a, f)
+        low = parallax_map(binned_a, bin_image(warped_b, f), small_seen, model_a, baseline_m,
                            small_field, block=block, ground_inv_depth=ground_small,
                            min_confidence=min_confidence, target_px=10**9)
-        rows = np.clip(np.arange(h) // f, 0, low.inv_depth_per_m.shape[0] - 1)
-        cols = np.clip(np.arange(w) // f, 0, low.inv_depth_per_m.shape[1] - 1)
-        inv_depth = low.inv_depth_per_m[rows[:, None], cols[None, :]]
-        confidence = low.confidence[rows[:, None], cols[None, :]]
-        return Parallax(inv_depth, confidence, _occluded(inv_depth, field), low.blocks)
+        rows, cols = upsampled_cells(image_a, binned_a, low.inv_depth_per_m, small_field, f)
+        inv_depth = low.inv_depth_per_m[rows, cols]
+        confidence = low.confidence[rows, cols]
+        other = low.other_surface[rows, cols]
+        return Parallax(inv_depth, confidence, _occluded(inv_depth, field) | other, low.blocks, other)
     h, w = image_a.shape[:2]
     block = block or block_size_for(w, h)
     gray_a, gray_b = as_gray(image_a), as_gray(warped_b)
@@ -823,7 +965,71 @@ def parallax_map(image_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, mo
     wb = fill_blocks(bp, ground)
     inv_depth, confidence = sweep_inverse_depth(ga, gb, field, wb, bp.measured, bp.y_px, bp.x_px)
     inv_depth = np.maximum(inv_depth, 0.0)
-    return Parallax(inv_depth.astype(np.float32), confidence.astype(np.float32), _occluded(inv_depth, field), bp)
+    other = sees_another_surface(ga, gb, field, inv_depth, confidence > 0) if ga.ndim == 3 \
+        else np.zeros(inv_depth.shape, bool)
+    return Parallax(inv_depth.astype(np.float32), confidence.astype(np.float32), _occluded(inv_depth, field) | other,
+                    bp, other)
+
+
+def upsampled_cells(image_a: np.ndarray, binned_a: np.ndarray, inv_depth: np.ndarray, binned_field: np.ndarray,
+                    factor: int, step_px: float = DEPTH_STEP_PX) -> tuple[np.ndarray, np.ndarray]:
+    """For every pixel of A's full grid, the cell of the binned analysis grid whose values it takes.
+
+    Nearest (its own cell), except beside a depth step: there a pixel takes, of its cell and the eight around
+    it, the one whose colour in A (binned) is nearest its own (relative distance, ties to the nearest cell), so
+    that a far building's silhouette against the sky follows A's edge at full resolution instead of the
+    binned grid's staircase (a discrete joint bilateral upsampling, Kopf et al., SIGGRAPH 2007).  A cell is
+    beside a step when the parallax over its 3 × 3 cells spans more than ``step_px`` full-resolution px.
+
+    Parameters
+    ----------
+    image_a, binned_a
+        ``(H, W, C)`` camera A's image and its ``factor`` binning.
+    inv_depth
+        ``(h, w)`` inverse depth (1/m) on the binned grid.
+    binned_field
+        ``(h, w, 2+)`` the epipolar field on the binned grid (binned px · m).
+    factor
+        The binning factor.
+    step_px
+        Parallax span (full-resolution px) that makes a depth step.
+
+    Returns
+    -------
+    rows, cols : numpy.ndarray
+        ``(H, W)`` int64 indices into the binned grid.
+    """
+    h, w = image_a.shape[:2]
+    hb, wb = inv_depth.shape
+    row_of, col_of = np.clip(np.arange(h) // factor, 0, hb - 1), np.clip(np.arange(w) // factor, 0, wb - 1)
+    rows = np.repeat(row_of[:, None], w, axis=1)
+    cols = np.repeat(col_of[None, :], h, axis=0)
+    parallax_px = (np.nan_to_num(inv_depth * np.hypot(binned_field[..., 0], binned_field[..., 1])) * factor
+                   ).astype(np.float32)
+    kernel = np.ones((3, 3), np.uint8)
+    step_cells = (cv2.dilate(parallax_px, kernel) - cv2.erode(parallax_px, kernel)) > step_px
+    if not step_cells.any():
+        return rows, cols
+    ys, xs = np.nonzero(step_cells[row_of[:, None], col_of[None, :]])
+    a = as_channels(image_a[ys, xs][None])[0]
+    ab = as_channels(binned_a)
+    a_norm = np.linalg.norm(a, axis=-1)
+    cy, cx = rows[ys, xs], cols[ys, xs]
+    # the pixel's position on the binned grid, to break ties towards the nearest cell
+    fy, fx = (ys + 0.5) / factor - 0.5, (xs + 0.5) / factor - 0.5
+    best = np.full(ys.size, np.inf)
+    best_r, best_c = cy.copy(), cx.copy()
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            qr, qc = np.clip(cy + dy, 0, hb - 1), np.clip(cx + dx, 0, wb - 1)
+            q = ab[qr, qc]
+            cost = np.linalg.norm(a - q, axis=-1) / np.maximum(a_norm + np.linalg.norm(q, axis=-1), 1e-30) \
+                + UPSAMPLE_DISTANCE_COST * np.hypot(qr - fy, qc - fx)
+            better = cost < best
+            best = np.where(better, cost, best)
+            best_r, best_c = np.where(better, qr, best_r), np.where(better, qc, best_c)
+    rows[ys, xs], cols[ys, xs] = best_r, best_c
+    return rows, cols
 
 
 def _occluded(inv_depth: np.ndarray, field: np.ndarray, e_len: np.ndarray | None = None) -> np.ndarray:

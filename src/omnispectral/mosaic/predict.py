@@ -1,8 +1,9 @@
 """Camera B's bands where B saw nothing: predicted from camera A's bands and the surface around the pixel.
 
 A tile pixel needs B's bands where no direction gives them (B's views of the point disagree and are
-all dropped, :func:`~omnispectral.mosaic.blending.reject_inconsistent`; the point lies beyond B's
-frame) or where what B gave cannot be the surface A sees (:func:`implausible_b`).  Such a pixel takes
+all dropped, :func:`~omnispectral.mosaic.blending.reject_inconsistent`; every view of it shows another
+surface, :func:`omnispectral.imaging.parallax.sees_another_surface`; the point lies beyond B's frame) or
+where what B gave cannot be the surface A sees (:func:`implausible_b`).  Such a pixel takes
 
 .. math:: \\hat\\rho_B = (M\\rho_A) \\odot \\exp\\bar\\ell, \\qquad
           \\bar\\ell = \\frac{\\sum_q w_q \\log\\big(\\rho_B(q) / M\\rho_A(q)\\big)}{\\sum_q w_q},

@@ -166,7 +166,8 @@ class SourceImage:
     scale: float = 1.0
     offset_px: tuple[float, float] = (0.0, 0.0)
     #: camera B only: per-pixel parallax on camera A's grid of the same direction, ``(H_A, W_A, 3)``
-    #: float16 (inverse depth 1/m, registration confidence 0..1, occluded 0/1); see ``product.direction_parallax``
+    #: float16 (inverse depth 1/m, registration confidence 0..1, occlusion: 0 seen, 1 hidden from B by a nearer surface,
+    #: 2 B shows another surface); see ``product.direction_parallax``
     parallax: Path | None = None
     #: the image file's checksum record (:func:`omnispectral.checksums.file_checksum`; ``None``: written before
     #: checksums were recorded) and the parallax file's
@@ -375,7 +376,8 @@ class MergedDirectionsWriter:
     def save_parallax(self, index: int, data: np.ndarray, info: dict,
                       offset_px: tuple[float, float] = (0.0, 0.0)) -> None:
         """Camera B's per-pixel parallax of direction ``index`` (``(H_A, W_A, 3)``: inverse depth 1/m,
-        confidence, occluded), stored float16 as ``dNNNN_P.npy`` and recorded with ``info``; B's offset at
+        confidence, occlusion code of :meth:`omnispectral.imaging.parallax.Parallax.occlusion_code`), stored
+        float16 as ``dNNNN_P.npy`` and recorded with ``info``; B's offset at
         infinity becomes ``offset_px``."""
         self.record_parallax(index, *self.write_parallax(index, data), info, offset_px)
 

@@ -35,6 +35,7 @@ import cv2
 import numpy as np
 
 from omnispectral.imaging.geometry import native_width
+from omnispectral.imaging.parallax import OCCLUSION_HIDDEN, OCCLUSION_OTHER_SURFACE
 from omnispectral.mosaic.blending import LinearBlend, blend_method, feather_weight, multiband_blend, reject_inconsistent
 from omnispectral.mosaic.interp import SPLINE_PREFILTER_MARGIN_PX, interpolation, remap, spline_prefilter
 from omnispectral.mosaic.maps import Canvas, Rect, SourceGeometry, rect_map, source_map, tile_cone
@@ -185,7 +186,7 @@ def parallax_positions(job: MosaicJob, i: int, row0: int, col0: int, u: np.ndarr
     par = img.read_parallax_rows(r_lo, r_hi)
     # one flat index into the (pixel, 3) records: np.take gathers them 2x faster than a 2-D fancy index
     sample = np.take(par.reshape(-1, par.shape[-1]), (ja - r_lo) * par.shape[1] + ia, axis=0).astype(np.float32)
-    inv_depth, conf, occ = sample[..., 0], sample[..., 1], sample[..., 2] > 0.5
+    inv_depth, conf, occ = sample[..., 0], sample[..., 1], sample[..., 2]
     near = np.isfinite(inv_depth) & (inv_depth > 0)
     u, v = u.copy(), v.copy()
     if near.any():
@@ -212,9 +213,13 @@ def warp_source(job: MosaicJob, i: int, rect: Rect) -> Warped | None:
     weight = feather_weight(sm.u, sm.v, m.width, m.height)
     if occ is not None:
         # directions that registered the pixel confidently dominate those that did not; occluded ones
-        # count only where no direction sees the surface
+        # count only where no direction sees the surface; where B shows another surface it is not used
         trust = (np.float32(CONFIDENCE_FLOOR) + np.nan_to_num(conf)) ** 2
-        weight = (weight * np.where(occ, np.float32(OCCLUDED_WEIGHT), trust)).astype(np.float32)
+        hidden = occ > 0.5 * OCCLUSION_HIDDEN
+        other = occ > 0.5 * (OCCLUSION_HIDDEN + OCCLUSION_OTHER_SURFACE)
+        weight = (weight * np.where(other, np.float32(0.0), np.where(hidden, np.float32(OCCLUDED_WEIGHT), trust))
+                  ).astype(np.float32)
+        occ = hidden
     rows_any = np.flatnonzero(weight.any(axis=1))
     if rows_any.size == 0:
         return None

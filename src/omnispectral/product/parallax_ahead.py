@@ -89,7 +89,7 @@ def measure_parallax(merged_path: Path, entry: dict, model_a: CameraModel, model
     reg = parallax_direction(sources["A"].read(), sources["B"].read(), model_a, model_b,
                              float(entry["pan_deg"]), float(entry["tilt_deg"]), apply_far_offset=apply_far_offset)
     par = reg.parallax
-    data = np.stack([par.inv_depth_per_m, par.confidence, par.occluded.astype(np.float32)], axis=-1)
+    data = np.stack([par.inv_depth_per_m, par.confidence, par.occlusion_code()], axis=-1)
     name, checksum = MergedDirectionsWriter(merged_path, {}).write_parallax(int(entry["index"]), data)
     return MeasuredParallax(int(entry["index"]), name, checksum, reg.stats(), tuple(reg.offset_px))
 

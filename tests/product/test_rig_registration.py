@@ -507,14 +507,14 @@ def test_sees_another_surface_flags_what_only_b_sees_and_nothing_else():
     from omnispectral.imaging.parallax import sees_another_surface
 
     rng = np.random.default_rng(5)
-    h, w = 90, 140
+    h, w = 272, 512                                        # the analysis grid of a full-scale frame
     a = np.empty((h, w, 3), np.float32)
     a[:] = (200.0, 300.0, 500.0)                           # the wall
-    a[:, 100:] = (500.0, 300.0, 200.0)                     # another surface, its own colour in B
+    a[:, 380:] = (500.0, 300.0, 200.0)                     # another surface, its own colour in B
     mix = np.asarray([[0.6, 0.3, 0.1], [0.1, 0.2, 0.7], [0.3, 0.1, 0.6]], np.float32)
     b = a @ mix.T
     patch = np.zeros((h, w), bool)
-    patch[35:55, 40:75] = True
+    patch[100:150, 200:290] = True
     b[patch] = np.asarray([60.0, 50.0, 40.0], np.float32) @ mix.T  # the dark object only B sees
     a *= 1 + rng.normal(0, 0.01, (h, w, 1)).astype(np.float32)      # shading and noise
     b *= 1 + rng.normal(0, 0.01, (h, w, 1)).astype(np.float32)

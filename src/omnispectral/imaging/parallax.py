@@ -55,7 +55,7 @@ from omnispectral.imaging.similarity import NCC_WINDOW_PX, LocalLinearScore, as_
 
 __all__ = ["COLOUR_MISFIT_MIN", "DEPTH_STEP_PX", "MAX_PERPENDICULAR_PX", "MIN_ALONG_WEIGHT", "MIN_BLOCK_SEEN",
            "OCCLUSION_HIDDEN", "OCCLUSION_OTHER_SURFACE", "OCCLUSION_TOL_PX", "OTHER_SURFACE_MISFIT",
-           "OTHER_SURFACE_RADIUS_PX", "PARALLAX_ANALYSIS_PX", "PARALLAX_MIN_CONFIDENCE", "SAME_SURFACE_COLOUR",
+           "OTHER_SURFACE_RADIUS", "PARALLAX_ANALYSIS_PX", "PARALLAX_MIN_CONFIDENCE", "SAME_SURFACE_COLOUR",
            "SWEEP_MARGIN_STEPS", "SWEEP_MAX_LEVELS", "SWEEP_MIN_NCC", "SWEEP_RANGE_BLOCKS", "SWEEP_STEP_PX",
            "SWEEP_ZERO_MARGIN", "UPSAMPLE_DISTANCE_COST", "BlockParallax", "Parallax", "block_parallax",
            "colour_map_a_to_b", "epipolar_field", "fill_blocks", "fill_from_neighbours", "moved_by_parallax",
@@ -94,10 +94,11 @@ SAME_SURFACE_COLOUR = 0.1
 MIN_BLOCK_SEEN = 0.95
 #: Minimum POC peak height of a block measurement.
 PARALLAX_MIN_CONFIDENCE = 0.3
-#: :func:`sees_another_surface`: radius and step (px of the analysis grid) of the neighbourhood whose reliable
-#: pixels of the pixel's colour in A tell B's colour of that surface; the fewest such pixels; how far apart
-#: (relative) their B colours may be; how far (relative) B's colour at the pixel must be from theirs.
-OTHER_SURFACE_RADIUS_PX = 24
+#: :func:`sees_another_surface`: radius of the neighbourhood whose reliable pixels of the pixel's colour in A
+#: tell B's colour of that surface, as a fraction of the image's width (24 px of a 512-px analysis grid), and
+#: the step (px) at which it is sampled; the fewest such pixels; how far apart (relative) their B colours may
+#: be; how far (relative) B's colour at the pixel must be from theirs.
+OTHER_SURFACE_RADIUS = 24 / 512
 OTHER_SURFACE_STEP_PX = 3
 OTHER_SURFACE_MIN_VOTES = 4
 OTHER_SURFACE_MAX_SPREAD = 0.1
@@ -674,20 +675,26 @@ def _b_edges_without_a(a: np.ndarray, a_norm: np.ndarray, unit_b: np.ndarray, un
     return out
 
 
+#: The eight neighbours of a pixel (row and column steps).
+_NEIGHBOURS_DY = np.array([-1, -1, -1, 0, 0, 1, 1, 1])
+_NEIGHBOURS_DX = np.array([-1, 0, 1, -1, 1, -1, 0, 1])
+
+
 def sees_another_surface(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarray, inv_depth: np.ndarray,
-                         reliable: np.ndarray, radius: int = OTHER_SURFACE_RADIUS_PX,
-                         step: int = OTHER_SURFACE_STEP_PX, grow_passes: int = 16) -> np.ndarray:
+                         reliable: np.ndarray, radius: float = OTHER_SURFACE_RADIUS,
+                         step: int = OTHER_SURFACE_STEP_PX, grow_passes: int = 128) -> np.ndarray:
     """Pixels where camera B, at the pixel's parallax, shows another surface than the one A sees there.
 
     A near object that A's frame does not show (or shows at a wrong depth) can stand in front of the
     background in B's view: no z-buffer of A's depths flags it, and a flat background matches B equally
     badly at every depth, so the sweep keeps an unsure depth and B's bands there are the object's.  The
     surface tells: the reliable pixels (distinctive matches) of the pixel's colour in A within ``radius``
-    show B's colour of that surface (per unit of A's brightness); where they agree among themselves (spread
-    below :data:`OTHER_SURFACE_MAX_SPREAD`) and B's colour at the pixel is plainly another (relative misfit
-    above :data:`OTHER_SURFACE_MISFIT`), B sees something else.  Tested where B's colour changes while A's
-    does not (the edge of such a patch), then grown over the unreliable pixels of the same colours in A and
-    B (``grow_passes`` px).
+    (a fraction of the image's width: the same angle on any sensor) show B's colour of that surface (per
+    unit of A's brightness); where they agree among themselves (spread below :data:`OTHER_SURFACE_MAX_SPREAD`)
+    and B's colour at the pixel is plainly another (relative misfit above :data:`OTHER_SURFACE_MISFIT`), B
+    sees something else.  Tested where B's colour changes while A's
+    does not (the edge of such a patch), then grown over the unreliable pixels of the same colour in A whose
+    B colour misfits the surface's too (up to ``grow_passes`` px).
 
     Parameters
     ----------
@@ -700,7 +707,7 @@ def sees_another_surface(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarr
     reliable
         ``(H, W)`` boolean, pixels whose depth was measured distinctively.
     radius, step
-        Neighbourhood radius and sampling step (px).
+        Neighbourhood radius (fraction of the image's width, at least two steps) and sampling step (px).
     grow_passes
         Most growing passes.
 
@@ -724,16 +731,19 @@ def sees_another_surface(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarr
     if ys.size == 0 or not refs.any():
         return out
     ap, ap_norm = a[ys, xs], a_norm[ys, xs]
+    reach = max(2 * step, round(radius * w / step) * step)
+    # edge-padded copies, so that a neighbour's index needs no clipping
+    pad = [np.pad(x, ((reach, reach), (reach, reach)) + ((0, 0),) * (x.ndim - 2), mode="edge")
+           for x in (refs, a, a_norm, unit, u_norm)]
     s1 = np.zeros((ys.size, unit.shape[-1]))
     s2 = np.zeros(ys.size)
     n = np.zeros(ys.size)
-    for dy in range(-radius, radius + 1, step):
-        for dx in range(-radius, radius + 1, step):
-            yq, xq = np.clip(ys + dy, 0, h - 1), np.clip(xs + dx, 0, w - 1)
-            same = refs[yq, xq] & _same_colour(ap, a[yq, xq], ap_norm, a_norm[yq, xq])
-            u = unit[yq, xq]
-            s1 += np.where(same[:, None], u, 0.0)
-            s2 += np.where(same, u_norm[yq, xq] ** 2, 0.0)
+    for dy in range(-reach, reach + 1, step):
+        for dx in range(-reach, reach + 1, step):
+            yq, xq = ys + (dy + reach), xs + (dx + reach)
+            same = pad[0][yq, xq] & _same_colour(ap, pad[1][yq, xq], ap_norm, pad[2][yq, xq])
+            s1 += np.where(same[:, None], pad[3][yq, xq], 0.0)
+            s2 += np.where(same, pad[4][yq, xq] ** 2, 0.0)
             n += same
     has = n >= OTHER_SURFACE_MIN_VOTES
     mean = s1[has] / n[has, None]
@@ -742,21 +752,43 @@ def sees_another_surface(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarr
     up = unit[ys[has], xs[has]]
     misfit = np.linalg.norm(up - mean, axis=1) / (np.linalg.norm(up, axis=1) + norm)
     flag = (misfit > OTHER_SURFACE_MISFIT) & (spread < OTHER_SURFACE_MAX_SPREAD)
-    out[ys[has][flag], xs[has][flag]] = True
-    kernel = np.ones((3, 3), np.uint8)
+    fy, fx = ys[has][flag], xs[has][flag]
+    out[fy, fx] = True
+    # the surface's B colour travels with the flagged pixels: a neighbour of A's same colour joins them
+    # where its own B colour misfits that surface's too (never where B shows the surface)
+    expected = np.zeros_like(unit)
+    expected[fy, fx] = mean[flag]
+    e_norm = np.zeros_like(u_norm)
+    e_norm[fy, fx] = norm[flag]
+    frontier_y, frontier_x = fy, fx
     for _ in range(grow_passes):
-        cy, cx = np.nonzero((cv2.dilate(out.astype(np.uint8), kernel) > 0) & ~out & todo)
+        # the unflagged unreliable neighbours of the pixels flagged last pass
+        ny = (frontier_y[:, None] + _NEIGHBOURS_DY[None, :]).ravel()
+        nx = (frontier_x[:, None] + _NEIGHBOURS_DX[None, :]).ravel()
+        inside = (ny >= 0) & (ny < h) & (nx >= 0) & (nx < w)
+        flat = np.unique(ny[inside] * w + nx[inside])
+        cy, cx = np.divmod(flat, w)
+        keep = todo[cy, cx] & ~out[cy, cx]
+        cy, cx = cy[keep], cx[keep]
         if cy.size == 0:
             break
         add = np.zeros(cy.size, bool)
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                qy, qx = np.clip(cy + dy, 0, h - 1), np.clip(cx + dx, 0, w - 1)
-                add |= out[qy, qx] & _same_colour(a[cy, cx], a[qy, qx], a_norm[cy, cx], a_norm[qy, qx]) \
-                    & _same_colour(unit[cy, cx], unit[qy, qx], u_norm[cy, cx], u_norm[qy, qx])
+        carried = np.zeros((cy.size, unit.shape[-1]), np.float32)
+        carried_norm = np.zeros(cy.size, np.float32)
+        uc, ucn, ac, acn = unit[cy, cx], u_norm[cy, cx], a[cy, cx], a_norm[cy, cx]
+        for dy, dx in zip(_NEIGHBOURS_DY, _NEIGHBOURS_DX, strict=True):
+            qy, qx = np.clip(cy + dy, 0, h - 1), np.clip(cx + dx, 0, w - 1)
+            eq, eqn = expected[qy, qx], e_norm[qy, qx]
+            joins = out[qy, qx] & ~add & _same_colour(ac, a[qy, qx], acn, a_norm[qy, qx]) \
+                & (np.linalg.norm(uc - eq, axis=-1) > OTHER_SURFACE_MISFIT * (ucn + eqn))
+            carried[joins], carried_norm[joins] = eq[joins], eqn[joins]
+            add |= joins
         if not add.any():
             break
-        out[cy[add], cx[add]] = True
+        frontier_y, frontier_x = cy[add], cx[add]
+        out[frontier_y, frontier_x] = True
+        expected[frontier_y, frontier_x] = carried[add]
+        e_norm[frontier_y, frontier_x] = carried_norm[add]
     return out
 
 

@@ -755,41 +755,44 @@ def sees_another_surface(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarr
     fy, fx = ys[has][flag], xs[has][flag]
     out[fy, fx] = True
     # the surface's B colour travels with the flagged pixels: a neighbour of A's same colour joins them
-    # where its own B colour misfits that surface's too (never where B shows the surface)
-    expected = np.zeros_like(unit)
-    expected[fy, fx] = mean[flag]
-    e_norm = np.zeros_like(u_norm)
-    e_norm[fy, fx] = norm[flag]
-    frontier_y, frontier_x = fy, fx
+    # where its own B colour misfits that surface's too (never where B shows the surface).  Flat indices of
+    # a grid padded by one pixel (never a candidate), so that a neighbour is an index step away
+    wp = w + 2
+
+    def padded(x):
+        return np.pad(x, ((1, 1), (1, 1)) + ((0, 0),) * (x.ndim - 2)).reshape(-1, *x.shape[2:])
+
+    a_f, an_f, u_f, un_f, todo_f = padded(a), padded(a_norm), padded(unit), padded(u_norm), padded(todo)
+    out_f = padded(out)
+    expected = np.zeros_like(u_f)
+    e_norm = np.zeros_like(un_f)
+    frontier = (fy + 1) * wp + (fx + 1)
+    expected[frontier], e_norm[frontier] = mean[flag], norm[flag]
+    steps = _NEIGHBOURS_DY * wp + _NEIGHBOURS_DX
     for _ in range(grow_passes):
         # the unflagged unreliable neighbours of the pixels flagged last pass
-        ny = (frontier_y[:, None] + _NEIGHBOURS_DY[None, :]).ravel()
-        nx = (frontier_x[:, None] + _NEIGHBOURS_DX[None, :]).ravel()
-        inside = (ny >= 0) & (ny < h) & (nx >= 0) & (nx < w)
-        flat = np.unique(ny[inside] * w + nx[inside])
-        cy, cx = np.divmod(flat, w)
-        keep = todo[cy, cx] & ~out[cy, cx]
-        cy, cx = cy[keep], cx[keep]
-        if cy.size == 0:
+        cand = np.unique((frontier[:, None] + steps[None, :]).ravel())
+        cand = cand[todo_f[cand] & ~out_f[cand]]
+        if cand.size == 0:
             break
-        add = np.zeros(cy.size, bool)
-        carried = np.zeros((cy.size, unit.shape[-1]), np.float32)
-        carried_norm = np.zeros(cy.size, np.float32)
-        uc, ucn, ac, acn = unit[cy, cx], u_norm[cy, cx], a[cy, cx], a_norm[cy, cx]
-        for dy, dx in zip(_NEIGHBOURS_DY, _NEIGHBOURS_DX, strict=True):
-            qy, qx = np.clip(cy + dy, 0, h - 1), np.clip(cx + dx, 0, w - 1)
-            eq, eqn = expected[qy, qx], e_norm[qy, qx]
-            joins = out[qy, qx] & ~add & _same_colour(ac, a[qy, qx], acn, a_norm[qy, qx]) \
-                & (np.linalg.norm(uc - eq, axis=-1) > OTHER_SURFACE_MISFIT * (ucn + eqn))
+        add = np.zeros(cand.size, bool)
+        carried = np.zeros((cand.size, unit.shape[-1]), np.float32)
+        carried_norm = np.zeros(cand.size, np.float32)
+        uc, ucn, ac, acn = u_f[cand], un_f[cand], a_f[cand], an_f[cand]
+        for step_q in steps:
+            q = cand + step_q
+            eq, eqn = expected[q], e_norm[q]
+            d = uc - eq
+            joins = out_f[q] & ~add & _same_colour(ac, a_f[q], acn, an_f[q]) \
+                & (np.einsum("nc,nc->n", d, d) > (OTHER_SURFACE_MISFIT * (ucn + eqn)) ** 2)
             carried[joins], carried_norm[joins] = eq[joins], eqn[joins]
             add |= joins
         if not add.any():
             break
-        frontier_y, frontier_x = cy[add], cx[add]
-        out[frontier_y, frontier_x] = True
-        expected[frontier_y, frontier_x] = carried[add]
-        e_norm[frontier_y, frontier_x] = carried_norm[add]
-    return out
+        frontier = cand[add]
+        out_f[frontier] = True
+        expected[frontier], e_norm[frontier] = carried[add], carried_norm[add]
+    return out_f.reshape(h + 2, wp)[1:-1, 1:-1].copy()
 
 
 def _sample_moved(image: np.ndarray, field: np.ndarray, ys: np.ndarray, xs: np.ndarray,

@@ -500,34 +500,42 @@ def test_settle_by_colour_gives_a_uniform_post_its_depth_and_leaves_the_sky():
 
 
 def test_sees_another_surface_flags_what_only_b_sees_and_nothing_else():
-    """A near object outside A's frame stands in front of a flat wall in B's view: B shows the object on a
-    patch where A shows the wall, at every depth.  The reliable pixels of the wall's colour in A tell B's
-    colour of the wall, so the patch is flagged (all of it, grown from its rim); a second surface whose B
-    colour fits A's, and the wall itself, are not."""
+    """A near bar (40 px of parallax) stands in front of a flat wall; past its end B sees a part of it that A's
+    frame does not show, on a patch where A shows the wall.  The reliable pixels of the wall's colour in A tell
+    B's colour of the wall, so the patch is flagged (all of it, grown from its rim).  A second surface whose B
+    colour fits A's, the wall itself, and a metameric patch beyond the bar's reach (A sees the wall's colour,
+    B another: the surface's own, since nothing near can stand in front of it there) are not."""
     from omnispectral.imaging.parallax import sees_another_surface
 
     rng = np.random.default_rng(5)
     h, w = 272, 512                                        # the analysis grid of a full-scale frame
     a = np.empty((h, w, 3), np.float32)
     a[:] = (200.0, 300.0, 500.0)                           # the wall
-    a[:, 380:] = (500.0, 300.0, 200.0)                     # another surface, its own colour in B
+    a[:, 400:] = (500.0, 300.0, 200.0)                     # another surface, its own colour in B
+    bar = np.zeros((h, w), bool)
+    bar[80:100, 180:310] = True
+    a[bar] = (60.0, 50.0, 40.0)
     mix = np.asarray([[0.6, 0.3, 0.1], [0.1, 0.2, 0.7], [0.3, 0.1, 0.6]], np.float32)
     b = a @ mix.T
     patch = np.zeros((h, w), bool)
     patch[100:150, 200:290] = True
-    b[patch] = np.asarray([60.0, 50.0, 40.0], np.float32) @ mix.T  # the dark object only B sees
+    b[patch] = np.asarray([60.0, 50.0, 40.0], np.float32) @ mix.T   # the bar's far end, seen by B only
+    metamer = np.zeros((h, w), bool)
+    metamer[120:170, 60:110] = True
+    b[metamer] = np.asarray([450.0, 420.0, 80.0], np.float32) @ mix.T
     a *= 1 + rng.normal(0, 0.01, (h, w, 1)).astype(np.float32)      # shading and noise
     b *= 1 + rng.normal(0, 0.01, (h, w, 1)).astype(np.float32)
     reliable = np.zeros((h, w), bool)
-    reliable[::4, ::4] = True                              # distinctive matches scattered over both surfaces
-    reliable[patch] = False
+    reliable[::4, ::4] = True                              # distinctive matches scattered over the surfaces
+    reliable[patch | metamer] = False
     field = np.zeros((h, w, 2), np.float32)
-    flagged = sees_another_surface(a, b, field, np.zeros((h, w), np.float32), reliable)
+    field[..., 0] = 40.0                                   # px of parallax per 1/m
+    inv_depth = np.where(bar, 1.0, 0.0).astype(np.float32)
+    flagged = sees_another_surface(a, b, field, inv_depth, reliable)
     assert flagged[patch].mean() >= 0.95
-    assert not flagged[~patch].any()
+    assert not flagged[~patch & ~bar].any()
     # a B that fits A's colour everywhere flags nothing
-    clean = a @ mix.T
-    assert not sees_another_surface(a, clean, field, np.zeros((h, w), np.float32), reliable).any()
+    assert not sees_another_surface(a, a @ mix.T, field, inv_depth, reliable).any()
 
 
 def _thin_bar(shift_px: float):

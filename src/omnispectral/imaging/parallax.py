@@ -58,9 +58,9 @@ __all__ = ["COLOUR_MISFIT_MIN", "DEPTH_STEP_PX", "MAX_PERPENDICULAR_PX", "MIN_AL
            "OTHER_SURFACE_RADIUS", "PARALLAX_ANALYSIS_PX", "PARALLAX_MIN_CONFIDENCE", "SAME_SURFACE_COLOUR",
            "SWEEP_MARGIN_STEPS", "SWEEP_MAX_LEVELS", "SWEEP_MIN_NCC", "SWEEP_RANGE_BLOCKS", "SWEEP_STEP_PX",
            "SWEEP_ZERO_MARGIN", "UPSAMPLE_DISTANCE_COST", "BlockParallax", "Parallax", "block_parallax",
-           "colour_map_a_to_b", "epipolar_field", "fill_blocks", "fill_from_neighbours", "moved_by_parallax",
-           "neighbourhood_stack", "parallax_map", "sees_another_surface", "settle_by_colour", "shifted_positions",
-           "sweep_inverse_depth", "upsampled_cells"]
+           "colour_map_a_to_b", "could_be_shadowed", "epipolar_field", "fill_blocks", "fill_from_neighbours",
+           "moved_by_parallax", "neighbourhood_stack", "parallax_map", "sees_another_surface", "settle_by_colour",
+           "shifted_positions", "sweep_inverse_depth", "upsampled_cells"]
 
 #: A block measures parallax when its structure measures shifts along the epipolar line at least this
 #: well (``eᵀJe / |e|²`` with the normalised structure tensor J: 0 for an edge parallel to the line).
@@ -675,6 +675,41 @@ def _b_edges_without_a(a: np.ndarray, a_norm: np.ndarray, unit_b: np.ndarray, un
     return out
 
 
+def could_be_shadowed(inv_depth: np.ndarray, field: np.ndarray) -> np.ndarray:
+    """Pixels where B can see a nearer surface than the one A sees: a surface whose parallax exceeds the pixel's
+    by at least its distance from it (at 2ⁿ px, by half of that), or within the largest parallax of the frame's
+    border (an object outside A's frame).
+
+    Elsewhere B sees A's surface or nothing at all, so a B colour that differs from what A's colour leads one to
+    expect is the surface's own (a metameric patch only B tells apart), never another surface.
+
+    Parameters
+    ----------
+    inv_depth
+        ``(H, W)`` inverse depth (1/m).
+    field
+        ``(H, W, 2+)`` :func:`epipolar_field` (px · m).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(H, W)`` boolean.
+    """
+    parallax_px = np.nan_to_num(inv_depth * np.hypot(field[..., 0], field[..., 1])).astype(np.float32)
+    h, w = parallax_px.shape
+    out = np.zeros((h, w), bool)
+    reach = int(np.ceil(parallax_px.max())) if parallax_px.size else 0
+    if reach < 1:
+        return out
+    level = 1
+    while level <= 2 * reach:
+        disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * level + 1, 2 * level + 1))
+        out |= cv2.dilate(parallax_px, disk) - parallax_px >= level / 2
+        level *= 2
+    out[:reach], out[-reach:], out[:, :reach], out[:, -reach:] = True, True, True, True
+    return out
+
+
 #: The eight neighbours of a pixel (row and column steps).
 _NEIGHBOURS_DY = np.array([-1, -1, -1, 0, 0, 1, 1, 1])
 _NEIGHBOURS_DX = np.array([-1, 0, 1, -1, 1, -1, 0, 1])
@@ -686,9 +721,10 @@ def sees_another_surface(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarr
     """Pixels where camera B, at the pixel's parallax, shows another surface than the one A sees there.
 
     A near object that A's frame does not show (or shows at a wrong depth) can stand in front of the
-    background in B's view: no z-buffer of A's depths flags it, and a flat background matches B equally
-    badly at every depth, so the sweep keeps an unsure depth and B's bands there are the object's.  The
-    surface tells: the reliable pixels (distinctive matches) of the pixel's colour in A within ``radius``
+    background in B's view (only within its parallax of it: :func:`could_be_shadowed`, which keeps a
+    metameric patch that only B tells apart): no z-buffer of A's depths flags it, and a flat background
+    matches B equally badly at every depth, so the sweep keeps an unsure depth and B's bands there are the
+    object's.  The surface tells: the reliable pixels (distinctive matches) of the pixel's colour in A within ``radius``
     (a fraction of the image's width: the same angle on any sensor) show B's colour of that surface (per
     unit of A's brightness); where they agree among themselves (spread below :data:`OTHER_SURFACE_MAX_SPREAD`)
     and B's colour at the pixel is plainly another (relative misfit above :data:`OTHER_SURFACE_MISFIT`), B
@@ -724,7 +760,7 @@ def sees_another_surface(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarr
     a_norm = np.sqrt(np.einsum("...c,...c->...", a, a))
     u_norm = np.sqrt(np.einsum("...c,...c->...", unit, unit))
     refs = reliable & usable
-    todo = ~reliable & usable
+    todo = ~reliable & usable & could_be_shadowed(inv_depth, field)
     h, w = todo.shape
     out = np.zeros((h, w), bool)
     ys, xs = np.nonzero(todo & _b_edges_without_a(a, a_norm, unit, u_norm, usable))

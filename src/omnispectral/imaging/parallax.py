@@ -695,21 +695,25 @@ def could_be_shadowed(inv_depth: np.ndarray, field: np.ndarray) -> np.ndarray:
     numpy.ndarray
         ``(H, W)`` boolean.
     """
-    parallax_px = np.nan_to_num(inv_depth * np.hypot(field[..., 0], field[..., 1])).astype(np.float32)
+    e_len = np.nan_to_num(np.hypot(field[..., 0], field[..., 1]))
+    parallax_px = (np.nan_to_num(inv_depth) * e_len).astype(np.float32)
     h, w = parallax_px.shape
     out = np.zeros((h, w), bool)
     reach = int(np.ceil(parallax_px.max())) if parallax_px.size else 0
-    if reach < 1:
-        return out
     level = 1
     while level <= 2 * reach:
         disk = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * level + 1, 2 * level + 1))
         out |= cv2.dilate(parallax_px, disk) - parallax_px >= level / 2
         level *= 2
-    out[:reach], out[-reach:], out[:, :reach], out[:, -reach:] = True, True, True, True
+    # an object outside A's frame as near as NEAREST_OBJECT_M
+    border = max(reach, int(np.ceil(e_len.max() / NEAREST_OBJECT_M)) if e_len.size else 0)
+    if border >= 1:
+        out[:border], out[-border:], out[:, :border], out[:, -border:] = True, True, True, True
     return out
 
 
+#: :func:`could_be_shadowed`: the nearest an object outside A's frame is taken to stand (m).
+NEAREST_OBJECT_M = 1.0
 #: The eight neighbours of a pixel (row and column steps).
 _NEIGHBOURS_DY = np.array([-1, -1, -1, 0, 0, 1, 1, 1])
 _NEIGHBOURS_DX = np.array([-1, 0, 1, -1, 1, -1, 0, 1])

@@ -598,7 +598,7 @@ def test_upsampled_depth_follows_a_silhouette_at_full_resolution():
     the binned grid's staircase (pixels of the building with the sky's depth and back); choosing among the
     neighbouring cells by colour in A gives every pure pixel its own surface's depth."""
     from omnispectral.imaging.binning import bin_image
-    from omnispectral.imaging.parallax import upsampled_cells
+    from omnispectral.imaging.parallax import upsampled_by_colour
 
     h, w, f = 96, 128, 4
     yy, xx = np.mgrid[0:h, 0:w]
@@ -610,12 +610,12 @@ def test_upsampled_depth_follows_a_silhouette_at_full_resolution():
     inv_depth = np.where(bin_building, 0.05, 0.0).astype(np.float32)  # 50 m, the sky at infinity
     field = np.zeros((*inv_depth.shape, 2), np.float32)
     field[..., 0] = 40.0                                              # 2 binned px of parallax at 50 m
-    rows, cols = upsampled_cells(a, binned, inv_depth, field, f)
-    got = inv_depth[rows, cols]
+    got, cell_row, cell_col = upsampled_by_colour(a, binned, inv_depth, field, f, [
+        inv_depth, *np.mgrid[0:inv_depth.shape[0], 0:inv_depth.shape[1]]])
     nearest = inv_depth[np.minimum(yy // f, inv_depth.shape[0] - 1), np.minimum(xx // f, inv_depth.shape[1] - 1)]
     truth = np.where(building, 0.05, 0.0).astype(np.float32)
     assert (nearest != truth).sum() > 100                             # the staircase
     assert (got != truth).sum() == 0
     # away from the step every pixel keeps its own cell
     far = np.abs(yy - (40 + 0.37 * xx)) > 3 * f
-    assert np.array_equal(rows[far], (yy // f)[far]) and np.array_equal(cols[far], (xx // f)[far])
+    assert np.array_equal(cell_row[far], (yy // f)[far]) and np.array_equal(cell_col[far], (xx // f)[far])

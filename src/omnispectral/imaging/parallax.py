@@ -60,7 +60,7 @@ __all__ = ["COLOUR_MISFIT_MIN", "DEPTH_STEP_PX", "MAX_PERPENDICULAR_PX", "MIN_AL
            "SWEEP_ZERO_MARGIN", "UPSAMPLE_DISTANCE_COST", "BlockParallax", "Parallax", "block_parallax",
            "colour_map_a_to_b", "could_be_shadowed", "epipolar_field", "fill_blocks", "fill_from_neighbours",
            "moved_by_parallax", "neighbourhood_stack", "parallax_map", "sees_another_surface", "settle_by_colour",
-           "shifted_positions", "sweep_inverse_depth", "upsampled_cells"]
+           "shifted_positions", "sweep_inverse_depth", "upsampled_by_colour"]
 
 #: A block measures parallax when its structure measures shifts along the epipolar line at least this
 #: well (``eᵀJe / |e|²`` with the normalised structure tensor J: 0 for an edge parallel to the line).
@@ -107,7 +107,7 @@ OTHER_SURFACE_MISFIT = 0.3
 #: bands count only where no direction sees the surface), or B showing another surface there (not used).
 OCCLUSION_HIDDEN = 1.0
 OCCLUSION_OTHER_SURFACE = 2.0
-#: :func:`upsampled_cells`: parallax span (full-resolution px) over 3 × 3 binned cells that makes a depth step,
+#: :func:`upsampled_by_colour`: parallax span (full-resolution px) over 3 × 3 binned cells that makes a depth step,
 #: and the cost per binned cell of distance added to the colour distance (ties go to the nearest cell).
 DEPTH_STEP_PX = 0.5
 UPSAMPLE_DISTANCE_COST = 0.02
@@ -982,7 +982,7 @@ def parallax_map(image_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, mo
     Images larger than about ``target_px`` are analysed binned (inverse depth does not depend on the pixel
     size; the sweep costs ~50 remaps per pixel), and the result is brought back to every pixel (each takes
     one binned cell's values, never a blend of two surfaces: its own cell, or beside a depth step the
-    neighbouring cell of its colour in A, :func:`upsampled_cells`) where the occlusion is evaluated.
+    neighbouring cell of its colour in A, :func:`upsampled_by_colour`) where the occlusion is evaluated.
 
     Parameters
     ----------
@@ -1023,10 +1023,9 @@ def parallax_map(image_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, mo
         low = parallax_map(binned_a, bin_image(warped_b, f), small_seen, model_a, baseline_m,
                            small_field, block=block, ground_inv_depth=ground_small,
                            min_confidence=min_confidence, target_px=10**9)
-        rows, cols = upsampled_cells(image_a, binned_a, low.inv_depth_per_m, small_field, f)
-        inv_depth = low.inv_depth_per_m[rows, cols]
-        confidence = low.confidence[rows, cols]
-        other = low.other_surface[rows, cols]
+        inv_depth, confidence, other = upsampled_by_colour(
+            image_a, binned_a, low.inv_depth_per_m, small_field, f, [low.inv_depth_per_m, low.confidence,
+                                                                     low.other_surface])
         return Parallax(inv_depth, confidence, _occluded(inv_depth, field) | other, low.blocks, other)
     h, w = image_a.shape[:2]
     block = block or block_size_for(w, h)
@@ -1046,15 +1045,15 @@ def parallax_map(image_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, mo
                     bp, other)
 
 
-def upsampled_cells(image_a: np.ndarray, binned_a: np.ndarray, inv_depth: np.ndarray, binned_field: np.ndarray,
-                    factor: int, step_px: float = DEPTH_STEP_PX) -> tuple[np.ndarray, np.ndarray]:
-    """For every pixel of A's full grid, the cell of the binned analysis grid whose values it takes.
+def upsampled_by_colour(image_a: np.ndarray, binned_a: np.ndarray, inv_depth: np.ndarray, binned_field: np.ndarray,
+                        factor: int, layers: list[np.ndarray], step_px: float = DEPTH_STEP_PX) -> list[np.ndarray]:
+    """Per-pixel values on A's full grid from the binned analysis grid: each pixel takes one cell's values.
 
-    Nearest (its own cell), except beside a depth step: there a pixel takes, of its cell and the eight around
-    it, the one whose colour in A (binned) is nearest its own (relative distance, ties to the nearest cell), so
-    that a far building's silhouette against the sky follows A's edge at full resolution instead of the
-    binned grid's staircase (a discrete joint bilateral upsampling, Kopf et al., SIGGRAPH 2007).  A cell is
-    beside a step when the parallax over its 3 × 3 cells spans more than ``step_px`` full-resolution px.
+    Its own cell, except beside a depth step: there a pixel takes, of its cell and the eight around it, the
+    one whose colour in A (binned) is nearest its own (relative distance, ties to the nearest cell), so that a
+    far building's silhouette against the sky follows A's edge at full resolution instead of the binned
+    grid's staircase (a discrete joint bilateral upsampling, Kopf et al., SIGGRAPH 2007).  A cell is beside a
+    step when the parallax over its 3 × 3 cells spans more than ``step_px`` full-resolution px.
 
     Parameters
     ----------
@@ -1066,45 +1065,62 @@ def upsampled_cells(image_a: np.ndarray, binned_a: np.ndarray, inv_depth: np.nda
         ``(h, w, 2+)`` the epipolar field on the binned grid (binned px · m).
     factor
         The binning factor.
+    layers
+        ``(h, w)`` arrays on the binned grid (inverse depth, confidence, …).
     step_px
         Parallax span (full-resolution px) that makes a depth step.
 
     Returns
     -------
-    rows, cols : numpy.ndarray
-        ``(H, W)`` int64 indices into the binned grid.
+    list of numpy.ndarray
+        ``(H, W)`` per layer.
     """
     h, w = image_a.shape[:2]
     hb, wb = inv_depth.shape
-    row_of, col_of = np.clip(np.arange(h) // factor, 0, hb - 1), np.clip(np.arange(w) // factor, 0, wb - 1)
-    rows = np.repeat(row_of[:, None], w, axis=1)
-    cols = np.repeat(col_of[None, :], h, axis=0)
+    out = [_repeat_to(x, factor, h, w) for x in layers]
     parallax_px = (np.nan_to_num(inv_depth * np.hypot(binned_field[..., 0], binned_field[..., 1])) * factor
                    ).astype(np.float32)
     kernel = np.ones((3, 3), np.uint8)
     step_cells = (cv2.dilate(parallax_px, kernel) - cv2.erode(parallax_px, kernel)) > step_px
     if not step_cells.any():
-        return rows, cols
-    ys, xs = np.nonzero(step_cells[row_of[:, None], col_of[None, :]])
+        return out
+    # the full-resolution pixels of the step cells (the cells' factor × factor blocks inside the image)
+    sy, sx = np.nonzero(step_cells)
+    iy, ix = np.divmod(np.arange(factor * factor), factor)
+    ys, xs = (sy[:, None] * factor + iy[None, :]).ravel(), (sx[:, None] * factor + ix[None, :]).ravel()
+    cy, cx = np.repeat(sy, factor * factor), np.repeat(sx, factor * factor)
+    inside = (ys < h) & (xs < w)
+    ys, xs, cy, cx = ys[inside], xs[inside], cy[inside], cx[inside]
     a = as_channels(image_a[ys, xs][None])[0]
     ab = as_channels(binned_a)
-    a_norm = np.linalg.norm(a, axis=-1)
-    cy, cx = rows[ys, xs], cols[ys, xs]
-    # the pixel's position on the binned grid, to break ties towards the nearest cell
-    fy, fx = (ys + 0.5) / factor - 0.5, (xs + 0.5) / factor - 0.5
-    best = np.full(ys.size, np.inf)
+    ab_norm = np.sqrt(np.einsum("...c,...c->...", ab, ab))
+    a_norm = np.sqrt(np.einsum("nc,nc->n", a, a))
+    # the pixel's offset from its cell's centre (binned px), to break ties towards the nearest cell
+    oy = ((ys - cy * factor + 0.5) / factor - 0.5).astype(np.float32)
+    ox = ((xs - cx * factor + 0.5) / factor - 0.5).astype(np.float32)
+    best = np.full(ys.size, np.inf, np.float32)
     best_r, best_c = cy.copy(), cx.copy()
     for dy in (-1, 0, 1):
         for dx in (-1, 0, 1):
             qr, qc = np.clip(cy + dy, 0, hb - 1), np.clip(cx + dx, 0, wb - 1)
-            q = ab[qr, qc]
-            cost = np.linalg.norm(a - q, axis=-1) / np.maximum(a_norm + np.linalg.norm(q, axis=-1), 1e-30) \
-                + UPSAMPLE_DISTANCE_COST * np.hypot(qr - fy, qc - fx)
+            d = a - ab[qr, qc]
+            cost = np.sqrt(np.einsum("nc,nc->n", d, d)) / np.maximum(a_norm + ab_norm[qr, qc], np.float32(1e-30)) \
+                + np.float32(UPSAMPLE_DISTANCE_COST) * np.hypot(oy - np.float32(dy), ox - np.float32(dx))
             better = cost < best
             best = np.where(better, cost, best)
             best_r, best_c = np.where(better, qr, best_r), np.where(better, qc, best_c)
-    rows[ys, xs], cols[ys, xs] = best_r, best_c
-    return rows, cols
+    for full, low in zip(out, layers, strict=True):
+        full[ys, xs] = low[best_r, best_c]
+    return out
+
+
+def _repeat_to(x: np.ndarray, factor: int, h: int, w: int) -> np.ndarray:
+    """Each cell of ``x`` repeated over its ``factor × factor`` pixels, cut or edge-extended to ``(h, w)``."""
+    up = np.repeat(np.repeat(x, factor, axis=0), factor, axis=1)[:h, :w]
+    if up.shape != (h, w):
+        up = np.pad(up, ((0, h - up.shape[0]), (0, w - up.shape[1])), mode="edge")
+    return np.ascontiguousarray(up)
+
 
 
 def _occluded(inv_depth: np.ndarray, field: np.ndarray, e_len: np.ndarray | None = None) -> np.ndarray:

@@ -54,13 +54,13 @@ from omnispectral.imaging.registration import as_gray
 from omnispectral.imaging.similarity import NCC_WINDOW_PX, LocalLinearScore, as_channels, local_ncc
 
 __all__ = ["COLOUR_MISFIT_MIN", "DEPTH_STEP_PX", "MAX_PERPENDICULAR_PX", "MIN_ALONG_WEIGHT", "MIN_BLOCK_SEEN",
-           "OCCLUSION_HIDDEN", "OCCLUSION_OTHER_SURFACE", "OCCLUSION_TOL_PX", "OTHER_SURFACE_MISFIT",
-           "OTHER_SURFACE_RADIUS", "PARALLAX_ANALYSIS_PX", "PARALLAX_MIN_CONFIDENCE", "SAME_SURFACE_COLOUR",
-           "SWEEP_MARGIN_STEPS", "SWEEP_MAX_LEVELS", "SWEEP_MIN_NCC", "SWEEP_RANGE_BLOCKS", "SWEEP_STEP_PX",
-           "SWEEP_ZERO_MARGIN", "UPSAMPLE_DISTANCE_COST", "BlockParallax", "Parallax", "block_parallax",
-           "colour_map_a_to_b", "could_be_shadowed", "epipolar_field", "fill_blocks", "fill_from_neighbours",
-           "moved_by_parallax", "neighbourhood_stack", "parallax_map", "sees_another_surface", "settle_by_colour",
-           "shifted_positions", "sweep_inverse_depth", "upsampled_by_colour"]
+           "NEAREST_OBJECT_M", "OCCLUSION_HIDDEN", "OCCLUSION_OTHER_SURFACE", "OCCLUSION_TOL_PX",
+           "OTHER_SURFACE_MISFIT", "OTHER_SURFACE_RADIUS", "PARALLAX_ANALYSIS_PX", "PARALLAX_MIN_CONFIDENCE",
+           "SAME_SURFACE_COLOUR", "SWEEP_MARGIN_STEPS", "SWEEP_MAX_LEVELS", "SWEEP_MIN_NCC", "SWEEP_RANGE_BLOCKS",
+           "SWEEP_STEP_PX", "SWEEP_ZERO_MARGIN", "UPSAMPLE_DISTANCE_COST", "BlockParallax", "Parallax",
+           "block_parallax", "colour_map_a_to_b", "could_be_shadowed", "epipolar_field", "fill_blocks",
+           "fill_from_neighbours", "moved_by_parallax", "neighbourhood_stack", "parallax_map", "sees_another_surface",
+           "settle_by_colour", "shifted_positions", "sweep_inverse_depth", "upsampled_by_colour"]
 
 #: A block measures parallax when its structure measures shifts along the epipolar line at least this
 #: well (``eᵀJe / |e|²`` with the normalised structure tensor J: 0 for an edge parallel to the line).
@@ -103,6 +103,8 @@ OTHER_SURFACE_STEP_PX = 3
 OTHER_SURFACE_MIN_VOTES = 4
 OTHER_SURFACE_MAX_SPREAD = 0.1
 OTHER_SURFACE_MISFIT = 0.3
+#: :func:`could_be_shadowed`: the nearest an object outside A's frame is taken to stand (m).
+NEAREST_OBJECT_M = 1.0
 #: Occlusion codes of :meth:`Parallax.occlusion_code`: B's view of the pixel hidden by a nearer surface (its
 #: bands count only where no direction sees the surface), or B showing another surface there (not used).
 OCCLUSION_HIDDEN = 1.0
@@ -113,6 +115,9 @@ DEPTH_STEP_PX = 0.5
 UPSAMPLE_DISTANCE_COST = 0.02
 #: Inverse depth change (1/m) used for the finite difference of the epipolar field.
 _DW_PER_M = 0.01
+#: The eight neighbours of a pixel (row and column steps).
+_NEIGHBOURS_DY = np.array([-1, -1, -1, 0, 0, 1, 1, 1])
+_NEIGHBOURS_DX = np.array([-1, 0, 1, -1, 1, -1, 0, 1])
 
 
 def epipolar_field(model_a: CameraModel, baseline_m: np.ndarray, pixels: np.ndarray | None = None,
@@ -628,8 +633,7 @@ def settle_by_colour(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarray, 
         for k, (dy, dx) in enumerate((dy, dx) for dy in range(-half, half + 1) for dx in range(-half, half + 1)):
             yq, xq = np.clip(ys + dy, 0, h - 1), np.clip(xs + dx, 0, w - 1)
             aq = a[yq, xq]
-            same = (np.linalg.norm(ap - aq, axis=1)
-                    <= SAME_SURFACE_COLOUR * (np.linalg.norm(ap, axis=1) + np.linalg.norm(aq, axis=1)))
+            same = _same_colour(ap, aq, np.linalg.norm(ap, axis=1), np.linalg.norm(aq, axis=1))
             votes[:, k] = np.where(known[yq, xq] & same, out[yq, xq], np.nan)
         has = np.isfinite(votes).any(axis=1)
         if not has.any():
@@ -712,12 +716,6 @@ def could_be_shadowed(inv_depth: np.ndarray, field: np.ndarray) -> np.ndarray:
     return out
 
 
-#: :func:`could_be_shadowed`: the nearest an object outside A's frame is taken to stand (m).
-NEAREST_OBJECT_M = 1.0
-#: The eight neighbours of a pixel (row and column steps).
-_NEIGHBOURS_DY = np.array([-1, -1, -1, 0, 0, 1, 1, 1])
-_NEIGHBOURS_DX = np.array([-1, 0, 1, -1, 1, -1, 0, 1])
-
 
 def sees_another_surface(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarray, inv_depth: np.ndarray,
                          reliable: np.ndarray, radius: float = OTHER_SURFACE_RADIUS,
@@ -728,13 +726,13 @@ def sees_another_surface(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarr
     background in B's view (only within its parallax of it: :func:`could_be_shadowed`, which keeps a
     metameric patch that only B tells apart): no z-buffer of A's depths flags it, and a flat background
     matches B equally badly at every depth, so the sweep keeps an unsure depth and B's bands there are the
-    object's.  The surface tells: the reliable pixels (distinctive matches) of the pixel's colour in A within ``radius``
-    (a fraction of the image's width: the same angle on any sensor) show B's colour of that surface (per
-    unit of A's brightness); where they agree among themselves (spread below :data:`OTHER_SURFACE_MAX_SPREAD`)
-    and B's colour at the pixel is plainly another (relative misfit above :data:`OTHER_SURFACE_MISFIT`), B
-    sees something else.  Tested where B's colour changes while A's
-    does not (the edge of such a patch), then grown over the unreliable pixels of the same colour in A whose
-    B colour misfits the surface's too (up to ``grow_passes`` px).
+    object's.  The surface tells: the reliable pixels (distinctive matches) of the pixel's colour in A within
+    ``radius`` (a fraction of the image's width: the same angle on any sensor) show B's colour of that surface
+    (per unit of A's brightness); where they agree among themselves (spread below
+    :data:`OTHER_SURFACE_MAX_SPREAD`) and B's colour at the pixel is plainly another (relative misfit above
+    :data:`OTHER_SURFACE_MISFIT`), B sees something else.  Tested where B's colour changes while A's does not
+    (the edge of such a patch), then grown over the unreliable pixels of the same colour in A whose B colour
+    misfits the surface's too (up to ``grow_passes`` px).
 
     Parameters
     ----------
@@ -756,10 +754,10 @@ def sees_another_surface(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarr
     numpy.ndarray
         ``(H, W)`` boolean.
     """
-    a = as_channels(ga_raw).astype(np.float32)
+    a = as_channels(ga_raw)  # finite float32, as is B moved by the parallax
     seen = moved_by_parallax(as_channels(gb_raw), field, inv_depth.astype(np.float32))
     bright = a.sum(axis=-1)
-    usable = (bright > 0) & np.isfinite(seen).all(axis=-1) & np.isfinite(a).all(axis=-1)
+    usable = bright > 0
     unit = np.where(usable[..., None], seen / np.where(usable, bright, 1.0)[..., None], 0.0).astype(np.float32)
     a_norm = np.sqrt(np.einsum("...c,...c->...", a, a))
     u_norm = np.sqrt(np.einsum("...c,...c->...", unit, unit))
@@ -1039,8 +1037,7 @@ def parallax_map(image_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, mo
     wb = fill_blocks(bp, ground)
     inv_depth, confidence = sweep_inverse_depth(ga, gb, field, wb, bp.measured, bp.y_px, bp.x_px)
     inv_depth = np.maximum(inv_depth, 0.0)
-    other = sees_another_surface(ga, gb, field, inv_depth, confidence > 0) if ga.ndim == 3 \
-        else np.zeros(inv_depth.shape, bool)
+    other = sees_another_surface(ga, gb, field, inv_depth, confidence > 0)
     return Parallax(inv_depth.astype(np.float32), confidence.astype(np.float32), _occluded(inv_depth, field) | other,
                     bp, other)
 
@@ -1120,7 +1117,6 @@ def _repeat_to(x: np.ndarray, factor: int, h: int, w: int) -> np.ndarray:
     if up.shape != (h, w):
         up = np.pad(up, ((0, h - up.shape[0]), (0, w - up.shape[1])), mode="edge")
     return np.ascontiguousarray(up)
-
 
 
 def _occluded(inv_depth: np.ndarray, field: np.ndarray, e_len: np.ndarray | None = None) -> np.ndarray:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import shutil
 import sys
@@ -21,11 +22,24 @@ from pathlib import Path
 from omnispectral.product.process import process
 from omnispectral.sim.truth import GroundTruth
 
+CPU_AT_STAGE_END: dict[str, float] = {}
+
+
+def process_cpu_s() -> float:
+    """User + system CPU seconds of this process so far (all its threads)."""
+    t = os.times()
+    return t.user + t.system
+
 
 def stage_progress(stage: str, done: int, total: int) -> None:
-    """Progress on stderr: one line per stage at its end."""
+    """Progress on stderr: one line per stage at its end, with the process's CPU seconds since the previous end
+    (CPU / wall near 2 means both cores were busy)."""
     if done == total:
-        print(f"{time.strftime('%H:%M:%S')} {stage}: {total} done", file=sys.stderr, flush=True)
+        cpu = process_cpu_s()
+        spent = cpu - max(CPU_AT_STAGE_END.values(), default=0.0)
+        CPU_AT_STAGE_END[stage] = cpu
+        print(f"{time.strftime('%H:%M:%S')} {stage}: {total} done ({spent:.1f} CPU-s since the last stage)",
+              file=sys.stderr, flush=True)
 
 
 def main() -> None:
@@ -43,12 +57,14 @@ def main() -> None:
     if out.exists():
         shutil.rmtree(out)
     t0 = time.perf_counter()
+    CPU_AT_STAGE_END["start"] = process_cpu_s()
     index = process(args.session, out, truth=GroundTruth.of_session(args.session),
                     width=args.width, report=args.report, progress=stage_progress,
                     rig_calibration=args.rig_calibration, sun=args.sun)
     wall = time.perf_counter() - t0
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
-    print(json.dumps({"wall_s": round(wall, 1), "peak_rss_gib": round(rss, 2), "size": [index["width"],
+    print(json.dumps({"wall_s": round(wall, 1), "peak_rss_gib": round(rss, 2),
+                      "cpu_s": round(process_cpu_s() - CPU_AT_STAGE_END["start"], 1), "size": [index["width"],
                       index["height"]], "timings_s": {k: round(v, 1) for k, v in index["timings_s"].items()},
                       "sun": index.get("sun")},
                      indent=1))

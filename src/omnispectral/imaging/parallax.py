@@ -624,16 +624,16 @@ def settle_by_colour(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarray, 
     known = reliable | ~misfit  # pixels whose colour fits at their depth vote for their surface
     h, w = out.shape
     half = window // 2
+    a_norm = np.linalg.norm(a, axis=-1)
     for _ in range(passes):
         ys, xs = np.nonzero(todo)
         if ys.size == 0:
             break
-        ap = a[ys, xs]
+        ap, ap_norm = a[ys, xs], a_norm[ys, xs]
         votes = np.full((ys.size, window * window), np.nan, np.float32)
         for k, (dy, dx) in enumerate((dy, dx) for dy in range(-half, half + 1) for dx in range(-half, half + 1)):
             yq, xq = np.clip(ys + dy, 0, h - 1), np.clip(xs + dx, 0, w - 1)
-            aq = a[yq, xq]
-            same = _same_colour(ap, aq, np.linalg.norm(ap, axis=1), np.linalg.norm(aq, axis=1))
+            same = _same_colour(ap, a[yq, xq], ap_norm, a_norm[yq, xq])
             votes[:, k] = np.where(known[yq, xq] & same, out[yq, xq], np.nan)
         has = np.isfinite(votes).any(axis=1)
         if not has.any():

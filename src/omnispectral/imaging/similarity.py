@@ -27,6 +27,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from omnispectral.imaging.similarity_kernel import compiled_score
+
 __all__ = ["NCC_WINDOW_PX", "LocalLinearScore", "as_channels", "local_ncc", "matching_feature"]
 
 #: Window (px) of the local similarity (and of the parallax sweep's per-pixel choice of depth).
@@ -193,6 +195,9 @@ class LocalLinearScore:
         if b.shape[-1] > 4:  # OpenCV filters at most four channels at once
             return np.mean([self(b[..., k]) for k in range(b.shape[-1])], axis=0).astype(np.float32)
         b = np.ascontiguousarray(b)
+        kernels = compiled_score() if len(self.a) == 3 and b.shape[-1] == 3 else None
+        if kernels is not None:
+            return self._compiled(kernels, b)
         mb = _blur3(b, self.k)
         var_b = _blur3(b * b, self.k) - mb * mb
         cross = [_blur3(self.a[i][..., None] * b, self.k) - self.mean_a[i][..., None] * mb for i in range(len(self.a))]
@@ -207,6 +212,18 @@ class LocalLinearScore:
         for c in range(1, r.shape[-1]):
             total += r[..., c]
         return (total / np.float32(r.shape[-1])).astype(np.float32)
+
+    def _compiled(self, kernels, b: np.ndarray) -> np.ndarray:
+        """:meth:`__call__` for three channels on each side: the same operations, fused between the box filters
+        (:mod:`omnispectral.imaging.similarity_kernel`)."""
+        products = [np.empty_like(b) for _ in range(4)]
+        kernels.window_products(*self.a, b, *products)
+        mb = _blur3(b, self.k)
+        bb, ab0, ab1, ab2 = (_blur3(x, self.k) for x in products)
+        out = np.empty(b.shape[:2], np.float32)
+        kernels.score_from_moments(mb, bb, ab0, ab1, ab2, *self.mean_a, *(coef for _, _, coef in self.form),
+                                   self.var_floor, out)
+        return out
 
 
 def _blur3(x: np.ndarray, k: tuple[int, int]) -> np.ndarray:

@@ -17,14 +17,12 @@ from __future__ import annotations
 import uuid
 from collections.abc import Callable
 
-import cv2
-
 from omnispectral.errors import ConfigurationError
 from omnispectral.mosaic.options import MosaicOptions
 from omnispectral.mosaic.store import PanoramaStore
 from omnispectral.mosaic.tile import MosaicJob, pyramid_task, tile_task
 from omnispectral.progress import ProgressCallback, report_progress
-from omnispectral.threads import worker_call
+from omnispectral.threads import single_threaded_libraries, worker_call
 
 __all__ = ["ancestors", "run_level0", "run_pyramid", "run_tasks", "tiles_in"]
 
@@ -71,7 +69,9 @@ def run_tasks(fn, shared, items: list[tuple], scheduler, workers: int | None,
             if on_result is not None and key in keys:
                 on_result(result)
 
-        with Callback(posttask=posttask):
+        # Dask's threads are the parallelism: OpenCV's and BLAS's own would oversubscribe the cores (idle OpenBLAS
+        # threads spin: 4 CPU-s of a full-scale mosaic's 52 went to spinning before BLAS was held to one thread)
+        with Callback(posttask=posttask), single_threaded_libraries():
             return list(dask.compute(*tasks, scheduler="threads", num_workers=workers or None))
     from distributed import Client, as_completed
 
@@ -171,12 +171,7 @@ def run_level0(job: MosaicJob, store: PanoramaStore, tiles: list[tuple[int, int]
         counter[0] += 1
         report_progress(progress, "tiles", counter[0], total)
 
-    threads = cv2.getNumThreads()
-    cv2.setNumThreads(1)  # Dask parallelises over tiles; OpenCV's own threads would oversubscribe the cores
-    try:
-        run_tasks(tile_task, job, todo, options.scheduler, options.workers, on_tile)
-    finally:
-        cv2.setNumThreads(threads)
+    run_tasks(tile_task, job, todo, options.scheduler, options.workers, on_tile)
     return len(todo)
 
 

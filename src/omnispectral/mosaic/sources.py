@@ -57,6 +57,7 @@ import numpy as np
 from omnispectral.checksums import file_checksum, remembered_problem, verified
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.imaging.geometry import CameraModel
+from omnispectral.imaging.halffloat import to_float16, to_float32
 from omnispectral.io import atomic_path, atomic_write_json
 
 __all__ = ["BAND_NAMES", "CAMERAS", "CAMERA_BANDS", "DTYPES", "FLOAT16_TARGET_MAX", "FORMAT", "FORMAT_VERSION",
@@ -95,9 +96,7 @@ def encode_image(image: np.ndarray, dtype: str) -> tuple[np.ndarray, float]:
     if dtype != "float16":
         raise ConfigurationError(f"dtype must be one of {DTYPES}, got {dtype!r}")
     scale = float16_scale(image)
-    stored = np.empty(image.shape, np.float16)  # the float32 product rounded once, without a float32 temporary
-    np.multiply(image, np.float32(1.0 / scale), out=stored, casting="unsafe")
-    return stored, scale
+    return to_float16(image, 1.0 / scale), scale  # the float32 product rounded once
 
 
 # ------------------------------------------------------------------------------------------ reading
@@ -192,7 +191,10 @@ class SourceImage:
         if rows is None or cols is None:
             shape = npy_shape(self.path)[0]
             rows, cols = rows or (0, shape[0]), cols or (0, shape[1])
-        out = read_npy_window(self.path, rows, cols).astype(np.float32, copy=False)
+        stored = read_npy_window(self.path, rows, cols)
+        if stored.dtype == np.float16:
+            return to_float32(stored, self.scale)
+        out = stored.astype(np.float32, copy=False)
         if self.scale != 1.0:
             out *= np.float32(self.scale)
         return out

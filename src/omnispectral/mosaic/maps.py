@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from omnispectral.imaging.channels import finite_pixels
 from omnispectral.imaging.geometry import CameraModel, equirect_pixel_to_lonlat, lonlat_to_ray
 from omnispectral.mosaic.kernels import compiled_kernels
 
@@ -358,5 +359,5 @@ def _check_error(source: SourceGeometry, canvas: Canvas, rect: Rect, nodes: np.n
         rows, cols = catmull_rom_weights(pr, step), catmull_rom_weights(pc, step)
         approx = np.stack([interpolate_nodes(nodes[..., k], rows, cols) for k in range(2)], axis=-1)
         err = np.hypot(*(approx - exact).transpose(2, 0, 1))
-    err = err[relevant & np.isfinite(approx).all(axis=-1)]
+    err = err[relevant & finite_pixels(approx)]
     return float(err.max()) if err.size else 0.0

@@ -26,6 +26,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from omnispectral.imaging.channels import finite_pixels
 from omnispectral.spectral.conditional import BandPredictor
 
 __all__ = ["fill_missing_b", "implausible_b", "tile_predictor"]
@@ -116,7 +117,7 @@ def implausible_b(values: np.ndarray, predictor: BandPredictor | None) -> np.nda
     if predictor is None:
         return np.zeros((h, w), bool)
     _, ell = prior_log_ratio(values[..., :3], values[..., 3:6].astype(np.float64), predictor)
-    usable = np.isfinite(ell).all(axis=-1)
+    usable = finite_pixels(ell)
     ell = np.where(usable[..., None], ell, 0.0).astype(np.float32)
     k = (IMPLAUSIBLE_WINDOW_PX, IMPLAUSIBLE_WINDOW_PX)
     count = cv2.boxFilter(usable.astype(np.float32), -1, k, normalize=False, borderType=cv2.BORDER_CONSTANT)
@@ -144,13 +145,13 @@ def fill_missing_b(values: np.ndarray, missing: np.ndarray, predictor: BandPredi
         Pixels with A not finite get NaN B bands (the panorama covers what camera A covers).
     """
     a, b = values[..., :3], values[..., 3:6]
-    a_ok = np.isfinite(a).all(axis=-1)
+    a_ok = finite_pixels(a)
     rel_out = np.full(missing.shape, np.nan, np.float32)
     b[~a_ok] = np.nan
     todo = missing & a_ok
     if not todo.any():
         return rel_out
-    measured = a_ok & np.isfinite(b).all(axis=-1) & ~missing
+    measured = a_ok & finite_pixels(b) & ~missing
     if predictor is None:
         predictor = tile_predictor(a[measured], b[measured])
         if predictor is None:
@@ -158,7 +159,7 @@ def fill_missing_b(values: np.ndarray, missing: np.ndarray, predictor: BandPredi
             return rel_out
     prior_b, ell = prior_log_ratio(a, b, predictor)
     bright = a.sum(axis=-1, dtype=np.float64)
-    usable = measured & np.isfinite(ell).all(axis=-1) & (bright > 0)
+    usable = measured & finite_pixels(ell) & (bright > 0)
     log_ratio = np.where(usable[..., None], ell, 0.0)
     with np.errstate(all="ignore"):
         chroma = np.where(bright[..., None] > 0, a / bright[..., None], 0.0)

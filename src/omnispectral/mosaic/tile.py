@@ -34,6 +34,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from omnispectral.imaging.channels import finite_pixels
 from omnispectral.imaging.geometry import native_width
 from omnispectral.imaging.parallax import OCCLUSION_HIDDEN, OCCLUSION_OTHER_SURFACE
 from omnispectral.mosaic.blending import LinearBlend, blend_method, feather_weight, multiband_blend, reject_inconsistent
@@ -228,7 +229,7 @@ def warp_source(job: MosaicJob, i: int, rect: Rect) -> Warped | None:
     u, v, weight = sm.u[r_lo:r_hi, c_lo:c_hi], sm.v[r_lo:r_hi, c_lo:c_hi], weight[r_lo:r_hi, c_lo:c_hi]
     values = sample_crop(img, u, v, weight > 0, job.interp, m.width, m.height)
     if not np.isfinite(values).all():  # (a whole-array test first: the per-pixel one is 50× slower)
-        bad = ~np.isfinite(values).all(axis=-1)
+        bad = ~finite_pixels(values)
         weight = np.where(bad, 0.0, weight).astype(np.float32)
         values[bad] = 0.0
     if (job.gains[i] != 1.0).any():
@@ -270,7 +271,7 @@ def sample_crop(img: SourceImage, u: np.ndarray, v: np.ndarray, used: np.ndarray
     y1 = int(min(height, np.ceil(vv.max()) + radius + extra + 1))
     crop = img.read((y0, y1), (x0, x1))
     finite = bool(np.isfinite(crop).all())
-    bad = None if finite else ~np.isfinite(crop).all(axis=-1)
+    bad = None if finite else ~finite_pixels(crop)
     if bad is not None:
         crop = np.where(bad[..., None], 0.0, crop).astype(np.float32)
     if method.prefilter:
@@ -383,7 +384,7 @@ def render_tile(job: MosaicJob, rect: Rect) -> tuple[np.ndarray, dict]:
     work = rect.grow(halo) if halo else rect
     out, quality, steps, errors = TILE_RENDERERS[job.blend](job, rect, work, halo)
     predicted = _predict_missing_b(job, out, quality)
-    holes = int((~np.isfinite(out)).any(axis=-1).sum())
+    holes = int((~finite_pixels(out)).sum())
     stats = {"n_sources": len(steps), "holes": holes, "map_step_min": min(steps, default=0),
              "map_error_px": max(errors, default=0.0), "predicted_px": int(np.isfinite(predicted).sum())}
     if job.has_quality and blend.quality_layer:
@@ -399,11 +400,11 @@ def _predict_missing_b(job: MosaicJob, out: np.ndarray, quality: np.ndarray | No
         return np.full(out.shape[:2], np.nan, np.float32)
     implausible = implausible_b(out, job.b_predictor)
     measured = out[implausible, 3:6].copy()
-    missing = ~np.isfinite(out[..., 3:6]).all(axis=-1) | implausible
+    missing = ~finite_pixels(out[..., 3:6]) | implausible
     predicted = fill_missing_b(out, missing, job.b_predictor)
     out[implausible, 3:6] = np.minimum(out[implausible, 3:6], measured)  # it replaces light, never adds it
     if quality is not None:
-        covered = np.isfinite(out).all(axis=-1)
+        covered = finite_pixels(out)
         quality[..., 2] = np.where(covered, np.float32(0.0), np.float32(np.nan))
         quality[..., 3] = np.where(np.isfinite(predicted), predicted, quality[..., 2])
         quality[~covered, 0:2] = np.nan

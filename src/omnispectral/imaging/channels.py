@@ -1,0 +1,34 @@
+"""Per-pixel tests over the channel axis of ``(…, C)`` images.
+
+NumPy reduces a short last axis (three or six bands) with a strided inner loop: ``np.isfinite(x).all(axis=-1)``
+on a 512 × 512 × 3 tile takes 4.7 ms, the same test one channel at a time 0.23 ms (2026-11-27).  The mosaic runs
+such tests several times per tile and source.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["finite_pixels"]
+
+
+def finite_pixels(image: np.ndarray) -> np.ndarray:
+    """Pixels whose every channel is finite: ``np.isfinite(image).all(axis=-1)``, one channel at a time.
+
+    Parameters
+    ----------
+    image
+        ``(…, C)`` array.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(…)`` bool.
+    """
+    image = np.asarray(image)
+    if image.shape[-1] == 0:
+        return np.ones(image.shape[:-1], bool)
+    out = np.isfinite(image[..., 0])
+    for c in range(1, image.shape[-1]):
+        out &= np.isfinite(image[..., c])
+    return out

@@ -40,3 +40,10 @@ def test_any_shape_and_layout(shape):
     assert _same_bits(to_float16(x), x.astype(np.float16))
     strided = np.asfortranarray(x.astype(np.float16))
     assert _same_bits(to_float32(strided, 4.0), strided.astype(np.float32) * np.float32(4.0))
+
+
+def test_other_dtypes_go_through_numpy():
+    x = np.linspace(-3, 3, 24, dtype=np.float32).reshape(2, 4, 3)
+    assert to_float32(x) is x  # nothing to convert
+    assert _same_bits(to_float32(x, 0.5), x * np.float32(0.5))
+    assert _same_bits(to_float32(x.astype(np.float64), 2.0), x * np.float32(2.0))

@@ -58,7 +58,8 @@ def to_float32(stored: np.ndarray, factor: float = 1.0) -> np.ndarray:
     Parameters
     ----------
     stored
-        float16 array, any shape.
+        Array of any shape: float16 through OpenCV, any other dtype through NumPy (a float32 array with
+        ``factor`` 1 is returned as it is).
     factor
         Scale applied after the conversion; a power of two for NumPy's bits (module docstring).
 
@@ -67,4 +68,8 @@ def to_float32(stored: np.ndarray, factor: float = 1.0) -> np.ndarray:
     numpy.ndarray
         float32, the shape of ``stored``.
     """
-    return _converted(np.asarray(stored, np.float16), factor, cv2.CV_32F, np.float32)
+    stored = np.asarray(stored)
+    if stored.dtype != np.float16:  # float32 stores (and anything else): NumPy's conversion
+        out = stored.astype(np.float32, copy=False)
+        return out * np.float32(factor) if factor != 1.0 else out
+    return _converted(stored, factor, cv2.CV_32F, np.float32)

@@ -191,13 +191,7 @@ class SourceImage:
         if rows is None or cols is None:
             shape = npy_shape(self.path)[0]
             rows, cols = rows or (0, shape[0]), cols or (0, shape[1])
-        stored = read_npy_window(self.path, rows, cols)
-        if stored.dtype == np.float16:
-            return to_float32(stored, self.scale)
-        out = stored.astype(np.float32, copy=False)
-        if self.scale != 1.0:
-            out *= np.float32(self.scale)
-        return out
+        return to_float32(read_npy_window(self.path, rows, cols), self.scale)
 
 
 def entry_sources(path: Path, entry: dict, cameras=CAMERAS) -> list[SourceImage]:

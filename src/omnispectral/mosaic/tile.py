@@ -36,6 +36,7 @@ import numpy as np
 
 from omnispectral.imaging.channels import finite_pixels
 from omnispectral.imaging.geometry import native_width
+from omnispectral.imaging.halffloat import to_float32
 from omnispectral.imaging.parallax import OCCLUSION_HIDDEN, OCCLUSION_OTHER_SURFACE
 from omnispectral.mosaic.blending import LinearBlend, blend_method, feather_weight, multiband_blend, reject_inconsistent
 from omnispectral.mosaic.interp import SPLINE_PREFILTER_MARGIN_PX, interpolation, remap, spline_prefilter
@@ -186,7 +187,7 @@ def parallax_positions(job: MosaicJob, i: int, row0: int, col0: int, u: np.ndarr
     r_lo, r_hi = int(ja.min()), int(ja.max()) + 1
     par = img.read_parallax_rows(r_lo, r_hi)
     # one flat index into the (pixel, 3) records: np.take gathers them 2x faster than a 2-D fancy index
-    sample = np.take(par.reshape(-1, par.shape[-1]), (ja - r_lo) * par.shape[1] + ia, axis=0).astype(np.float32)
+    sample = to_float32(np.take(par.reshape(-1, par.shape[-1]), (ja - r_lo) * par.shape[1] + ia, axis=0))
     inv_depth, conf, occ = sample[..., 0], sample[..., 1], sample[..., 2]
     near = np.isfinite(inv_depth) & (inv_depth > 0)
     u, v = u.copy(), v.copy()

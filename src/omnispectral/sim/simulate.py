@@ -44,6 +44,13 @@ from omnispectral.limits import check_memory, memory_budget, sensor_memory_bytes
 from omnispectral.locking import directory_lock
 from omnispectral.progress import ProgressCallback
 from omnispectral.rig import CameraSpec, Rig, rig_with_camera_settings
+from omnispectral.sim.antialias import (
+    REFINE_RAYS_PER_SIDE,
+    pixels_to_refine,
+    refined_mean,
+    subpixel_offsets,
+    with_neighbours,
+)
 from omnispectral.sim.boardviews import (
     DEFAULT_BOARD,
     DEFAULT_SQUARE_MM,
@@ -211,6 +218,9 @@ class RigRenderer:
         Camera B's true ``(yaw, pitch, roll)`` error against the rig file (deg), unknown to processing.
     supersample : int
         Rays per pixel side (a pixel integrates the light over its area).
+    refine_per_side : int
+        Rays per pixel side where the first ``supersample²`` disagree (an edge crosses the pixel,
+        :mod:`omnispectral.sim.antialias`); 0 or ``≤ supersample``: never.
 
     Attributes
     ----------
@@ -237,6 +247,8 @@ class RigRenderer:
     #: rays per pixel side: a pixel integrates the light over its area (box filter, 100 % fill factor)
     #: instead of sampling its centre, which would alias edges and bias sub-pixel registration
     supersample: int = 2
+    #: rays per pixel side in the pixels an edge crosses (:mod:`omnispectral.sim.antialias`)
+    refine_per_side: int = REFINE_RAYS_PER_SIDE
     system: MultibandSystem = field(init=False)
     models: dict = field(init=False)
     _rays: dict = field(init=False, default_factory=dict)
@@ -289,8 +301,7 @@ class RigRenderer:
         (``s`` = :attr:`supersample`; pixel-major order) and their validity (cached)."""
         if camera not in self._rays:
             m = self.models[camera]
-            s = max(1, int(self.supersample))
-            sub = (np.arange(s) + 0.5) / s - 0.5
+            sub = subpixel_offsets(self.supersample)
             v, u, dv, du = np.meshgrid(np.arange(m.height), np.arange(m.width), sub, sub, indexing="ij")
             px = np.stack([(u + du).ravel(), (v + dv).ravel()], axis=-1).astype(np.float64)
             rays, valid = m.unproject(px)
@@ -347,7 +358,10 @@ class RigRenderer:
             bands[valid] = self.scene.band_radiance(world[valid], matrix, origin_m=origin_m, **no_disk,
                                                     **footprint_kwargs(self.scene, spread))
         s2 = max(1, int(self.supersample)) ** 2
-        img = bands.reshape(m.height, m.width, s2, 3).mean(axis=2)
+        samples = bands.reshape(m.height * m.width, s2, 3)
+        img = samples.mean(axis=1)
+        self._refine_edges(camera, pan_deg, tilt_deg, matrix, samples, img)
+        img = img.reshape(m.height, m.width, 3)
         if sun is not None:
             img += self.sun_image(camera, pan_deg, tilt_deg, sun, matrix)
         img *= np.float32(self.electrons_per_unit)
@@ -356,6 +370,40 @@ class RigRenderer:
         img = img.astype(np.float32)
         self._last[camera] = (key, img)
         return img
+
+    def _refine_edges(self, camera: str, pan_deg: float, tilt_deg: float, matrix: np.ndarray, samples: np.ndarray,
+                      img: np.ndarray) -> None:
+        """Render again, with :attr:`refine_per_side` ² rays, the valid pixels whose ``samples (H·W, s², 3)``
+        disagree (:func:`~omnispectral.sim.antialias.pixels_to_refine`) and write their means into ``img
+        (H·W, 3)``; a pixel some of whose new rays fall outside the lens model keeps its first mean."""
+        s = max(1, int(self.supersample))
+        if self.refine_per_side <= s:
+            return
+        m = self.models[camera]
+        valid = self.pixel_valid(camera).ravel()
+        idx = np.flatnonzero(with_neighbours(pixels_to_refine(samples) & valid, m.height, m.width) & valid)
+        if idx.size == 0:
+            return
+        v, u = np.divmod(idx, m.width)
+        rot = m.camera_to_world(pan_deg, tilt_deg).T
+        origin_m = m.camera_center_mm(pan_deg, tilt_deg) / 1000.0
+        no_disk = {"sun_disk": False} if scene_sun_disk(self.scene) is not None else {}
+        n = self.refine_per_side
+        spread = np.repeat(self.ray_spread_rad(camera)[idx * s * s] * np.float32(s / n), n * n)
+        valid_rays = []
+
+        def render(points: np.ndarray) -> np.ndarray:
+            rays, valid = m.unproject(points)
+            valid_rays.append(valid)
+            out = np.zeros((points.shape[0], 3), np.float32)
+            if valid.any():
+                out[valid] = self.scene.band_radiance(rays[valid] @ rot, matrix, origin_m=origin_m, **no_disk,
+                                                      **footprint_kwargs(self.scene, spread[valid]))
+            return out
+
+        means = refined_mean(render, np.stack([u, v], axis=-1).astype(np.float64), n)
+        keep = valid_rays[0].reshape(idx.size, n * n).all(axis=1)
+        img[idx[keep]] = means[keep]
 
     def sun_image(self, camera: str, pan_deg: float, tilt_deg: float, sun: SunDisk, matrix: np.ndarray) -> np.ndarray:
         """``(H, W, 3)`` float32 mean band radiance of the sun's disk in each pixel of ``camera``.

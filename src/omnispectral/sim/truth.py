@@ -22,6 +22,13 @@ from omnispectral.imaging.geometry import equirect_pixel_to_lonlat, lonlat_to_ra
 from omnispectral.imaging.sundisk import disk_samples, n_radial_for_pixel, splat_equirect
 from omnispectral.io import atomic_path, atomic_write_json, jsonable
 from omnispectral.rig import Rig, camera_model
+from omnispectral.sim.antialias import (
+    REFINE_RAYS_PER_SIDE,
+    pixels_to_refine,
+    refined_mean,
+    subpixel_offsets,
+    with_neighbours,
+)
 from omnispectral.sim.scenes.base import SunDisk, footprint_kwargs, scene_sun_disk
 
 __all__ = ["GROUND_TRUTH_FORMAT", "GroundTruth", "add_sun_disk_equirect", "check_ground_truth",
@@ -223,8 +230,10 @@ def equirect_ray_spread_rad(lat_deg, width: int, height: int, supersample: int) 
 def _fill_equirect(arr: np.ndarray, fn, rows_per_chunk: int, supersample: int = 2, row_offset: int = 0,
                    height: int | None = None, nearest_depth_m: np.ndarray | None = None) -> None:
     """Fill an equirect array with ``fn(rays, spread_rad)`` averaged over ``supersample²`` points spread over each
-    pixel's area: the truth is the mean radiance of the pixel's solid angle, as the simulated sensor's pixels
-    integrate over their area (:attr:`RigRenderer.supersample`), so that edges compare like with like.
+    pixel's area, and over more where they disagree (an edge crosses the pixel, :mod:`omnispectral.sim.antialias`):
+    the truth is the mean radiance of the pixel's solid angle, as the simulated sensor's pixels integrate over
+    their area (:attr:`RigRenderer.supersample`, :attr:`RigRenderer.refine_per_side`), so that edges compare like
+    with like.
     ``spread_rad`` ``(N,)`` is the angular side of each point's share of its pixel
     (:func:`equirect_ray_spread_rad`), for scenes that filter a texture finer than the points
     (:func:`~omnispectral.sim.scenes.base.footprint_kwargs`).  ``arr`` holds rows ``row_offset:`` of a grid
@@ -236,7 +245,7 @@ def _fill_equirect(arr: np.ndarray, fn, rows_per_chunk: int, supersample: int = 
     n_rows, w = arr.shape[:2]
     h = n_rows if height is None else int(height)
     s = max(1, int(supersample))
-    sub = (np.arange(s) + 0.5) / s - 0.5
+    sub = subpixel_offsets(s)
     for r0 in range(0, n_rows, rows_per_chunk):
         r1 = min(n_rows, r0 + rows_per_chunk)
         row, col, dr, dc = np.meshgrid(np.arange(r0, r1) + row_offset, np.arange(w), sub, sub, indexing="ij")
@@ -246,7 +255,32 @@ def _fill_equirect(arr: np.ndarray, fn, rows_per_chunk: int, supersample: int = 
             values, distance_m = values
             if distance_m is not None:
                 nearest_depth_m[r0:r1] = np.asarray(distance_m, np.float32).reshape(r1 - r0, w, s * s).min(axis=2)
-        arr[r0:r1] = np.asarray(values, np.float32).reshape(r1 - r0, w, s * s, -1).mean(axis=2)
+        samples = np.asarray(values, np.float32).reshape((r1 - r0) * w, s * s, -1)
+        means = samples.mean(axis=1)
+        _refine_equirect(means, samples, fn, r0 + row_offset, r1 - r0, w, h, s, nearest_depth_m is not None)
+        arr[r0:r1] = means.reshape(r1 - r0, w, -1)
+
+
+def _refine_equirect(means: np.ndarray, samples: np.ndarray, fn, row0: int, n_rows: int, w: int, h: int, s: int,
+                     with_depth: bool) -> None:
+    """Pixels of rows ``row0 …`` whose ``samples (P, s², c)`` disagree get the mean of
+    :data:`~omnispectral.sim.antialias.REFINE_RAYS_PER_SIDE` ² points instead (:mod:`omnispectral.sim.antialias`),
+    written into ``means (P, c)``."""
+    n = REFINE_RAYS_PER_SIDE
+    if n <= s:
+        return
+    idx = np.flatnonzero(with_neighbours(pixels_to_refine(samples), n_rows, w))
+    if idx.size == 0:
+        return
+    rows, cols = np.divmod(idx, w)
+    rows = rows + row0
+
+    def render(points: np.ndarray) -> np.ndarray:
+        lon, lat = equirect_pixel_to_lonlat(points[:, 0], points[:, 1], w, h)
+        values = fn(lonlat_to_ray(lon, lat), equirect_ray_spread_rad(lat, w, h, n))
+        return values[0] if with_depth else values
+
+    means[idx] = refined_mean(render, np.stack([cols, rows], axis=-1).astype(np.float64), n)
 
 
 def _save_npy(path: Path, array: np.ndarray) -> None:

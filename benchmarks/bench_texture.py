@@ -8,7 +8,7 @@ its border):
 - per camera, the median relative band error ``|P − T| / T`` (P the product, T the truth's bands);
 - the spectral error the pipeline adds: unit-norm NRMSE between the spectra the product's estimator gives
   from P and from T, next to the estimator's own floor, the NRMSE between its spectra from T and the true
-  spectra (the scene's radiance on the truth's 2 × 2 rays per pixel, the texture filtered over each ray's share
+  spectra (the scene's radiance as the mean of 8 × 8 rays per pixel, the texture filtered over each ray's share
   of the pixel as the simulator renders it).
 
 Cubes: ``--cube FILE`` (``.npz`` or ENVI, see ``omnispectral.sim.scenes.cube``; repeatable) or, by
@@ -44,6 +44,7 @@ from omnispectral.imaging.geometry import lonlat_to_ray
 from omnispectral.product.layout import open_product
 from omnispectral.product.process import process
 from omnispectral.rig import load_preset, rig_from_dict
+from omnispectral.sim.antialias import REFINE_RAYS_PER_SIDE, subpixel_offsets
 from omnispectral.sim.scenes import ProceduralOutdoorScene
 from omnispectral.sim.scenes.base import footprint_kwargs
 from omnispectral.sim.scenes.cube import CubeOnWallScene
@@ -99,16 +100,18 @@ def panel_mask(scene: CubeOnWallScene, base: ProceduralOutdoorScene, height: int
 
 
 def true_spectra(scene, rows: np.ndarray, cols: np.ndarray, height: int, width: int, scale: float) -> np.ndarray:
-    """The scene's spectra on 2 × 2 rays per pixel, each filtering the texture over its share of the pixel (as
-    the truth's bands are made), in the truth's units."""
+    """The scene's spectra as the mean of 8 × 8 rays per pixel (``REFINE_RAYS_PER_SIDE``: what the truth's bands
+    take where a pixel's first rays disagree, as on most of a textured panel), each filtering the texture over
+    its share of the pixel, in the truth's units."""
+    n = REFINE_RAYS_PER_SIDE
     acc = 0.0
-    for dy in (0.25, 0.75):
-        for dx in (0.25, 0.75):
+    for dy in subpixel_offsets(n) + 0.5:
+        for dx in subpixel_offsets(n) + 0.5:
             lat = 90 - (rows + dy) / height * 180
             lon = (cols + dx) / width * 360 - 180
             acc = acc + scene.spectral_radiance(lonlat_to_ray(lon, lat), sun_disk=False, **footprint_kwargs(
-                scene, equirect_ray_spread_rad(lat, width, height, 2)))
-    return acc / 4.0 * scale
+                scene, equirect_ray_spread_rad(lat, width, height, n)))
+    return acc / (n * n) * scale
 
 
 def unit_nrmse(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -136,3 +136,25 @@ def test_b_that_shows_another_surface_is_not_used_but_predicted(tmp_path, code):
         assert worst < 1e-3
     else:
         assert worst > 1.0
+
+
+def test_b_darker_than_a_allows_is_flagged_unless_b_may_be_clipped():
+    from omnispectral.mosaic.predict import b_outliers, too_dark_b
+
+    prior = BandPredictor(np.eye(3), np.full(3, 0.4))
+    img = _two_surfaces((60, 80))
+    img[10:40, 30:34, 3:] /= 140.0  # B shows a dark post's edge fattened 4 px into the bright sky A sees
+    bright, dark = b_outliers(img, prior)
+    assert dark[10:40, 30:34].all() and dark.sum() == 120 and not bright.any()
+    np.testing.assert_array_equal(too_dark_b(img, prior), dark)
+    clipped = _two_surfaces((60, 80))
+    clipped[10:40, 30:34, 3:] = clipped[..., 3:].max()  # B at its brightest: a lower bound, A brighter still
+    clipped[10:40, 30:34, :3] *= 1000.0
+    assert not too_dark_b(clipped, prior).any()
+    exotic = _two_surfaces((60, 80))
+    exotic[..., 3:] /= 20.0  # a whole surface far from the prior: its own neighbourhood agrees
+    assert not too_dark_b(exotic, prior).any()
+    # filled from the sky's own neighbours, not kept below what B measured
+    missing = ~np.isfinite(img[..., 3]) | dark
+    fill_missing_b(img, missing, prior)
+    np.testing.assert_allclose(img[10:40, 30:34, 3:], _two_surfaces((60, 80))[10:40, 30:34, 3:], rtol=0.02)

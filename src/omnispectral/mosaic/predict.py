@@ -3,7 +3,7 @@
 A tile pixel needs B's bands where no direction gives them (B's views of the point disagree and are
 all dropped, :func:`~omnispectral.mosaic.blending.reject_inconsistent`; every view of it shows another
 surface, :func:`omnispectral.imaging.parallax.sees_another_surface`; the point lies beyond B's frame) or
-where what B gave cannot be the surface A sees (:func:`implausible_b`).  Such a pixel takes
+where what B gave cannot be the surface A sees (:func:`implausible_b`, :func:`too_dark_b`).  Such a pixel takes
 
 .. math:: \\hat\\rho_B = (M\\rho_A) \\odot \\exp\\bar\\ell, \\qquad
           \\bar\\ell = \\frac{\\sum_q w_q \\log\\big(\\rho_B(q) / M\\rho_A(q)\\big)}{\\sum_q w_q},
@@ -29,7 +29,8 @@ import numpy as np
 from omnispectral.imaging.channels import finite_pixels
 from omnispectral.spectral.conditional import BandPredictor
 
-__all__ = ["fill_missing_b", "implausible_b", "tile_predictor"]
+__all__ = ["IMPLAUSIBLE_RATIO", "UNCLIPPED_FRACTION", "b_outliers", "fill_missing_b", "implausible_b", "tile_predictor",
+           "too_dark_b"]
 
 #: Neighbourhood radii (px) tried in turn: a pixel with no measured neighbour like it within the first
 #: looks within the second (sampled every :data:`WIDE_STEP_PX`).
@@ -46,6 +47,8 @@ MIN_TILE_SAMPLES = 64
 #: is taken for another surface than A's (:func:`implausible_b`); the neighbourhood's side (px).
 IMPLAUSIBLE_RATIO = 8.0
 IMPLAUSIBLE_WINDOW_PX = 31
+#: A B darker than A allows is flagged (:func:`too_dark_b`) only below this share of the tile's brightest B.
+UNCLIPPED_FRACTION = 0.25
 
 
 def tile_predictor(a: np.ndarray, b: np.ndarray) -> BandPredictor | None:
@@ -108,14 +111,47 @@ def implausible_b(values: np.ndarray, predictor: BandPredictor | None) -> np.nda
     ``ℓ`` over its :data:`IMPLAUSIBLE_WINDOW_PX` neighbourhood by more than ``log``
     :data:`IMPLAUSIBLE_RATIO`: B saw another, brighter surface than A there (a thin near object whose
     parallax was missed, with the sun behind it: B 250 times the truth), while a surface's own colour,
-    however far from the prior, moves its neighbours' ``ℓ`` with it.  Only too bright: a B darker than A
-    allows is where A is clipped (beside the sun A's bands are a lower bound, and a prediction from them
-    would invent light).  On the simulator's truth no pixel's ``ℓ`` leaves ``±log 8`` even against the
+    however far from the prior, moves its neighbours' ``ℓ`` with it.  B darker than A allows is
+    :func:`too_dark_b`.  On the simulator's truth no pixel's ``ℓ`` leaves ``±log 8`` even against the
     prior alone.  Without a predictor nothing is flagged; the engine never lets the prediction exceed
     what B measured there."""
+    return b_outliers(values, predictor)[0]
+
+
+def too_dark_b(values: np.ndarray, predictor: BandPredictor | None) -> np.ndarray:
+    """``(h, w)`` bool: pixels whose measured B bands are darker than A's allow, beyond anything a surface
+    explains, where B cannot be clipped.
+
+    The mirror of :func:`implausible_b`: some band's ``ℓ`` below its neighbourhood's mean by more than
+    ``log`` :data:`IMPLAUSIBLE_RATIO`.  B saw another, darker surface than A there: a near object's silhouette
+    against a bright sky, where the parallax gave the sky's pixels beside it the object's depth (its edge
+    fattened into the sky: B's dark post 4 px into the sunrise sky, B at 1/140 of the truth).  A B clipped
+    in every exposure (a lower bound beside the sun) also reads too dark; it sits at the brightest B of the
+    tile, so only pixels whose B bands all stay below :data:`UNCLIPPED_FRACTION` of the tile's brightest B
+    band are flagged (A clipped makes B look too bright, never too dark).  The prediction there may exceed
+    what B measured."""
+    return b_outliers(values, predictor)[1]
+
+
+def b_outliers(values: np.ndarray, predictor: BandPredictor | None) -> tuple[np.ndarray, np.ndarray]:
+    """``(too bright, too dark)``: :func:`implausible_b` and :func:`too_dark_b` of ``values (h, w, 6)`` from one
+    evaluation of ``ℓ``."""
+    usable, excess = _log_ratio_excess(values, predictor)
+    bright = usable & (excess > np.log(IMPLAUSIBLE_RATIO)).any(axis=-1)
+    if not usable.any():
+        return bright, usable
+    b = values[..., 3:6]
+    brightest = float(np.max(np.where(usable[..., None], b, 0.0)))
+    unclipped = (b < UNCLIPPED_FRACTION * brightest).all(axis=-1)
+    return bright, usable & unclipped & (excess < -np.log(IMPLAUSIBLE_RATIO)).any(axis=-1)
+
+
+def _log_ratio_excess(values: np.ndarray, predictor: BandPredictor | None) -> tuple[np.ndarray, np.ndarray]:
+    """``(usable (h, w), ℓ − mean of ℓ over the pixel's IMPLAUSIBLE_WINDOW_PX neighbourhood (h, w, 3))``;
+    nothing usable without a predictor."""
     h, w = values.shape[:2]
     if predictor is None:
-        return np.zeros((h, w), bool)
+        return np.zeros((h, w), bool), np.zeros((h, w, 3), np.float32)
     _, ell = prior_log_ratio(values[..., :3], values[..., 3:6].astype(np.float64), predictor)
     usable = finite_pixels(ell)
     ell = np.where(usable[..., None], ell, 0.0).astype(np.float32)
@@ -123,7 +159,7 @@ def implausible_b(values: np.ndarray, predictor: BandPredictor | None) -> np.nda
     count = cv2.boxFilter(usable.astype(np.float32), -1, k, normalize=False, borderType=cv2.BORDER_CONSTANT)
     local = np.stack([cv2.boxFilter(ell[..., i], -1, k, normalize=False, borderType=cv2.BORDER_CONSTANT)
                       for i in range(3)], axis=-1) / np.maximum(count, 1.0)[..., None]
-    return usable & ((ell - local) > np.log(IMPLAUSIBLE_RATIO)).any(axis=-1)
+    return usable, ell - local
 
 
 def fill_missing_b(values: np.ndarray, missing: np.ndarray, predictor: BandPredictor | None = None) -> np.ndarray:

@@ -42,7 +42,7 @@ from omnispectral.mosaic.blending import LinearBlend, blend_method, feather_weig
 from omnispectral.mosaic.interp import SPLINE_PREFILTER_MARGIN_PX, interpolation, remap, spline_prefilter
 from omnispectral.mosaic.maps import Canvas, Rect, SourceGeometry, rect_map, source_map, tile_cone
 from omnispectral.mosaic.options import MosaicOptions
-from omnispectral.mosaic.predict import fill_missing_b, implausible_b
+from omnispectral.mosaic.predict import b_outliers, fill_missing_b
 from omnispectral.mosaic.sources import MergedDirections, SourceImage
 from omnispectral.mosaic.store import PanoramaStore
 from omnispectral.spectral.conditional import BandPredictor
@@ -399,9 +399,9 @@ def _predict_missing_b(job: MosaicJob, out: np.ndarray, quality: np.ndarray | No
     Returns the prediction's relative error per pixel (NaN where B was measured or nothing covers)."""
     if job.n_bands != N_BANDS:
         return np.full(out.shape[:2], np.nan, np.float32)
-    implausible = implausible_b(out, job.b_predictor)
+    implausible, too_dark = b_outliers(out, job.b_predictor)
     measured = out[implausible, 3:6].copy()
-    missing = ~finite_pixels(out[..., 3:6]) | implausible
+    missing = ~finite_pixels(out[..., 3:6]) | implausible | too_dark
     predicted = fill_missing_b(out, missing, job.b_predictor)
     out[implausible, 3:6] = np.minimum(out[implausible, 3:6], measured)  # it replaces light, never adds it
     if quality is not None:

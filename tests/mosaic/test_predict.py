@@ -158,3 +158,19 @@ def test_b_darker_than_a_allows_is_flagged_unless_b_may_be_clipped():
     missing = ~np.isfinite(img[..., 3]) | dark
     fill_missing_b(img, missing, prior)
     np.testing.assert_allclose(img[10:40, 30:34, 3:], _two_surfaces((60, 80))[10:40, 30:34, 3:], rtol=0.02)
+
+
+def test_the_ceiling_of_a_too_dark_b_is_the_brightest_b_measured_around_it():
+    from omnispectral.mosaic.predict import IMPLAUSIBLE_WINDOW_PX, brightest_measured_b
+
+    img = _two_surfaces((60, 80))
+    missing = np.zeros((60, 80), bool)
+    missing[30, 20] = True
+    img[30, 20, 3:] = 1e6  # a missing pixel's value never counts
+    img[10, 10, 3:] = np.nan
+    ceiling = brightest_measured_b(img, missing)
+    half = IMPLAUSIBLE_WINDOW_PX // 2
+    window = img[30 - half:30 + half + 1, 20 - half:20 + half + 1, 3:].copy()
+    window[half, half] = 0.0
+    np.testing.assert_allclose(ceiling[30, 20], np.nanmax(window.reshape(-1, 3), axis=0), rtol=1e-6)
+    assert ceiling[30, 20].max() < 1e6

@@ -183,4 +183,6 @@ def test_simulated_session_sun_from_the_scenes_white_plate(tmp_path):
     ray = lonlat_to_ray(rec["lon_deg"], rec["lat_deg"])
     horizontal = np.asarray(rec["band_irradiance"]) * ray[1]
     np.testing.assert_allclose(horizontal, truth, rtol=0.05)
-    assert math.degrees(math.acos(min(1.0, float(ray @ sun.direction)))) < 0.1
+    # the clipped group's centroid: within the half panorama pixel the method states as its uncertainty
+    half_pixel_deg = 0.5 * 360.0 / store.shapes[0][1]
+    assert math.degrees(math.acos(min(1.0, float(ray @ sun.direction)))) < half_pixel_deg

@@ -29,8 +29,8 @@ import numpy as np
 from omnispectral.imaging.channels import finite_pixels
 from omnispectral.spectral.conditional import BandPredictor
 
-__all__ = ["IMPLAUSIBLE_RATIO", "UNCLIPPED_FRACTION", "b_outliers", "fill_missing_b", "implausible_b", "tile_predictor",
-           "too_dark_b"]
+__all__ = ["IMPLAUSIBLE_RATIO", "UNCLIPPED_FRACTION", "b_outliers", "brightest_measured_b", "fill_missing_b",
+           "implausible_b", "tile_predictor", "too_dark_b"]
 
 #: Neighbourhood radii (px) tried in turn: a pixel with no measured neighbour like it within the first
 #: looks within the second (sampled every :data:`WIDE_STEP_PX`).
@@ -129,7 +129,7 @@ def too_dark_b(values: np.ndarray, predictor: BandPredictor | None) -> np.ndarra
     in every exposure (a lower bound beside the sun) also reads too dark; it sits at the brightest B of the
     tile, so only pixels whose B bands all stay below :data:`UNCLIPPED_FRACTION` of the tile's brightest B
     band are flagged (A clipped makes B look too bright, never too dark).  The prediction there may exceed
-    what B measured."""
+    what B measured at the pixel, not the brightest B measured around it (:func:`brightest_measured_b`)."""
     return b_outliers(values, predictor)[1]
 
 
@@ -144,6 +144,17 @@ def b_outliers(values: np.ndarray, predictor: BandPredictor | None) -> tuple[np.
     brightest = float(np.max(np.where(usable[..., None], b, 0.0)))
     unclipped = (b < UNCLIPPED_FRACTION * brightest).all(axis=-1)
     return bright, usable & unclipped & (excess < -np.log(IMPLAUSIBLE_RATIO)).any(axis=-1)
+
+
+def brightest_measured_b(values: np.ndarray, missing: np.ndarray) -> np.ndarray:
+    """``(h, w, 3)``: per band, the brightest B measured (finite and not ``missing``) within the pixel's
+    :data:`IMPLAUSIBLE_WINDOW_PX` neighbourhood (0 where none): the ceiling of a prediction where B read too
+    dark (:func:`too_dark_b`), which restores the light B saw beside the pixel and invents none (a noisy A
+    at one pixel can make ``Mρ_A`` several times too bright)."""
+    b = np.where((finite_pixels(values[..., 3:6]) & ~missing)[..., None], values[..., 3:6], 0.0).astype(np.float32)
+    kernel = np.ones((IMPLAUSIBLE_WINDOW_PX, IMPLAUSIBLE_WINDOW_PX), np.uint8)
+    return np.stack([cv2.dilate(b[..., i], kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0.0)
+                     for i in range(3)], axis=-1)
 
 
 def _log_ratio_excess(values: np.ndarray, predictor: BandPredictor | None) -> tuple[np.ndarray, np.ndarray]:

@@ -42,7 +42,7 @@ from omnispectral.mosaic.blending import LinearBlend, blend_method, feather_weig
 from omnispectral.mosaic.interp import SPLINE_PREFILTER_MARGIN_PX, interpolation, remap, spline_prefilter
 from omnispectral.mosaic.maps import Canvas, Rect, SourceGeometry, rect_map, source_map, tile_cone
 from omnispectral.mosaic.options import MosaicOptions
-from omnispectral.mosaic.predict import b_outliers, fill_missing_b
+from omnispectral.mosaic.predict import b_outliers, brightest_measured_b, fill_missing_b
 from omnispectral.mosaic.sources import MergedDirections, SourceImage
 from omnispectral.mosaic.store import PanoramaStore
 from omnispectral.spectral.conditional import BandPredictor
@@ -402,8 +402,11 @@ def _predict_missing_b(job: MosaicJob, out: np.ndarray, quality: np.ndarray | No
     implausible, too_dark = b_outliers(out, job.b_predictor)
     measured = out[implausible, 3:6].copy()
     missing = ~finite_pixels(out[..., 3:6]) | implausible | too_dark
+    ceiling = brightest_measured_b(out, missing) if too_dark.any() else None
     predicted = fill_missing_b(out, missing, job.b_predictor)
     out[implausible, 3:6] = np.minimum(out[implausible, 3:6], measured)  # it replaces light, never adds it
+    if ceiling is not None:  # nor more than B measured around it
+        out[too_dark, 3:6] = np.minimum(out[too_dark, 3:6], ceiling[too_dark])
     if quality is not None:
         covered = finite_pixels(out)
         quality[..., 2] = np.where(covered, np.float32(0.0), np.float32(np.nan))

@@ -6,6 +6,13 @@ random bytes, best of 3): zlib's crc32 0.25 ms/MB (4.0 GB/s), CRC-32C (``google-
 detects every burst of damage up to 32 bits and any other damage with probability 1 − 2⁻³²; it is no defence
 against deliberate tampering (the frames' SHA-256 is, :mod:`omnispectral.capture`).
 
+Raw frames carry two checksums in their journal records: the SHA-256 (``sha256``: what a product's fingerprint
+names and ``omnispectral check`` verifies, a defence against deliberate change too) and XXH3-128 (``xxh3_128``,
+:func:`bytes_xxh3`, the ``xxhash`` package that Dask's hashing also uses), which ``process`` verifies when it
+reads a frame: 9.8 GB/s against SHA-256's 1.1 GB/s on an Intel Xeon core with SHA extensions (64 MiB, warm), so a
+full-scale session's 14.5 GiB of frames costs 1.6 CPU-s instead of 13.  A 128-bit hash misses accidental damage
+with probability 2⁻¹²⁸; it is no defence against deliberate change.
+
 Why not CRC-32C, the faster one: the panorama's chunks already end with their own CRC-32C (Zarr v3's standard
 ``crc32c`` codec, :mod:`omnispectral.mosaic.store`), and the CRC-32C of a message followed by its CRC-32C is
 the same constant for every intact chunk; a file's CRC-32 (another polynomial) is a record of its own.
@@ -22,13 +29,17 @@ import threading
 import zlib
 from pathlib import Path
 
+import xxhash
+
 from omnispectral.errors import InputFileError
 
-__all__ = ["ALGORITHM", "BLOCK_BYTES", "checksum_problem", "file_checksum", "file_crc32", "file_sha256",
-           "forget_verified", "remembered_problem", "verified"]
+__all__ = ["ALGORITHM", "BLOCK_BYTES", "FRAME_FAST_ALGORITHM", "bytes_xxh3", "checksum_problem", "file_checksum",
+           "file_crc32", "file_sha256", "file_xxh3", "forget_verified", "remembered_problem", "verified"]
 
 #: The name of the checksum in every record.
 ALGORITHM = "crc32"
+#: The name of a raw frame's fast checksum in its journal record (module docstring).
+FRAME_FAST_ALGORITHM = "xxh3_128"
 #: Bytes read at a time.
 BLOCK_BYTES = 1 << 22
 
@@ -53,6 +64,19 @@ def file_sha256(path: str | Path) -> str:
     """SHA-256 (hex) of a file's bytes: the frames' journal records and the inputs a fingerprint names, where
     a checksum must also stand against deliberate change."""
     h = hashlib.sha256()
+    for block in _blocks(path):
+        h.update(block)
+    return h.hexdigest()
+
+
+def bytes_xxh3(content) -> str:
+    """XXH3-128 (hex, 32 digits) of bytes or any buffer: a raw frame's ``xxh3_128`` (module docstring)."""
+    return xxhash.xxh3_128(content).hexdigest()
+
+
+def file_xxh3(path: str | Path) -> str:
+    """XXH3-128 (hex) of a file's bytes (:func:`bytes_xxh3`)."""
+    h = xxhash.xxh3_128()
     for block in _blocks(path):
         h.update(block)
     return h.hexdigest()

@@ -17,7 +17,7 @@ import pytest
 
 from omnispectral.capture.plan import direction_grid, grid_counts, make_plan, tradeoff
 from omnispectral.capture.run import RetryPolicy, run_capture
-from omnispectral.capture.session import Session, verify_session
+from omnispectral.capture.session import Session, content_matches, read_journal, verify_session
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.rig import load_preset, load_rig, rig_toml
 from omnispectral.sim.devices import CameraFaults, FakeClock, HeadFaults, SimulatedCamera, SimulatedHead
@@ -160,6 +160,37 @@ def test_verify_names_missing_and_damaged_frames(tmp_path):
     # a deleted frame is missing, not damaged
     assert r["n_missing"] == 1 and r["missing"][0]["file"] == "frames/d0010/B_e14.tif"
     assert r["missing"][0]["problem"] == "file missing"
+
+
+def test_a_same_size_bit_flip_fails_the_fast_and_the_cryptographic_checksum(tmp_path):
+    import hashlib
+
+    import xxhash
+
+    rig, s = small_session(tmp_path)
+    clock = FakeClock(dt.datetime(2026, 6, 21, 9, 0, tzinfo=dt.UTC))
+    run_capture(s, *devices(rig, clock), clock, progress=False)
+    key, victim = (7, "B", 4), s.path / "frames/d0007/B_e04.tif"
+    rec = read_journal(s.journal_path).records[key]
+    content = victim.read_bytes()
+    # the journal holds both checksums of the file's bytes (peers' digests computed here)
+    assert rec["sha256"] == hashlib.sha256(content).hexdigest()
+    assert rec["xxh3_128"] == xxhash.xxh3_128(content).hexdigest() and rec["bytes"] == len(content)
+    flipped = bytearray(content)
+    flipped[-7] ^= 0x10  # one bit near the end of the file: the size stays
+    victim.write_bytes(bytes(flipped))
+    for cryptographic in (True, False):
+        r = verify_session(s.path, check_pixels=True, cryptographic=cryptographic)
+        assert r["n_damaged"] == 1 and "checksum mismatch" in r["damaged"][0]["problem"]
+    with pytest.raises(InputFileError, match="checksum mismatch"):
+        s.check_frames_on_read().read_frame(*key)
+    # which digest each check compares: the fast one where recorded, the SHA-256 when asked or when it is absent
+    forged = {**rec, "sha256": "0" * 64}
+    assert content_matches(content, forged, cryptographic=False)
+    assert not content_matches(content, forged, cryptographic=True)
+    older = {k: v for k, v in rec.items() if k != "xxh3_128"}
+    assert content_matches(content, older, cryptographic=False)
+    assert not content_matches(bytes(flipped), older, cryptographic=False)
 
 
 def test_head_that_stops_answering_stops_cleanly_and_resumes(tmp_path):

@@ -26,6 +26,7 @@ from omnispectral.capture.session import (
     QUARANTINE_DIR,
     Session,
     decode_frame,
+    file_record_checksums,
     pixel_problem,
     read_journal,
     record_key,
@@ -120,7 +121,7 @@ def frame_record_from_file(session: Session, rel: str, journal_record: dict | No
     problem = pixel_problem(pixels, meta, max_dn)
     if problem:
         raise InputFileError(p, problem)
-    return {**meta, "sha256": sha256, "bytes": len(content)}
+    return {**meta, **file_record_checksums(content)}
 
 
 def quarantine_relpath(session: Session, rel: str) -> str:

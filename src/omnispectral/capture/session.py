@@ -6,7 +6,9 @@ Layout of a session directory::
       session.json      format version, kind (capture | simulation), rig name, created (UTC)
       rig.toml          snapshot of the rig description used
       plan.json         the plan (directions, exposures, timing estimate)
-      journal.jsonl     one JSON line per frame, appended, flushed and fsynced
+      journal.jsonl     one JSON line per frame, appended, flushed and fsynced; it holds the frame file's
+                        ``bytes``, ``sha256`` and ``xxh3_128`` (the fast checksum ``process`` verifies,
+                        :mod:`omnispectral.checksums`; older frames lack it)
       events.jsonl      start / resume / stop / complete events with reasons
       frames/dNNNN/{A,B}_eKK.tif   16-bit raw frames (tifffile), metadata as JSON in the description
                         (camera B only in sessions of two-camera rigs); the description's record holds
@@ -51,7 +53,7 @@ import tifffile
 
 from omnispectral.capture.plan import Plan
 from omnispectral.capture.sourcefiles import decode_source_image
-from omnispectral.checksums import file_sha256
+from omnispectral.checksums import FRAME_FAST_ALGORITHM, bytes_xxh3, file_sha256
 from omnispectral.errors import DamagedFrameError, InputFileError
 from omnispectral.fingerprint import differences
 from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text, is_temp_name, jsonable
@@ -61,9 +63,9 @@ from omnispectral.rig import CAMERA_NAMES, SUN_EXPOSURE_BASE, Rig, rig_from_dict
 from omnispectral.threads import ordered_thread_map
 
 __all__ = ["CALIBRATION_DIR", "CAMERAS", "FORMAT_VERSION", "FRAME_NAME", "QUARANTINE_DIR", "JournalReadout", "Session",
-           "decode_frame", "frame_relpath", "half_created_leftovers", "pixel_problem", "pixels_sha256", "read_journal",
-           "record_key", "referenced_problem", "sun_bracket_keys", "sun_directions", "utc_now_iso",
-           "verify_session"]
+           "content_matches", "decode_frame", "file_record_checksums", "frame_relpath", "half_created_leftovers",
+           "pixel_problem", "pixels_sha256", "read_journal", "record_key", "referenced_problem", "sun_bracket_keys",
+           "sun_directions", "utc_now_iso", "verify_session"]
 
 FORMAT_VERSION = 1
 #: The folder of a session's calibration views (:mod:`omnispectral.capture.calviews`).
@@ -101,6 +103,22 @@ def half_created_leftovers(path: Path) -> list[Path] | None:
             return None
     return out
 
+
+
+def file_record_checksums(content: bytes) -> dict:
+    """The journal's checksums of a frame file's bytes: ``sha256``, ``xxh3_128`` (the fast one ``process``
+    verifies, :mod:`omnispectral.checksums`) and ``bytes``."""
+    return {"sha256": hashlib.sha256(content).hexdigest(), FRAME_FAST_ALGORITHM: bytes_xxh3(content),
+            "bytes": len(content)}
+
+
+def content_matches(content, rec: dict, cryptographic: bool = True) -> bool:
+    """Whether a frame file's bytes match its journal record: its SHA-256, or with ``cryptographic=False`` its
+    XXH3-128 where the record holds one (records written before it existed: the SHA-256)."""
+    fast = rec.get(FRAME_FAST_ALGORITHM)
+    if not cryptographic and isinstance(fast, str):
+        return bytes_xxh3(content) == fast
+    return hashlib.sha256(content).hexdigest() == rec.get("sha256")
 
 
 def pixels_sha256(pixels: np.ndarray) -> str:
@@ -206,6 +224,7 @@ class Session:
         self.path = Path(path)
         self._records: dict | None = None  # journal records, read when a frame is not under frames/
         self._checked_reads: dict | None = None  # full scale by camera once check_frames_on_read() is called
+        self._cryptographic_reads = False  # check_frames_on_read(): SHA-256 even where a fast checksum is recorded
 
     # ------------------------------------------------------------------ create / open
     @classmethod
@@ -381,8 +400,7 @@ class Session:
         with atomic_path(target) as tmp:
             tifffile.imwrite(tmp, frame, photometric="rgb" if frame.ndim == 3 else "minisblack",
                              description=json.dumps(record), metadata=None)
-        record["sha256"] = file_sha256(target)
-        record["bytes"] = target.stat().st_size
+        record.update(file_record_checksums(target.read_bytes()))
         self._append_line(self.journal_path, record)
         return record
 
@@ -426,11 +444,13 @@ class Session:
                                     f"exposure {exposure_index})")
         return decode_frame(p)
 
-    def check_frames_on_read(self) -> Session:
+    def check_frames_on_read(self, cryptographic: bool = False) -> Session:
         """From now on :meth:`read_frame` checks each frame as :func:`verify_session` with ``check_pixels`` does
-        (journal SHA-256, decoding, shape, full scale), from the bytes it decodes: a session read once, by the
-        stage that uses it, instead of once to check and once to use.  A failing frame raises
-        :class:`~omnispectral.errors.DamagedFrameError` naming it.  Returns the session."""
+        (the journal's checksum, decoding, shape, full scale), from the bytes it decodes: a session read once,
+        by the stage that uses it, instead of once to check and once to use.  The checksum is the fast
+        XXH3-128 where the journal holds one, unless ``cryptographic`` (:func:`content_matches`).  A failing
+        frame raises :class:`~omnispectral.errors.DamagedFrameError` naming it.  Returns the session."""
+        self._cryptographic_reads = cryptographic
         self._checked_reads = self.full_scale_dn()
         if self._records is None:
             self._records = read_journal(self.journal_path).records
@@ -438,7 +458,7 @@ class Session:
 
     def _read_checked(self, key: tuple[int, str, int]) -> tuple[np.ndarray, dict]:
         found, data, meta = _checked_frame(self, key, self._records.get(key), True, True,
-                                           self._checked_reads.get(key[1]))
+                                           self._checked_reads.get(key[1]), self._cryptographic_reads)
         if found is not None:
             _, file, problem = found
             raise DamagedFrameError(self.path / file if not Path(file).is_absolute() else Path(file), problem)
@@ -511,14 +531,17 @@ def referenced_problem(rec: dict, checksum: bool = True) -> str | None:
 
 
 def _frame_problem(s: Session, key: tuple[int, str, int], rec: dict | None, checksums: bool,
-                   check_pixels: bool, max_dn: int | None = None) -> tuple[str, str, str] | None:
+                   check_pixels: bool, max_dn: int | None = None,
+                   cryptographic: bool = True) -> tuple[str, str, str] | None:
     """``("missing" | "damaged", file, problem)`` of one planned frame against its journal line, or None
-    (``max_dn``: the camera's full scale, checked with ``check_pixels``)."""
-    return _checked_frame(s, key, rec, checksums, check_pixels, max_dn)[0]
+    (``max_dn``: the camera's full scale, checked with ``check_pixels``; ``cryptographic``:
+    :func:`content_matches`)."""
+    return _checked_frame(s, key, rec, checksums, check_pixels, max_dn, cryptographic)[0]
 
 
 def _checked_frame(s: Session, key: tuple[int, str, int], rec: dict | None, checksums: bool, check_pixels: bool,
-                   max_dn: int | None = None) -> tuple[tuple[str, str, str] | None, np.ndarray | None, dict | None]:
+                   max_dn: int | None = None, cryptographic: bool = True
+                   ) -> tuple[tuple[str, str, str] | None, np.ndarray | None, dict | None]:
     """:func:`_frame_problem` and, when ``check_pixels`` decoded it without a problem, the frame's pixels and
     record (else ``None``): every check from one read of the file."""
     rel = frame_relpath(*key)
@@ -544,7 +567,7 @@ def _checked_frame(s: Session, key: tuple[int, str, int], rec: dict | None, chec
     content = None
     if checksums or "bytes" not in rec:
         content = p.read_bytes()
-        if hashlib.sha256(content).hexdigest() != rec.get("sha256"):
+        if not content_matches(content, rec, cryptographic):
             return ("damaged", rel, "checksum mismatch (file changed or truncated)"), None, None
     if not check_pixels:
         return None, None, None
@@ -555,7 +578,7 @@ def _checked_frame(s: Session, key: tuple[int, str, int], rec: dict | None, chec
     if "shape" in rec and list(data.shape) != list(rec["shape"]):
         return ("damaged", rel, f"shape {list(data.shape)}, the journal recorded {rec['shape']}"), None, None
     checked = embedded
-    if content is not None:  # the file's SHA-256 matched the journal: its pixels need no second hash
+    if content is not None:  # the file's checksum matched the journal: its pixels need no second hash
         checked = {k: v for k, v in embedded.items() if k != "pixels_sha256"}
     problem = pixel_problem(data, checked, max_dn)
     if problem:
@@ -579,7 +602,7 @@ def sun_bracket_keys(session: Session, plan: Plan, records: dict, cameras: tuple
 
 
 def verify_session(path: str | Path, check_pixels: bool = False, checksums: bool = True,
-                   workers: int | None = None, sun_in_full: bool = False) -> dict:
+                   workers: int | None = None, sun_in_full: bool = False, cryptographic: bool = True) -> dict:
     """Completeness and integrity of a session against its plan; names every missing or damaged frame.
 
     Missing: no journal line, or a journalled file that no longer exists.  Damaged: a file whose size,
@@ -593,6 +616,8 @@ def verify_session(path: str | Path, check_pixels: bool = False, checksums: bool
     a fast check before processing, which decodes every frame anyway).  ``sun_in_full``: the sun brackets' frames
     get every check whatever ``checksums`` and ``check_pixels`` say (``process`` reads them only after the
     mosaic).  ``workers``: threads (default :func:`~omnispectral.threads.kernel_threads`).
+    ``cryptographic=False`` checks the fast XXH3-128 the journal records instead of the SHA-256
+    (:func:`content_matches`; ``process`` does, ``omnispectral check`` does not).
     """
     s = Session.open(path)
     plan = s.plan()
@@ -606,7 +631,7 @@ def verify_session(path: str | Path, check_pixels: bool = False, checksums: bool
     def check(key):
         full = sun_in_full and key[2] >= SUN_EXPOSURE_BASE
         return _frame_problem(s, key, j.records.get(key), checksums or full, check_pixels or full,
-                              full_scale.get(key[1]))
+                              full_scale.get(key[1]), cryptographic)
 
     missing, damaged = [], []
     # each frame is read once (hash and decode from the same bytes); SHA-256 and the decoder release the

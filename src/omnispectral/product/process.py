@@ -117,8 +117,9 @@ def _check_session(session_path: Path, skip_bad: bool, verify_checksums: bool,
     """Stage 1.  Returns the check's report, the directions with missing or damaged frames, and whether the
     frames' checksums and pixels are left to the reads that use them (:meth:`Session.check_frames_on_read`).
 
-    With ``verify_checksums`` every frame's SHA-256 is checked and its TIFF decoded, so a same-size corrupted or
-    undecodable frame counts as damaged.  Without ``skip_bad`` (and unless ``full``) this check happens as the
+    With ``verify_checksums`` every frame's checksum is checked (the fast XXH3-128 the journal records, else its
+    SHA-256: :func:`~omnispectral.capture.session.content_matches`) and its TIFF decoded, so a same-size corrupted
+    or undecodable frame counts as damaged.  Without ``skip_bad`` (and unless ``full``) this check happens as the
     merge reads each frame: the session is read once instead of twice (docs/benchmarks.md, Processing), and a
     damaged frame still stops the run before it is merged; here only the journal and the sizes are checked (and
     the sun brackets' few frames in full: they are read after the mosaic).
@@ -128,7 +129,7 @@ def _check_session(session_path: Path, skip_bad: bool, verify_checksums: bool,
     # the sun brackets' frames are read after the mosaic: checked in full now, so that a damaged one stops the run
     # before any work, as --skip-bad would need
     report = verify_session(session_path, check_pixels=verify_checksums and not on_read,
-                            checksums=verify_checksums and not on_read, sun_in_full=on_read)
+                            checksums=verify_checksums and not on_read, sun_in_full=on_read, cryptographic=False)
     if on_read and (report["missing"] or report["damaged"] or report["journal_bad_lines"]):
         return _check_session(session_path, skip_bad, verify_checksums, full=True)  # name every problem
     bad = bad_directions(report)

@@ -15,10 +15,11 @@ from omnispectral.imaging.parallax import (
     epipolar_field,
     fill_blocks,
     fill_from_neighbours,
+    level_ground_prior,
     shifted_positions,
 )
 from omnispectral.imaging.similarity import LocalLinearScore
-from omnispectral.product.direction_parallax import parallax_direction
+from omnispectral.product.direction_parallax import parallax_direction, rays_below_horizon
 from omnispectral.product.pairgeometry import adjusted_model, baseline_m, predict_b_px
 from omnispectral.product.rigfile import RigCalibration
 from omnispectral.product.rigfit import fit_b_mounting
@@ -591,6 +592,49 @@ def test_an_unmeasured_block_takes_one_neighbours_surface_not_a_blend():
     ground = np.full((6, 8), 0.4)
     assert fill_blocks(bp, ground)[5, 0] == pytest.approx(0.4)  # ... or the ground plane where known
     assert fill_blocks(bp, ground)[1, 3] == filled[1, 3]         # a measured neighbour beats the ground
+
+
+def test_the_ground_below_the_head_is_fitted_to_the_blocks_that_measure_it():
+    """Ten blocks on a level ground 1.5 m below the head (w = sin δ / 1.5), four on a post nearer along their
+    rays, one far block above the horizon: the fitted ground is the plane within 5 %, 0 above the horizon;
+    with four measured blocks looking down there is no fit."""
+    rng = np.random.default_rng(3)
+    down = np.linspace(-0.3, 0.9, 6 * 8).reshape(6, 8)      # sine of each block's ray below the horizon
+    w = np.zeros((6, 8))
+    measured = np.zeros((6, 8), bool)
+    ground = [(3, 1), (3, 5), (4, 0), (4, 2), (4, 6), (5, 1), (5, 3), (5, 4), (5, 7), (4, 4)]
+    for r, c in ground:
+        w[r, c], measured[r, c] = down[r, c] / 1.5 * (1 + 0.02 * rng.standard_normal()), True
+    for r, c in [(3, 2), (3, 3), (4, 1), (4, 3)]:            # a post 0.8 m away along these rays
+        w[r, c], measured[r, c] = 1 / 0.8, True
+    w[0, 2], measured[0, 2] = 0.0, True                      # far, above the horizon
+    bp = BlockParallax(np.arange(6) * 16.0, np.arange(8) * 16.0, w.astype(np.float32), measured, measured * 0.8,
+                       np.zeros((6, 8)))
+    prior = level_ground_prior(bp, down)
+    below = down > 0
+    np.testing.assert_allclose(prior[below], down[below] / 1.5, rtol=0.05)
+    assert (prior[~below] == 0).all()
+    few = BlockParallax(bp.y_px, bp.x_px, bp.inv_depth_per_m, measured & (np.arange(8) < 2)[None, :] & below,
+                        bp.confidence, bp.perpendicular_px)
+    assert few.measured.sum() == 4 and level_ground_prior(few, down) is None
+
+
+def test_a_uniform_ground_between_shadow_edges_keeps_the_grounds_depth():
+    """Looking down at the sunlit ground and the plate's shadow (12:00, pan 45, tilt -60): most of it is uniform,
+    and without a ground prior its blocks fell back to infinity (B's shadow edges 4-6 px from A's; median
+    4.4 px).  With the ground fitted to the direction's own measured blocks the parallax stays within a pixel."""
+    scene = ProceduralOutdoorScene("12:00")
+    pan, tilt = 45.0, -60.0
+    img_a, img_b, r = _direction_images(scene, pan, tilt)
+    ma, mb = r.models["A"], r.models["B"]
+    par = parallax_direction(img_a, img_b, ma, mb, pan, tilt).parallax
+    true_w, _ = _true_inverse_depth(scene, ma, pan, tilt)
+    v, u = np.mgrid[0:ma.height, 0:ma.width]
+    looking_down = rays_below_horizon(ma, pan, tilt)(np.stack([u, v], axis=-1).astype(np.float64)) > 0.1
+    e = np.linalg.norm(epipolar_field(ma, baseline_m(mb)), axis=-1)
+    err_px = np.abs(par.inv_depth_per_m - true_w)[looking_down] * e[looking_down]
+    assert looking_down.mean() > 0.9 and np.percentile(true_w[looking_down] * e[looking_down], 50) > 4
+    assert np.median(err_px) < 0.5 and np.percentile(err_px, 90) < 1.5
 
 
 def test_upsampled_depth_follows_a_silhouette_at_full_resolution():

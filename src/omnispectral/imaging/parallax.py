@@ -17,8 +17,8 @@ at every pixel:
    each reliable block's disparity is projected on the epipolar direction (the perpendicular part,
    which no depth explains, must be small: otherwise the block is rejected): :func:`block_parallax`;
 2. blocks without a reliable measurement take the inverse depth of reliable neighbours (the median
-   over 5 × 5 blocks), else of the ground plane when one is known (rays below the horizon), else 0
-   (sky): :func:`fill_blocks`;
+   over 5 × 5 blocks), else of the ground plane (rays below the horizon: its height given, or fitted to the
+   direction's measured blocks that look down, :func:`level_ground_prior`), else 0 (sky): :func:`fill_blocks`;
 3. every pixel sweeps the inverse depths spanned by its 5 × 5 neighbouring blocks (every 0.25 px of
    parallax) and keeps the one whose warped-B neighbourhood matches A best
    (:class:`~omnispectral.imaging.similarity.LocalLinearScore`: how well B's channels are a linear
@@ -53,14 +53,16 @@ from omnispectral.imaging.geometry import CameraModel
 from omnispectral.imaging.registration import as_gray
 from omnispectral.imaging.similarity import NCC_WINDOW_PX, LocalLinearScore, as_channels, local_ncc
 
-__all__ = ["COLOUR_MISFIT_MIN", "DEPTH_STEP_PX", "MAX_PERPENDICULAR_PX", "MIN_ALONG_WEIGHT", "MIN_BLOCK_SEEN",
+__all__ = ["COLOUR_MISFIT_MIN", "DEPTH_STEP_PX", "GROUND_HEIGHT_PERCENTILE", "GROUND_MIN_BLOCKS",
+           "GROUND_MIN_DEPRESSION_DEG", "MAX_PERPENDICULAR_PX", "MIN_ALONG_WEIGHT", "MIN_BLOCK_SEEN",
            "NEAREST_OBJECT_M", "OCCLUSION_HIDDEN", "OCCLUSION_OTHER_SURFACE", "OCCLUSION_TOL_PX",
            "OTHER_SURFACE_MISFIT", "OTHER_SURFACE_RADIUS", "PARALLAX_ANALYSIS_PX", "PARALLAX_MIN_CONFIDENCE",
            "SAME_SURFACE_COLOUR", "SWEEP_MARGIN_STEPS", "SWEEP_MAX_LEVELS", "SWEEP_MIN_NCC", "SWEEP_RANGE_BLOCKS",
            "SWEEP_STEP_PX", "SWEEP_ZERO_MARGIN", "UPSAMPLE_DISTANCE_COST", "BlockParallax", "Parallax",
            "block_parallax", "colour_map_a_to_b", "could_be_shadowed", "epipolar_field", "fill_blocks",
-           "fill_from_neighbours", "moved_by_parallax", "neighbourhood_stack", "parallax_map", "sees_another_surface",
-           "settle_by_colour", "shifted_positions", "sweep_inverse_depth", "upsampled_by_colour"]
+           "fill_from_neighbours", "level_ground_prior", "moved_by_parallax", "neighbourhood_stack", "parallax_map",
+           "sees_another_surface", "settle_by_colour", "shifted_positions", "sweep_inverse_depth",
+           "upsampled_by_colour"]
 
 #: A block measures parallax when its structure measures shifts along the epipolar line at least this
 #: well (``eᵀJe / |e|²`` with the normalised structure tensor J: 0 for an edge parallel to the line).
@@ -113,6 +115,12 @@ OCCLUSION_OTHER_SURFACE = 2.0
 #: and the cost per binned cell of distance added to the colour distance (ties go to the nearest cell).
 DEPTH_STEP_PX = 0.5
 UPSAMPLE_DISTANCE_COST = 0.02
+#: :func:`level_ground_prior`: blocks looking at least this far below the horizon (degrees) tell the ground's
+#: depth below the head; at least this many measured ones are needed; the percentile of their heights taken
+#: (objects standing on the ground are nearer than it along the same ray: their heights fall below the ground's).
+GROUND_MIN_DEPRESSION_DEG = 5.0
+GROUND_MIN_BLOCKS = 5
+GROUND_HEIGHT_PERCENTILE = 75.0
 #: Inverse depth change (1/m) used for the finite difference of the epipolar field.
 _DW_PER_M = 0.01
 #: The eight neighbours of a pixel (row and column steps).
@@ -328,6 +336,37 @@ def fill_blocks(bp: BlockParallax, ground_inv_depth: np.ndarray | None = None, r
     # nothing is beyond infinity: a negative inverse depth is measurement noise (or the rig model's residual,
     # which the per-direction offset at infinity takes up)
     return np.maximum(np.nan_to_num(out, nan=0.0), 0.0).astype(np.float32)
+
+
+def level_ground_prior(bp: BlockParallax, down: np.ndarray) -> np.ndarray | None:
+    """Step 2's ground plane when its height is not known: fitted to the direction's own measured blocks.
+
+    A level ground ``h`` below the head is seen along a ray that points ``sin δ = down`` below the horizon
+    at inverse depth ``w = down / h``; each measured block below the horizon gives ``h = down / w``.  Things
+    standing on the ground (posts, walls, the chart) are nearer along their rays, so their heights fall
+    short of the ground's: the :data:`GROUND_HEIGHT_PERCENTILE` th percentile is taken.  Without a ground
+    prior a uniform stretch of ground between two edges (a shadow on a plate 2.5 m away, 29 px of parallax at
+    full scale) keeps infinity, and B's edge lands that far from A's.
+
+    Parameters
+    ----------
+    bp
+        The block measurements.
+    down
+        ``(ny, nx)`` sine of each block centre's ray below the horizon (``≤ 0`` above it).
+
+    Returns
+    -------
+    numpy.ndarray or None
+        ``(ny, nx)`` float32 inverse depth (1/m) of the fitted ground (0 above the horizon), or ``None`` when
+        fewer than :data:`GROUND_MIN_BLOCKS` measured blocks look down.
+    """
+    down = np.asarray(down, np.float64)
+    use = bp.measured & (down >= np.sin(np.radians(GROUND_MIN_DEPRESSION_DEG))) & (bp.inv_depth_per_m > 0)
+    if use.sum() < GROUND_MIN_BLOCKS:
+        return None
+    height_m = float(np.percentile(down[use] / bp.inv_depth_per_m[use], GROUND_HEIGHT_PERCENTILE))
+    return (np.maximum(down, 0.0) / height_m).astype(np.float32)
 
 
 def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blocks: np.ndarray,
@@ -974,7 +1013,7 @@ class Parallax:
 def parallax_map(image_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, model_a: CameraModel,
                  baseline_m: np.ndarray, field: np.ndarray, *, block: int | None = None,
                  ground_inv_depth=None, min_confidence: float = PARALLAX_MIN_CONFIDENCE,
-                 target_px: int = PARALLAX_ANALYSIS_PX) -> Parallax:
+                 target_px: int = PARALLAX_ANALYSIS_PX, ground_down=None) -> Parallax:
     """Steps 1-4 of the module docstring for one direction.
 
     Images larger than about ``target_px`` are analysed binned (inverse depth does not depend on the pixel
@@ -1003,6 +1042,10 @@ def parallax_map(image_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, mo
         Smallest POC peak height of a block measurement.
     target_px
         Long side (px) of the analysis grid.
+    ground_down
+        Optional callable ``ground_down(pixels)``: the sine of the angle below the horizon of A's rays at
+        ``pixels`` ``(..., 2)``.  Without ``ground_inv_depth``, a level ground of unknown height is then fitted
+        to the measured blocks (:func:`level_ground_prior`).
 
     Returns
     -------
@@ -1013,14 +1056,17 @@ def parallax_map(image_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, mo
         h, w = image_a.shape[:2]
         small_field = bin_image(field, f) / f
         small_seen = bin_image(seen.astype(np.float32), f) > 0.999
-        ground_small = None
+        ground_small = down_small = None
         if ground_inv_depth is not None:
             def ground_small(pixels):
                 return ground_inv_depth(binned_to_full_px(pixels, f))
+        if ground_down is not None:
+            def down_small(pixels):
+                return ground_down(binned_to_full_px(pixels, f))
         binned_a = bin_image(image_a, f)
         low = parallax_map(binned_a, bin_image(warped_b, f), small_seen, model_a, baseline_m,
                            small_field, block=block, ground_inv_depth=ground_small,
-                           min_confidence=min_confidence, target_px=10**9)
+                           min_confidence=min_confidence, target_px=10**9, ground_down=down_small)
         inv_depth, confidence, other = upsampled_by_colour(
             image_a, binned_a, low.inv_depth_per_m, small_field, f, [low.inv_depth_per_m, low.confidence,
                                                                      low.other_surface])
@@ -1031,9 +1077,11 @@ def parallax_map(image_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, mo
     bp = block_parallax(gray_a, gray_b, seen, field, block=block, min_confidence=min_confidence)
     ga, gb = as_channels(image_a), as_channels(warped_b)
     ground = None
+    gy, gx = np.meshgrid(bp.y_px, bp.x_px, indexing="ij")
     if ground_inv_depth is not None:
-        gy, gx = np.meshgrid(bp.y_px, bp.x_px, indexing="ij")
         ground = ground_inv_depth(np.stack([gx, gy], axis=-1))
+    elif ground_down is not None:
+        ground = level_ground_prior(bp, ground_down(np.stack([gx, gy], axis=-1)))
     wb = fill_blocks(bp, ground)
     inv_depth, confidence = sweep_inverse_depth(ga, gb, field, wb, bp.measured, bp.y_px, bp.x_px)
     inv_depth = np.maximum(inv_depth, 0.0)

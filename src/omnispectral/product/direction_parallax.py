@@ -71,6 +71,18 @@ def ground_inverse_depth(model_a: CameraModel, pan_deg: float, tilt_deg: float, 
     return inv_depth
 
 
+def rays_below_horizon(model_a: CameraModel, pan_deg: float, tilt_deg: float):
+    """``f(pixels) →`` the sine of the angle below the horizon of A's rays at ``pixels`` ``(..., 2)`` (negative
+    above it): what a level ground's inverse depth is proportional to
+    (:func:`omnispectral.imaging.parallax.level_ground_prior`)."""
+
+    def down(pixels):
+        rays, _ = model_a.pixel_to_world(pixels, pan_deg, tilt_deg)
+        return np.nan_to_num(-rays[..., 1]).astype(np.float64)
+
+    return down
+
+
 #: Pixels whose parallax is below this (px) take part in the per-direction offset at infinity.
 FAR_PARALLAX_PX = 0.25
 #: The per-direction offset at infinity is applied only when the rig model states no uncertainty at
@@ -240,7 +252,8 @@ def parallax_direction(image_a: np.ndarray, image_b: np.ndarray, model_a: Camera
     c = baseline_m(model_b)
     ground = ground_inverse_depth(model_a, pan_deg, tilt_deg, ground_height_m)
     warped, seen = warp_b_onto_a(image_b, maps)
-    first = parallax_map(image_a, warped, seen, model_a, c, field, ground_inv_depth=ground)
+    first = parallax_map(image_a, warped, seen, model_a, c, field, ground_inv_depth=ground,
+                         ground_down=None if ground is not None else rays_below_horizon(model_a, pan_deg, tilt_deg))
     far = seen & (np.abs(first.inv_depth_per_m) * np.hypot(field[..., 0], field[..., 1]) < FAR_PARALLAX_PX)
     d, conf = far_offset(image_a, warped, far, max_offset_px=MAX_FAR_OFFSET_DEG * model_a.width / model_a.hfov_deg)
     deg_per_px = model_a.hfov_deg / model_a.width * analysis_factor(model_a.width, model_a.height,

@@ -637,6 +637,23 @@ def test_a_uniform_ground_between_shadow_edges_keeps_the_grounds_depth():
     assert np.median(err_px) < 0.5 and np.percentile(err_px, 90) < 1.5
 
 
+def test_moved_samples_at_more_pixels_than_opencv_maps_hold():
+    """The colour settling samples B at its unsure pixels: more than 32767 of them (a large uniform sky on
+    the analysis grid) must give what moving the whole image gives, not OpenCV's map-size assertion."""
+    from omnispectral.imaging.parallax import _sample_moved, moved_by_parallax
+
+    rng = np.random.default_rng(0)
+    image = rng.random((300, 200, 3)).astype(np.float32)
+    field = np.zeros((300, 200, 2), np.float32)
+    field[..., 0], field[..., 1] = 5.0, 1.0
+    inv_depth = rng.random((300, 200)).astype(np.float32)
+    ys, xs = np.nonzero(np.ones((300, 200), bool))
+    whole = moved_by_parallax(image, field, inv_depth)
+    for n in (60000, 4097, 1, 0):
+        np.testing.assert_array_equal(_sample_moved(image, field, ys[:n], xs[:n], inv_depth[ys[:n], xs[:n]]),
+                                      whole[ys[:n], xs[:n]])
+
+
 def test_upsampled_depth_follows_a_silhouette_at_full_resolution():
     """A far building's roof line against the sky, analysed on a 4 × 4 binned grid: nearest upsampling gives
     the binned grid's staircase (pixels of the building with the sky's depth and back); choosing among the

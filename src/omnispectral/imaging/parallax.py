@@ -121,6 +121,8 @@ UPSAMPLE_DISTANCE_COST = 0.02
 GROUND_MIN_DEPRESSION_DEG = 5.0
 GROUND_MIN_BLOCKS = 5
 GROUND_HEIGHT_PERCENTILE = 75.0
+#: Longest row of positions handed to ``cv2.remap`` at once (its maps must be narrower than 32767).
+_REMAP_ROW = 4096
 #: Inverse depth change (1/m) used for the finite difference of the epipolar field.
 _DW_PER_M = 0.01
 #: The eight neighbours of a pixel (row and column steps).
@@ -874,11 +876,18 @@ def sees_another_surface(ga_raw: np.ndarray, gb_raw: np.ndarray, field: np.ndarr
 
 def _sample_moved(image: np.ndarray, field: np.ndarray, ys: np.ndarray, xs: np.ndarray,
                   inv_depth: np.ndarray) -> np.ndarray:
-    """:func:`moved_by_parallax` at the pixels ``(ys, xs)`` only, ``(n, C)``."""
+    """:func:`moved_by_parallax` at the pixels ``(ys, xs)`` only, ``(n, C)``.  The positions go to OpenCV as
+    rows of :data:`_REMAP_ROW` (its maps hold fewer than 32767 columns), the last one padded."""
     mx, my = _parallax_positions(xs.astype(np.float32), ys.astype(np.float32), field[ys, xs],
                                  inv_depth.astype(np.float32))
-    out = cv2.remap(image, mx[None], my[None], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(xs.size, image.shape[-1])
+    n = xs.size
+    rows = max(1, -(-n // _REMAP_ROW))
+    width = min(n, _REMAP_ROW) if n else 1
+    pad = rows * width - n
+    mx = np.concatenate([mx.ravel(), np.zeros(pad, np.float32)]).reshape(rows, width)
+    my = np.concatenate([my.ravel(), np.zeros(pad, np.float32)]).reshape(rows, width)
+    out = cv2.remap(image, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(rows * width, -1)[:n].reshape(n, image.shape[-1])
 
 
 def _add_peak(top1: np.ndarray, top2: np.ndarray, peak: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

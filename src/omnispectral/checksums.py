@@ -7,7 +7,7 @@ detects every burst of damage up to 32 bits and any other damage with probabilit
 against deliberate tampering (the frames' SHA-256 is, :mod:`omnispectral.capture`).
 
 Raw frames carry two checksums in their journal records: the SHA-256 (``sha256``: what a product's fingerprint
-names and ``omnispectral check`` verifies, a defence against deliberate change too) and XXH3-128 (``xxh3_128``,
+names and ``omnispectral session verify`` checks, a defence against deliberate change too) and XXH3-128 (``xxh3_128``,
 :func:`bytes_xxh3`, the ``xxhash`` package that Dask's hashing also uses), which ``process`` verifies when it
 reads a frame: 9.8 GB/s against SHA-256's 1.1 GB/s on an Intel Xeon core with SHA extensions (64 MiB, warm), so a
 full-scale session's 14.5 GiB of frames costs 1.6 CPU-s instead of 13.  A 128-bit hash misses accidental damage
@@ -34,7 +34,7 @@ import xxhash
 from omnispectral.errors import InputFileError
 
 __all__ = ["ALGORITHM", "BLOCK_BYTES", "FRAME_FAST_ALGORITHM", "bytes_xxh3", "checksum_problem", "file_checksum",
-           "file_crc32", "file_sha256", "file_xxh3", "forget_verified", "remembered_problem", "verified"]
+           "file_crc32", "file_sha256", "forget_verified", "remembered_problem", "verified"]
 
 #: The name of the checksum in every record.
 ALGORITHM = "crc32"
@@ -72,14 +72,6 @@ def file_sha256(path: str | Path) -> str:
 def bytes_xxh3(content) -> str:
     """XXH3-128 (hex, 32 digits) of bytes or any buffer: a raw frame's ``xxh3_128`` (module docstring)."""
     return xxhash.xxh3_128(content).hexdigest()
-
-
-def file_xxh3(path: str | Path) -> str:
-    """XXH3-128 (hex) of a file's bytes (:func:`bytes_xxh3`)."""
-    h = xxhash.xxh3_128()
-    for block in _blocks(path):
-        h.update(block)
-    return h.hexdigest()
 
 
 def file_checksum(path: str | Path) -> dict:

@@ -617,7 +617,7 @@ def verify_session(path: str | Path, check_pixels: bool = False, checksums: bool
     get every check whatever ``checksums`` and ``check_pixels`` say (``process`` reads them only after the
     mosaic).  ``workers``: threads (default :func:`~omnispectral.threads.kernel_threads`).
     ``cryptographic=False`` checks the fast XXH3-128 the journal records instead of the SHA-256
-    (:func:`content_matches`; ``process`` does, ``omnispectral check`` does not).
+    (:func:`content_matches`; ``process`` does, ``session verify`` does not).
     """
     s = Session.open(path)
     plan = s.plan()

@@ -1063,10 +1063,8 @@ def parallax_map(image_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, mo
     zero_margin
         The sweep's margin (:func:`sweep_inverse_depth`) at full resolution; an analysis binned ``f`` times
         uses ``zero_margin / f``.  Binning averages an edge's shift away: a building 20 m off (3.6 px of
-        parallax at full scale, 0.9 px on the 4×-binned grid) matched its true depth better than infinity
-        by 0.025 in the median there, under the full-resolution margin, and kept infinity (B's roof lines
-        and corners 3–4 px from A's).  With ``0.03 / 4`` the full-scale session's six-band PSNR rose from
-        56.36 to 57.51 dB and its depth-edge band NRMSE fell from 0.227 to 0.196 (docs/benchmarks.md).
+        parallax at full scale, 0.9 px on the 4×-binned grid) matches its true depth better than infinity
+        by only 0.025 in the median there, under the full-resolution margin (docs/benchmarks.md, Processing).
 
     Returns
     -------

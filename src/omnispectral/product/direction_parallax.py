@@ -41,7 +41,19 @@ from omnispectral.product.pairgeometry import (
 
 __all__ = ["FAR_OFFSET_MIN_STD_PX", "FAR_PARALLAX_PX", "MAX_FAR_OFFSET_DEG", "OFF_MODEL_MIN_BLOCKS",
            "OFF_MODEL_WARNING_DEG", "DirectionParallax", "far_offset", "ground_inverse_depth", "off_model_warnings",
-           "parallax_direction"]
+           "parallax_direction", "rays_below_horizon"]
+
+
+def rays_below_horizon(model_a: CameraModel, pan_deg: float, tilt_deg: float):
+    """``f(pixels) →`` the sine of the angle below the horizon of A's rays at ``pixels`` ``(..., 2)`` (negative
+    above it): what a level ground's inverse depth is proportional to
+    (:func:`omnispectral.imaging.parallax.level_ground_prior`)."""
+
+    def down(pixels):
+        rays, _ = model_a.pixel_to_world(pixels, pan_deg, tilt_deg)
+        return np.nan_to_num(-rays[..., 1]).astype(np.float64)
+
+    return down
 
 
 def ground_inverse_depth(model_a: CameraModel, pan_deg: float, tilt_deg: float, height_m: float | None):
@@ -63,24 +75,12 @@ def ground_inverse_depth(model_a: CameraModel, pan_deg: float, tilt_deg: float, 
     """
     if not height_m:
         return None
+    down = rays_below_horizon(model_a, pan_deg, tilt_deg)
 
     def inv_depth(pixels):
-        rays, _ = model_a.pixel_to_world(pixels, pan_deg, tilt_deg)
-        return np.nan_to_num(np.maximum(-rays[..., 1], 0.0) / height_m).astype(np.float32)
+        return (np.maximum(down(pixels), 0.0) / height_m).astype(np.float32)
 
     return inv_depth
-
-
-def rays_below_horizon(model_a: CameraModel, pan_deg: float, tilt_deg: float):
-    """``f(pixels) →`` the sine of the angle below the horizon of A's rays at ``pixels`` ``(..., 2)`` (negative
-    above it): what a level ground's inverse depth is proportional to
-    (:func:`omnispectral.imaging.parallax.level_ground_prior`)."""
-
-    def down(pixels):
-        rays, _ = model_a.pixel_to_world(pixels, pan_deg, tilt_deg)
-        return np.nan_to_num(-rays[..., 1]).astype(np.float64)
-
-    return down
 
 
 #: Pixels whose parallax is below this (px) take part in the per-direction offset at infinity.

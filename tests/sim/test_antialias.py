@@ -50,6 +50,12 @@ def test_pixels_to_refine_marks_disagreeing_rays_only():
     assert pixels_to_refine(np.concatenate([flat, slight, step, dark_edge])).tolist() == [False, False, True, True]
     grown = with_neighbours(np.eye(1, 25, 12, dtype=bool)[0], 5, 5).reshape(5, 5)
     assert grown.sum() == 9 and grown[1:4, 1:4].all()
+    at_seam = np.zeros((5, 5), bool)
+    at_seam[2, 0] = True
+    plain = with_neighbours(at_seam.ravel(), 5, 5).reshape(5, 5)
+    wrapped = with_neighbours(at_seam.ravel(), 5, 5, wrap_columns=True).reshape(5, 5)
+    assert plain.sum() == 6 and not plain[:, 4].any()
+    assert wrapped.sum() == 9 and wrapped[1:4, 4].all() and wrapped[1:4, :2].all()
 
 
 @pytest.fixture(scope="module")

@@ -56,14 +56,18 @@ def pixels_to_refine(samples: np.ndarray, relative_range: float = REFINE_RELATIV
     return (spread > relative_range * mean).any(axis=1)
 
 
-def with_neighbours(marked: np.ndarray, height: int, width: int) -> np.ndarray:
+def with_neighbours(marked: np.ndarray, height: int, width: int, wrap_columns: bool = False) -> np.ndarray:
     """``(P,)`` bool: the ``marked (P,)`` pixels of a ``height × width`` image and their 8 neighbours.
 
     An edge can cross a pixel's corner between its first rays and leave them all on one side; the rays of a
-    neighbour it also crosses see it, so the neighbours of a refined pixel are refined too.
+    neighbour it also crosses see it, so the neighbours of a refined pixel are refined too.  ``wrap_columns``:
+    the first and last columns are neighbours (an equirectangular image's longitude).
     """
-    grown = ndimage.binary_dilation(marked.reshape(height, width), structure=np.ones((3, 3), bool))
-    return grown.ravel()
+    grid = marked.reshape(height, width)
+    if wrap_columns:
+        grid = np.pad(grid, ((0, 0), (1, 1)), mode="wrap")
+    grown = ndimage.binary_dilation(grid, structure=np.ones((3, 3), bool))
+    return (grown[:, 1:-1] if wrap_columns else grown).ravel()
 
 
 def refined_mean(render, positions: np.ndarray, per_side: int) -> np.ndarray:

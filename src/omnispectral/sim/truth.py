@@ -271,7 +271,7 @@ def _refine_equirect(means: np.ndarray, samples: np.ndarray, fn, row0: int, n_ro
     n = REFINE_RAYS_PER_SIDE
     if n <= s:
         return
-    idx = np.flatnonzero(with_neighbours(pixels_to_refine(samples), n_rows, w))
+    idx = np.flatnonzero(with_neighbours(pixels_to_refine(samples), n_rows, w, wrap_columns=True))
     if idx.size == 0:
         return
     rows, cols = np.divmod(idx, w)

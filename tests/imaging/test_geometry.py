@@ -389,3 +389,27 @@ def test_compiled_undistortion_is_the_array_iterations_point_by_point(name, monk
     for c, a in zip(compiled, array, strict=True):
         assert np.array_equal(c, a, equal_nan=True)
     assert array[2].any() and not array[2].all()  # both converged and stalled points were compared
+
+
+@pytest.mark.parametrize("name", ["real-calibration", "real-rational", "strong-barrel", "wide-rational",
+                                  "thin-prism-tilted"])
+def test_compiled_projection_is_the_array_projection(name, monkeypatch):
+    """The compiled projection (distortion_kernel.compiled_project) gives the array version's pixels and validity
+    bit for bit: inside and outside the image, behind the camera, beyond the monotonic radius, non-finite rays,
+    with and without the image test."""
+    from omnispectral.imaging import geometry
+
+    cam = CAMERAS.get(name) or CameraModel(**REAL_RATIONAL)
+    rng = np.random.default_rng(11)
+    odd = [[0.0, 0.0, 0.0], [np.nan, 0.0, 1.0], [np.inf, 1.0, 1.0], [5.0, 5.0, 1.0], [0.0, 0.0, -1.0]]
+    rays = np.concatenate([rng.normal(size=(5999, 3)) * [0.8, 0.6, 1.0] + [0.0, 0.0, 0.7], odd])
+    rays = rays.reshape(2, -1, 3)
+    for margin in (0.0, 3.5, None):
+        compiled = cam.project(rays, margin_px=margin)
+        monkeypatch.setattr(geometry, "_COMPILED_PROJECT_MIN", 10**12)
+        array = cam.project(rays, margin_px=margin)
+        monkeypatch.undo()
+        assert compiled[0].shape == array[0].shape == (2, 3002, 2) and compiled[1].shape == (2, 3002)
+        assert np.array_equal(compiled[0], array[0], equal_nan=True)
+        assert np.array_equal(compiled[1], array[1])
+        assert array[1].any() and not array[1].all()

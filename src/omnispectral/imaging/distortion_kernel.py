@@ -1,4 +1,5 @@
-"""Compiled inversion of the lens distortion (Numba): the Newton iterations of one point at a time.
+"""Compiled lens distortion (Numba): its inversion by Newton iterations and the forward projection, one point
+at a time.
 
 :meth:`omnispectral.imaging.geometry.CameraModel.undistort_normalized` runs damped Newton iterations on
 whole arrays, taking the converged points out after every step; the fancy indexing that costs dominates
@@ -6,8 +7,12 @@ when a map of every pixel of a sensor is inverted (2.2 Mpx at full scale: ~4 s).
 the same iterations point by point (start inside the monotonic region, full Newton step, halved while it
 leaves the region or does not lower the residual, stop below the tolerance or when no step helps), with
 the same float64 operations in the same order, so the results are the array version's (tested against
-it).  Numba is imported on first use; ``compiled_undistort()`` returns ``None`` without it and the
-caller then runs the array version.  The kernel releases the GIL and starts no threads.
+it).  :meth:`~omnispectral.imaging.geometry.CameraModel.project` (rays to pixels, the mosaic's exact maps and
+camera B's per-pixel parallax) evaluates about thirty array operations, each a pass over memory with its
+own temporary; ``compiled_project`` does them in one pass per point, the same float64 operations in the
+same order (the same bits; tested against the array version).  Numba is imported on first use;
+``compiled_undistort()`` and ``compiled_project()`` return ``None`` without it and the callers then run the
+array versions.  The kernels release the GIL and start no threads.
 
 References
 ----------
@@ -23,7 +28,7 @@ import numpy as np
 
 from omnispectral.compiled import built_on_first_use
 
-__all__ = ["compiled_undistort", "distortion", "distortion_jacobian"]
+__all__ = ["compiled_project", "compiled_undistort", "distortion", "distortion_jacobian"]
 
 def distortion(x, y, d):
     """OpenCV's distortion (radial rational, tangential, thin prism; before the tilt) of normalised ``x, y``.
@@ -136,3 +141,45 @@ def compiled_undistort(numba):
             x_out[i], y_out[i], resid_out[i] = xa, ya, err
 
     return undistort
+
+
+@built_on_first_use
+def compiled_project(numba):
+    """``project(p, d, tilt, has_tilt, intrinsics, r_max2, window, uv, valid)`` compiled, or ``None`` without Numba.
+
+    ``p``: ``(N, 3)`` float64 camera-frame points or rays; ``d``: the 14 distortion coefficients in OpenCV's
+    order; ``tilt``: the ``(3, 3)`` tilted-sensor homography (used when ``has_tilt``); ``intrinsics``:
+    ``(fx, fy, cx, cy)``; ``r_max2``: the squared radius of the monotonic region; ``window``: ``(u_lo, u_hi,
+    v_lo, v_hi)`` of the image test (NaN bounds: no test).  Writes the pixels (NaN where not valid) into
+    ``uv (N, 2)`` and the validity into ``valid (N,)``, as :meth:`~omnispectral.imaging.geometry.CameraModel.project`
+    defines them.
+    """
+    global distort_project_nb
+
+    distort_project_nb = numba.njit(nogil=True, cache=True, error_model="numpy", inline="always")(distortion)
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy")
+    def project(p, d, tilt, has_tilt, intrinsics, r_max2, window, uv, valid):  # pragma: no cover - compiled
+        fx, fy, cx, cy = intrinsics[0], intrinsics[1], intrinsics[2], intrinsics[3]
+        u_lo, u_hi, v_lo, v_hi = window[0], window[1], window[2], window[3]
+        test_window = not np.isnan(u_lo)
+        for i in range(p.shape[0]):
+            z = p[i, 2]
+            x = p[i, 0] / z
+            y = p[i, 1] / z
+            ok = (z > 0.0) and (x * x + y * y < r_max2)
+            xd, yd, _, _, _, _ = distort_project_nb(x, y, d)
+            if has_tilt:
+                w = tilt[2, 0] * xd + tilt[2, 1] * yd + tilt[2, 2]
+                xd, yd = (tilt[0, 0] * xd + tilt[0, 1] * yd + tilt[0, 2]) / w, \
+                    (tilt[1, 0] * xd + tilt[1, 1] * yd + tilt[1, 2]) / w
+                ok = ok and w > 0.0
+            u = fx * xd + cx
+            v = fy * yd + cy
+            if test_window:
+                ok = ok and (u >= u_lo) and (u <= u_hi) and (v >= v_lo) and (v <= v_hi)
+            valid[i] = ok
+            uv[i, 0] = u if ok else np.nan
+            uv[i, 1] = v if ok else np.nan
+
+    return project

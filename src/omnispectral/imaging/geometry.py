@@ -68,7 +68,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from omnispectral.errors import ConfigurationError, InputFileError
-from omnispectral.imaging.distortion_kernel import compiled_undistort, distortion, distortion_jacobian
+from omnispectral.imaging.distortion_kernel import compiled_project, compiled_undistort, distortion, distortion_jacobian
 from omnispectral.io import atomic_write_json, read_text_file
 
 __all__ = ["DIST_LENGTHS", "DIST_NAMES", "HEAD_TO_WORLD_AT_ZERO", "JSON_FORMAT", "JSON_VERSION",
@@ -92,6 +92,8 @@ _UNDISTORT_MAX_ITER = 60
 #: Fewest points for which :meth:`CameraModel.undistort_normalized` runs the compiled iterations (below, the
 #: array version: no compilation or cache load for a handful of points).
 _COMPILED_UNDISTORT_MIN = 4096
+#: Fewest points for which :meth:`CameraModel.project` runs the compiled kernel (likewise).
+_COMPILED_PROJECT_MIN = 4096
 
 JSON_FORMAT = "omnispectral.camera"
 JSON_VERSION = 1
@@ -595,6 +597,9 @@ class CameraModel:
         p = _f64(rays_cam)
         if p.shape[-1] != 3:
             raise ConfigurationError(f"rays must have shape (..., 3), got {p.shape}")
+        kernel = compiled_project() if p.size >= 3 * _COMPILED_PROJECT_MIN else None
+        if kernel is not None:
+            return self._project_compiled(kernel, p, margin_px)
         z = p[..., 2]
         with np.errstate(divide="ignore", invalid="ignore"):
             x = p[..., 0] / z
@@ -611,6 +616,21 @@ class CameraModel:
         uv = np.stack((u, v), axis=-1)
         uv[~valid] = np.nan
         return uv, valid
+
+    def _project_compiled(self, kernel, p: np.ndarray, margin_px: float | None) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`project` by the compiled kernel (:func:`~.distortion_kernel.compiled_project`): the same bits."""
+        flat = np.ascontiguousarray(p.reshape(-1, 3))
+        uv = np.empty((flat.shape[0], 2), np.float64)
+        valid = np.empty(flat.shape[0], bool)
+        window = np.full(4, np.nan)
+        if margin_px is not None:
+            lo = -0.5 - margin_px
+            window[:] = (lo, self.width - 0.5 + margin_px, lo, self.height - 0.5 + margin_px)
+        tilt = self._tilt[0] if self._tilt is not None else np.eye(3)
+        kernel(flat, self._d, np.ascontiguousarray(tilt, np.float64), self._tilt is not None,
+               np.array([self.fx, self.fy, self.cx, self.cy], np.float64), float(self.max_radius**2), window, uv,
+               valid)
+        return uv.reshape(*p.shape[:-1], 2), valid.reshape(p.shape[:-1])
 
     def inside(self, u, v, margin_px: float = 0.0) -> np.ndarray:
         """True where pixel ``(u, v)`` lies in ``[-0.5 - m, W - 0.5 + m] × [-0.5 - m, H - 0.5 + m]``."""

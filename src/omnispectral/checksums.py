@@ -87,7 +87,10 @@ def file_checksum(path: str | Path) -> dict:
     dict
         The record.
     """
-    return {ALGORITHM: file_crc32(path), "bytes": os.stat(path).st_size}
+    st = os.stat(path)  # before the read: a change while it runs leaves the remembered state stale, not wrong
+    record = {ALGORITHM: file_crc32(path), "bytes": st.st_size}
+    _remember(path, st, record)  # it matches now: its first check in this process (the reader's) reads nothing
+    return record
 
 
 def checksum_problem(path: str | Path, record: dict | None) -> str | None:
@@ -174,15 +177,23 @@ def remembered_problem(path: str | Path, record: dict | None) -> str | None:
         return "missing"
     if not record or ALGORITHM not in record:
         return None
-    key = (str(Path(path).absolute()), st.st_size, st.st_mtime_ns, st.st_ino, record[ALGORITHM])
     with _lock:
-        if key in _verified:
+        if _state_key(path, st, record) in _verified:
             return None
     problem = checksum_problem(path, record)
     if problem is None:
-        with _lock:
-            _verified.add(key)
+        _remember(path, st, record)
     return problem
+
+
+def _state_key(path: str | Path, st: os.stat_result, record: dict) -> tuple:
+    """What :func:`remembered_problem` remembers of a file that matched: its path, state and checksum."""
+    return str(Path(path).absolute()), st.st_size, st.st_mtime_ns, st.st_ino, record[ALGORITHM]
+
+
+def _remember(path: str | Path, st: os.stat_result, record: dict) -> None:
+    with _lock:
+        _verified.add(_state_key(path, st, record))
 
 
 def forget_verified() -> None:

@@ -489,6 +489,8 @@ def frame_content(path: Path) -> bytes | mmap.mmap:
     """
     try:
         with open(path, "rb") as fh:
+            if hasattr(mmap, "MAP_POPULATE"):  # Linux: the page tables filled in one call, not page by page
+                return mmap.mmap(fh.fileno(), 0, flags=mmap.MAP_SHARED | mmap.MAP_POPULATE, prot=mmap.PROT_READ)
             return mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
     except (OSError, ValueError):  # an empty file (nothing to map), or a file system without mmap
         return path.read_bytes()

@@ -573,3 +573,25 @@ def test_run_tasks_hands_every_task_the_shared_object_untraversed():
     results = run_tasks(_is_shared, _SHARED_JOB, [(k,) for k in range(6)], None, 2, None)
     assert sorted(results) == [(True, k) for k in range(6)]
     assert _Probe.looked_up == 0
+
+
+def test_npy_headers_are_parsed_as_numpy_parses_them_without_its_ast():
+    """The merged images' headers are read without ``ast.literal_eval`` (not thread-safe in CPython 3.11):
+    the same shape, order and dtype as NumPy's reader, and the file positioned at the data; other layouts
+    (a structured dtype) go to NumPy's parser."""
+    import io
+
+    from omnispectral.mosaic.sources import _npy_header
+
+    arrays = [np.zeros((52, 96, 3), np.float16), np.zeros(5, np.float32), np.zeros((), np.int64),
+              np.zeros((3, 4), ">f8"), np.asfortranarray(np.zeros((3, 4))), np.zeros((2, 3), [("a", "<f4")])]
+    for a in arrays:
+        ours, theirs = io.BytesIO(), io.BytesIO()
+        np.save(ours, a)
+        theirs.write(ours.getvalue())
+        ours.seek(0)
+        theirs.seek(0)
+        shape, fortran, dtype = _npy_header(ours)
+        np.lib.format.read_magic(theirs)
+        assert (shape, fortran, dtype) == tuple(np.lib.format.read_array_header_1_0(theirs))
+        assert ours.tell() == theirs.tell()

@@ -49,6 +49,8 @@ import datetime as _dt
 import json
 import math
 import os
+import re
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -105,10 +107,27 @@ def encode_image(image: np.ndarray, dtype: str) -> tuple[np.ndarray, float]:
 
 
 # ------------------------------------------------------------------------------------------ reading
+#: NumPy parses a ``.npy`` header with ``ast.literal_eval``; CPython 3.11's AST construction is not safe while
+#: another thread builds an AST (``SystemError: AST constructor recursion depth mismatch``, seen when the
+#: parallax thread read a header while a Numba kernel compiled).  The headers ``np.save`` writes are parsed here
+#: without the AST; any other layout goes to NumPy's parser, one at a time.
+_HEADER_LOCK = threading.Lock()
+_PLAIN_HEADER = re.compile(r"\{'descr': '([<>|=]?[a-zA-Z]\d*)', 'fortran_order': (True|False), "
+                           r"'shape': \((\d+(?:, \d+)*,?|)\), \}")
+
+
 def _npy_header(fh) -> tuple[tuple[int, ...], bool, np.dtype]:
     version = np.lib.format.read_magic(fh)
+    start = fh.tell()
+    n = int.from_bytes(fh.read(2 if version == (1, 0) else 4), "little")
+    plain = _PLAIN_HEADER.fullmatch(fh.read(n).decode("latin1").rstrip())
+    if plain is not None:
+        shape = tuple(int(x) for x in plain[3].split(",") if x.strip())
+        return shape, plain[2] == "True", np.dtype(plain[1])
+    fh.seek(start)
     read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
-    shape, fortran, dtype = read(fh)
+    with _HEADER_LOCK:
+        shape, fortran, dtype = read(fh)
     return tuple(shape), fortran, dtype
 
 

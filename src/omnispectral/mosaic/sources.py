@@ -87,7 +87,7 @@ def float16_scale(image: np.ndarray) -> float:
     # fmax / fmin skip NaN without a mask or a copy (9x faster than the masked |max| on a frame); an infinite
     # value (or nothing but NaN) takes the masked path, which skips it
     peak = max(float(np.fmax.reduce(image, axis=None, initial=0.0)),
-               -float(np.fmin.reduce(image, axis=None, initial=0.0))) if image.size else 0.0
+               -float(np.fmin.reduce(image, axis=None, initial=0.0)))
     if not np.isfinite(peak):
         peak = float(np.max(np.abs(image), where=np.isfinite(image), initial=0.0))
     if peak <= 0:
@@ -201,9 +201,10 @@ class SourceImage:
     def bands(self) -> tuple[int, ...]:
         return CAMERA_BANDS[self.camera]
 
-    def read_parallax_rows(self, row0: int, row1: int) -> np.ndarray:
-        """Rows ``[row0, row1)`` of camera B's parallax map (checked against its checksum first, as :meth:`read`)."""
-        return read_npy_rows(verified(self.parallax, self.parallax_checksum), row0, row1)
+    def read_parallax(self, rows: tuple[int, int], cols: tuple[int, int]) -> np.ndarray:
+        """The window ``rows × cols`` of camera B's parallax map, as stored (checked against its checksum first, as
+        :meth:`read`)."""
+        return read_npy_window(verified(self.parallax, self.parallax_checksum), rows, cols)
 
     def read(self, rows: tuple[int, int] | None = None, cols: tuple[int, int] | None = None) -> np.ndarray:
         """Radiance (DN/s) of a crop, float32 ``(rows, cols, 3)``; the whole image by default.

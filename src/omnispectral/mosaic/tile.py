@@ -184,10 +184,10 @@ def parallax_positions(job: MosaicJob, i: int, row0: int, col0: int, u: np.ndarr
     ma = a_geo.model
     ia = np.clip(np.rint(np.nan_to_num(pa.u, nan=-1.0)), 0, ma.width - 1).astype(np.int64)
     ja = np.clip(np.rint(np.nan_to_num(pa.v, nan=-1.0)), 0, ma.height - 1).astype(np.int64)
-    r_lo, r_hi = int(ja.min()), int(ja.max()) + 1
-    par = img.read_parallax_rows(r_lo, r_hi)
+    r_lo, c_lo = int(ja.min()), int(ia.min())
+    par = img.read_parallax((r_lo, int(ja.max()) + 1), (c_lo, int(ia.max()) + 1))
     # one flat index into the (pixel, 3) records: np.take gathers them 2x faster than a 2-D fancy index
-    sample = to_float32(np.take(par.reshape(-1, par.shape[-1]), (ja - r_lo) * par.shape[1] + ia, axis=0))
+    sample = to_float32(np.take(par.reshape(-1, par.shape[-1]), (ja - r_lo) * par.shape[1] + (ia - c_lo), axis=0))
     inv_depth, conf, occ = sample[..., 0], sample[..., 1], sample[..., 2]
     near = np.isfinite(inv_depth) & (inv_depth > 0)
     u, v = u.copy(), v.copy()

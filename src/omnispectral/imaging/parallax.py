@@ -42,6 +42,7 @@ A. F. Bobick, S. S. Intille, "Large occlusion stereo", IJCV 33(3), 181-200, 1999
 from __future__ import annotations
 
 from dataclasses import dataclass
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
@@ -52,6 +53,7 @@ from omnispectral.imaging.blockpoc import block_size_for, measure_blocks, occlus
 from omnispectral.imaging.geometry import CameraModel
 from omnispectral.imaging.registration import as_gray
 from omnispectral.imaging.similarity import NCC_WINDOW_PX, LocalLinearScore, as_channels, local_ncc
+from omnispectral.imaging.sweep_kernel import compiled_sweep
 
 __all__ = ["COLOUR_MISFIT_MIN", "DEPTH_STEP_PX", "GROUND_HEIGHT_PERCENTILE", "GROUND_MIN_BLOCKS",
            "GROUND_MIN_DEPRESSION_DEG", "MAX_PERPENDICULAR_PX", "MIN_ALONG_WEIGHT", "MIN_BLOCK_SEEN",
@@ -441,11 +443,10 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
         dw = (w_hi - w_lo) / (max_levels - 1)
         n = max_levels
     levels = w_lo + dw * np.arange(n)
-    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
     fx, fy = field[..., 0].astype(np.float32), field[..., 1].astype(np.float32)
     # second order along the line when the field carries it (a near object's line curves: 0.2 px at 1 m)
     hx, hy = ((0.5 * field[..., 2]).astype(np.float32), (0.5 * field[..., 3]).astype(np.float32)) \
-        if field.shape[-1] == 4 else (np.float32(0), np.float32(0))
+        if field.shape[-1] == 4 else (np.zeros((h, w), np.float32), np.zeros((h, w), np.float32))
     # shiftable windows (Bobick & Intille 1999): a pixel takes the best of all windows that contain it,
     # so near a depth edge it can use a window lying wholly on its own surface
     shift_kernel = np.ones((window, window), np.uint8)
@@ -457,45 +458,26 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
     else:
         def score_of(moved):
             return local_ncc(ga, moved, window)
-    best = np.full((h, w), -np.inf, np.float32)
-    best_raw = np.full((h, w), np.nan, np.float32)
-    best_k = np.zeros((h, w), np.int32)
-    left = np.full((h, w), np.nan, np.float32)
-    right = np.full((h, w), np.nan, np.float32)
-    prev = np.full((h, w), np.nan, np.float32)
     k_zero = int(np.argmin(np.abs(levels)))
-    score_zero = np.full((h, w), -np.inf, np.float32)
-    score_own = np.full((h, w), -np.inf, np.float32)
-    rival = np.full((h, w), -np.inf, np.float32)
-    top1 = np.full((h, w), -np.inf, np.float32)
-    prev_sel = prev2_sel = np.full((h, w), -np.inf, np.float32)
+    st = _sweep_state(h, w)
+    kernels = compiled_sweep()
+    map_x, map_y = np.empty((h, w), np.float32), np.empty((h, w), np.float32)
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32) if kernels is None else (None, None)
     for k, wk in enumerate(levels):
         wk2 = np.float32(wk * wk)
-        moved = cv2.remap(gb, xx + np.float32(wk) * fx + wk2 * hx, yy + np.float32(wk) * fy + wk2 * hy,
-                          cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-        raw = score_of(moved)
+        if kernels is not None:
+            kernels.moved_positions(np.float32(wk), wk2, fx, fy, hx, hy, map_x, map_y)
+        else:
+            map_x, map_y = xx + np.float32(wk) * fx + wk2 * hx, yy + np.float32(wk) * fy + wk2 * hy
+        moved = cv2.remap(gb, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        raw = np.asarray(score_of(moved), np.float32)
         score = cv2.dilate(raw, shift_kernel)
-        # the sub-step parabola uses the centred window's scores (the same window at every level)
-        right = np.where(best_k == k - 1, raw, right)
-        if k == k_zero:
-            score_zero = score
-        at_own = np.abs(wk - own) <= dw / 2
-        score_own = np.where(at_own, np.maximum(score_own, score), score_own)
-        score_sel = np.where((wk >= lo) & (wk <= hi), score + np.where(at_own, 0.01, 0.0), -np.inf).astype(np.float32)
-        better = score_sel > best
-        # the two highest local maxima of the score over the levels: a match is distinctive when the best
-        # beats every other peak by a margin (a broad peak's shoulders are not rivals; a flat curve, whose
-        # every level is a peak, is ambiguous).  Level k - 1 is judged once level k is known.
-        if k >= 1:
-            top1, rival = _add_peak(top1, rival, np.where((prev_sel >= prev2_sel) & (prev_sel >= score_sel),
-                                                          prev_sel, -np.inf))
-        prev2_sel, prev_sel = prev_sel, score_sel
-        left = np.where(better, prev, left)
-        right = np.where(better, np.nan, right)
-        best = np.where(better, score_sel, best)
-        best_raw = np.where(better, raw, best_raw)
-        best_k = np.where(better, k, best_k)
-        prev = raw
+        update = kernels.level_update if kernels is not None else _sweep_level_numpy
+        update(k, wk, dw / 2, k == k_zero, raw, score, lo, hi, own, st.best, st.best_raw, st.best_k, st.left,
+               st.right, st.prev, st.score_zero, st.score_own, st.top1, st.rival, st.prev_sel, st.prev2_sel)
+    best, best_raw, best_k, left, right = st.best, st.best_raw, st.best_k, st.left, st.right
+    score_zero, score_own, top1, rival, prev_sel, prev2_sel = (st.score_zero, st.score_own, st.top1, st.rival,
+                                                               st.prev_sel, st.prev2_sel)
     top1, rival = _add_peak(top1, rival, np.where(prev_sel >= prev2_sel, prev_sel, -np.inf))  # the last level
     # keep the block's value where nothing nearby was measured or the best match is not a real match
     near = ndimage.maximum_filter(measured.astype(np.uint8), size=3, mode="nearest")
@@ -532,6 +514,45 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
     if ga_raw is not None and at_infinity.any():
         out = settle_by_colour(ga_raw, gb_raw, field, out, at_infinity, ~unsure, window)
     return cv2.medianBlur(out, 3), np.clip(np.where(ambiguous, 0.0, centre), 0.0, 1.0).astype(np.float32)
+
+
+def _sweep_state(h: int, w: int) -> SimpleNamespace:
+    """The sweep's running per-pixel state before its first level (:func:`sweep_inverse_depth`)."""
+    def filled(value, dtype=np.float32):
+        return np.full((h, w), value, dtype)
+    return SimpleNamespace(best=filled(-np.inf), best_raw=filled(np.nan), best_k=filled(0, np.int32),
+                           left=filled(np.nan), right=filled(np.nan), prev=filled(np.nan),
+                           score_zero=filled(-np.inf), score_own=filled(-np.inf), top1=filled(-np.inf),
+                           rival=filled(-np.inf), prev_sel=filled(-np.inf), prev2_sel=filled(-np.inf))
+
+
+def _sweep_level_numpy(k, wk, half_dw, at_zero, raw, score, lo, hi, own, best, best_raw, best_k, left, right,
+                       prev, score_zero, score_own, top1, rival, prev_sel, prev2_sel) -> None:
+    """One level of :func:`sweep_inverse_depth`'s bookkeeping, in place: the best level so far (a level counts
+    within the pixel's range ``[lo, hi]``, at its block's own depth with a 0.01 bonus), the centred scores on
+    both sides of it (for the parabola), the scores at infinity and at the block's depth, and the two highest
+    local maxima of the score curve (level ``k - 1`` is judged once level ``k`` is known).  The compiled
+    kernel (:mod:`omnispectral.imaging.sweep_kernel`) does the same operations in one pass."""
+    np.copyto(right, raw, where=best_k == k - 1)
+    if at_zero:
+        np.copyto(score_zero, score)
+    at_own = np.abs(wk - own) <= half_dw
+    np.copyto(score_own, np.maximum(score_own, score), where=at_own)
+    score_sel = np.where((wk >= lo) & (wk <= hi), score + np.where(at_own, 0.01, 0.0), -np.inf).astype(np.float32)
+    better = score_sel > best
+    if k >= 1:
+        t1, t2 = _add_peak(top1, rival, np.where((prev_sel >= prev2_sel) & (prev_sel >= score_sel), prev_sel,
+                                                 -np.inf))
+        np.copyto(top1, t1)
+        np.copyto(rival, t2)
+    np.copyto(prev2_sel, prev_sel)
+    np.copyto(prev_sel, score_sel)
+    np.copyto(left, prev, where=better)
+    np.copyto(right, np.float32(np.nan), where=better)
+    np.copyto(best, score_sel, where=better)
+    np.copyto(best_raw, raw, where=better)
+    np.copyto(best_k, k, where=better)
+    np.copyto(prev, raw)
 
 
 def moved_by_parallax(image: np.ndarray, field: np.ndarray, inv_depth: np.ndarray) -> np.ndarray:

@@ -58,6 +58,7 @@ from omnispectral.imaging.registration import (
     prepare_for_poc,
     preprocess_image,
 )
+from omnispectral.imaging.zbuffer_kernel import compiled_zbuffer
 
 __all__ = ["BLOCK_PX_PER_256", "CONVERGED_PX", "DEFAULT_BLOCK_MIN_CONFIDENCE", "REFINE_PASSES", "BlockShifts",
            "DisparityMap", "block_disparity", "block_size_for", "block_structure", "edge_aware_outliers",
@@ -192,9 +193,15 @@ def occlusion_zbuffer(dx_px: np.ndarray, dy_px: np.ndarray, nearness: np.ndarray
     -------
     numpy.ndarray
         ``(H, W)`` boolean, ``True`` for hidden reference pixels (targets outside the image are never
-        occluded).
+        occluded).  Compiled (:mod:`omnispectral.imaging.zbuffer_kernel`) where Numba is installed: the same
+        result.
     """
     h, w = dx_px.shape
+    kernel = compiled_zbuffer()
+    if kernel is not None:
+        out = np.empty((h, w), bool)
+        kernel(dx_px, dy_px, np.asarray(nearness, dtype=np.float64), float(tol_px), out)
+        return out
     tx = np.rint(np.arange(w, dtype=np.float64)[None, :] + dx_px).astype(np.int64)
     ty = np.rint(np.arange(h, dtype=np.float64)[:, None] + dy_px).astype(np.int64)
     inside = (tx >= 0) & (tx < w) & (ty >= 0) & (ty < h)

@@ -26,7 +26,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from omnispectral.imaging.channels import finite_pixels
+from omnispectral.imaging.channels import all_channels, any_channel, finite_pixels
 from omnispectral.spectral.conditional import BandPredictor
 
 __all__ = ["IMPLAUSIBLE_RATIO", "UNCLIPPED_FRACTION", "b_outliers", "brightest_measured_b", "fill_missing_b",
@@ -137,13 +137,13 @@ def b_outliers(values: np.ndarray, predictor: BandPredictor | None) -> tuple[np.
     """``(too bright, too dark)``: :func:`implausible_b` and :func:`too_dark_b` of ``values (h, w, 6)`` from one
     evaluation of ``ℓ``."""
     usable, excess = _log_ratio_excess(values, predictor)
-    bright = usable & (excess > np.log(IMPLAUSIBLE_RATIO)).any(axis=-1)
+    bright = usable & any_channel(excess > np.log(IMPLAUSIBLE_RATIO))
     if not usable.any():
         return bright, usable
     b = values[..., 3:6]
     brightest = float(np.max(np.where(usable[..., None], b, 0.0)))
-    unclipped = (b < UNCLIPPED_FRACTION * brightest).all(axis=-1)
-    return bright, usable & unclipped & (excess < -np.log(IMPLAUSIBLE_RATIO)).any(axis=-1)
+    unclipped = all_channels(b < UNCLIPPED_FRACTION * brightest)
+    return bright, usable & unclipped & any_channel(excess < -np.log(IMPLAUSIBLE_RATIO))
 
 
 def brightest_measured_b(values: np.ndarray, missing: np.ndarray) -> np.ndarray:

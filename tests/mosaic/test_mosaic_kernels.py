@@ -11,15 +11,16 @@ import omnispectral.mosaic.blending as blending
 import omnispectral.mosaic.interp as interp
 import omnispectral.mosaic.maps as maps
 import omnispectral.mosaic.store as store
+import omnispectral.mosaic.tile as tile
 from omnispectral.mosaic import PanoramaStore, mosaic
 from omnispectral.mosaic.kernels import compiled_kernels
-from omnispectral.mosaic.sources import read_npy_window
+from omnispectral.mosaic.sources import SourceImage, read_npy_window
 from omnispectral.rig import load_preset, rig_toml
 from omnispectral.sim.synthetic import write_synthetic_merged
 from tests.mosaic.test_mosaic import WIDTH, grid_directions, small_cameras, smooth_panorama, smooth_scene
 
 pytestmark = pytest.mark.skipif(compiled_kernels() is None, reason="Numba is not installed")
-USERS = (interp, blending, maps, store)  # the modules that call the kernels
+USERS = (interp, blending, maps, store, tile)  # the modules that call the kernels
 
 
 @pytest.fixture
@@ -192,6 +193,24 @@ def test_window_reads_are_the_array_slices(tmp_path):
         got = read_npy_window(tmp_path / "a.npy", rows, cols)
         assert got.flags.writeable and got.flags.c_contiguous
         assert np.array_equal(got, a[max(0, rows[0]):rows[1], max(0, cols[0]):cols[1]])
+
+
+def test_parallax_records_at_nearest_pixels_are_the_numpy_gather(tmp_path, numpy_only):
+    """Camera B's float16 parallax records at A's nearest pixels: positions on .5 ties, off the sensor on every
+    side, NaN and infinite; the same records with the kernels as with the NumPy gather."""
+    rng = np.random.default_rng(8)
+    h, w = 40, 56
+    np.save(tmp_path / "p.npy", rng.uniform(-1, 2, (h, w, 3)).astype(np.float16))
+    img = SourceImage(0, "B", 0.0, 0.0, tmp_path / "b.npy", parallax=tmp_path / "p.npy")
+    u = rng.uniform(-3, w + 3, (23, 31)).astype(np.float32)
+    v = rng.uniform(5, 20, (23, 31)).astype(np.float32)  # a window of rows, not the whole map
+    u[0, :4], v[1, :4] = [np.nan, np.inf, -np.inf, 10.5], [np.nan, np.inf, -np.inf, 11.5]
+    u[2, :3] = [0.5, 1.5, 2.5]
+    compiled = tile._records_at_nearest_pixels(img, u, v, w, h)
+    numpy_only()
+    plain = tile._records_at_nearest_pixels(img, u, v, w, h)
+    assert compiled.dtype == plain.dtype == np.float32 and compiled.shape == (23, 31, 3)
+    assert np.array_equal(compiled, plain)
 
 
 def test_engine_gives_the_same_panorama_with_and_without_the_kernels(tmp_path, numpy_only):

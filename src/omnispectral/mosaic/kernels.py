@@ -25,6 +25,10 @@ are the same, to float32 rounding where they are not):
 ``feather(u, v, 2 / W, 2 / H, out)``
     the linear-blending tent weight of float32 positions (:func:`omnispectral.mosaic.blending.feather_weight`;
     the same float32 operations);
+``nearest_pixels(u, v, width, height, ia, ja)`` / ``gather_records(records, ia, ja, row0, col0, out)``
+    the nearest sensor pixel of each position (NaN as -1, clipped to the sensor; NumPy's ``rint``) with the
+    bounds of those pixels, then the records (camera B's parallax map) at them
+    (:func:`omnispectral.mosaic.tile.parallax_positions`; the same pixels and values);
 ``box_average(src, out)``
     the pyramid's 2 × 2 means ignoring NaN (:func:`omnispectral.mosaic.store.box_average_2x2`; float64
     sums of float32 values, exact for all but extreme dynamic ranges, so the same result).
@@ -253,5 +257,29 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
                 wv = min(max(one - abs(sy * (y + half) - one), zero), one)
                 out[i, j] = wu * wv
 
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
+    def nearest_pixels(u, v, width, height, ia, ja):  # pragma: no cover - compiled
+        bounds = np.array([width, -1, height, -1], np.int64)  # column min, max; row min, max
+        for i in range(u.shape[0]):
+            for j in range(u.shape[1]):
+                x, y = u[i, j], v[i, j]
+                x = np.float32(-1.0) if x != x else x
+                y = np.float32(-1.0) if y != y else y
+                c = np.int64(min(max(np.rint(x), np.float32(0.0)), np.float32(width - 1)))
+                r = np.int64(min(max(np.rint(y), np.float32(0.0)), np.float32(height - 1)))
+                ia[i, j], ja[i, j] = c, r
+                bounds[0], bounds[1] = min(bounds[0], c), max(bounds[1], c)
+                bounds[2], bounds[3] = min(bounds[2], r), max(bounds[3], r)
+        return bounds
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
+    def gather_records(records, ia, ja, row0, col0, out):  # pragma: no cover - compiled
+        for i in range(ia.shape[0]):
+            for j in range(ia.shape[1]):
+                r, c = ja[i, j] - row0, ia[i, j] - col0
+                for k in range(records.shape[2]):
+                    out[i, j, k] = records[r, c, k]
+
     return SimpleNamespace(spline=spline, keys=keys, disagreeing=disagreeing, accumulate=accumulate,
-                           divide=divide, catmull_rom=catmull_rom, box_average=box_average, feather=feather)
+                           divide=divide, catmull_rom=catmull_rom, box_average=box_average, feather=feather,
+                           nearest_pixels=nearest_pixels, gather_records=gather_records)

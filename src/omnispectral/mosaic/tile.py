@@ -40,6 +40,7 @@ from omnispectral.imaging.halffloat import to_float32
 from omnispectral.imaging.parallax import OCCLUSION_HIDDEN, OCCLUSION_OTHER_SURFACE
 from omnispectral.mosaic.blending import LinearBlend, blend_method, feather_weight, multiband_blend, reject_inconsistent
 from omnispectral.mosaic.interp import SPLINE_PREFILTER_MARGIN_PX, interpolation, remap, spline_prefilter
+from omnispectral.mosaic.kernels import compiled_kernels
 from omnispectral.mosaic.maps import Canvas, Rect, SourceGeometry, rect_map, source_map, tile_cone
 from omnispectral.mosaic.options import MosaicOptions
 from omnispectral.mosaic.predict import b_outliers, brightest_measured_b, fill_missing_b
@@ -181,13 +182,7 @@ def parallax_positions(job: MosaicJob, i: int, row0: int, col0: int, u: np.ndarr
     h, w = u.shape
     rows, cols = np.arange(row0, row0 + h), np.arange(col0, col0 + w)
     pa = rect_map(a_geo, job.canvas, Rect(row0, row0 + h, col0, col0 + w))  # A's pixel: within 1e-3 px
-    ma = a_geo.model
-    ia = np.clip(np.rint(np.nan_to_num(pa.u, nan=-1.0)), 0, ma.width - 1).astype(np.int64)
-    ja = np.clip(np.rint(np.nan_to_num(pa.v, nan=-1.0)), 0, ma.height - 1).astype(np.int64)
-    r_lo, c_lo = int(ja.min()), int(ia.min())
-    par = img.read_parallax((r_lo, int(ja.max()) + 1), (c_lo, int(ia.max()) + 1))
-    # one flat index into the (pixel, 3) records: np.take gathers them 2x faster than a 2-D fancy index
-    sample = to_float32(np.take(par.reshape(-1, par.shape[-1]), (ja - r_lo) * par.shape[1] + (ia - c_lo), axis=0))
+    sample = _records_at_nearest_pixels(img, pa.u, pa.v, a_geo.model.width, a_geo.model.height)
     inv_depth, conf, occ = sample[..., 0], sample[..., 1], sample[..., 2]
     near = np.isfinite(inv_depth) & (inv_depth > 0)
     u, v = u.copy(), v.copy()
@@ -199,6 +194,26 @@ def parallax_positions(job: MosaicJob, i: int, row0: int, col0: int, u: np.ndarr
         u[near] = px[:, 0] + geo.offset_px[0]
         v[near] = px[:, 1] + geo.offset_px[1]
     return u, v, conf, occ
+
+
+def _records_at_nearest_pixels(img: SourceImage, u: np.ndarray, v: np.ndarray, width: int,
+                               height: int) -> np.ndarray:
+    """Camera B's parallax records (float32 ``(*u.shape, 3)``) at camera A's sensor pixel nearest each position
+    ``(u, v)`` (NaN as -1; clipped to the ``width × height`` sensor), read as the window those pixels span."""
+    kernels = compiled_kernels()
+    if kernels is not None:
+        ia, ja = np.empty(u.shape, np.int64), np.empty(u.shape, np.int64)
+        c_lo, c_hi, r_lo, r_hi = (int(b) for b in kernels.nearest_pixels(u, v, width, height, ia, ja))
+        records = to_float32(img.read_parallax((r_lo, r_hi + 1), (c_lo, c_hi + 1)))
+        out = np.empty((*u.shape, records.shape[-1]), np.float32)
+        kernels.gather_records(records, ia, ja, r_lo, c_lo, out)
+        return out
+    ia = np.clip(np.rint(np.nan_to_num(u, nan=-1.0)), 0, width - 1).astype(np.int64)
+    ja = np.clip(np.rint(np.nan_to_num(v, nan=-1.0)), 0, height - 1).astype(np.int64)
+    r_lo, c_lo = int(ja.min()), int(ia.min())
+    par = img.read_parallax((r_lo, int(ja.max()) + 1), (c_lo, int(ia.max()) + 1))
+    # one flat index into the (pixel, 3) records: np.take gathers them 2x faster than a 2-D fancy index
+    return to_float32(np.take(par.reshape(-1, par.shape[-1]), (ja - r_lo) * par.shape[1] + (ia - c_lo), axis=0))
 
 
 def warp_source(job: MosaicJob, i: int, rect: Rect) -> Warped | None:

@@ -12,6 +12,7 @@ import omnispectral.mosaic.interp as interp
 import omnispectral.mosaic.maps as maps
 import omnispectral.mosaic.store as store
 import omnispectral.mosaic.tile as tile
+from omnispectral.errors import InputFileError
 from omnispectral.mosaic import PanoramaStore, mosaic
 from omnispectral.mosaic.kernels import compiled_kernels
 from omnispectral.mosaic.sources import SourceImage, read_npy_window
@@ -206,8 +207,14 @@ def test_parallax_records_at_nearest_pixels_are_the_numpy_gather(tmp_path, numpy
     v = rng.uniform(5, 20, (23, 31)).astype(np.float32)  # a window of rows, not the whole map
     u[0, :4], v[1, :4] = [np.nan, np.inf, -np.inf, 10.5], [np.nan, np.inf, -np.inf, 11.5]
     u[2, :3] = [0.5, 1.5, 2.5]
+    np.save(tmp_path / "small.npy", np.zeros((h - 30, w, 3), np.float16))  # does not cover A's sensor
+    small = SourceImage(0, "B", 0.0, 0.0, tmp_path / "b.npy", parallax=tmp_path / "small.npy")
     compiled = tile._records_at_nearest_pixels(img, u, v, w, h)
-    numpy_only()
+    for kernels in (True, False):
+        if not kernels:
+            numpy_only()
+        with pytest.raises(InputFileError, match=r"small\.npy.*does not cover"):  # by name, never read beyond
+            tile._records_at_nearest_pixels(small, u, v, w, h)
     plain = tile._records_at_nearest_pixels(img, u, v, w, h)
     assert compiled.dtype == plain.dtype == np.float32 and compiled.shape == (23, 31, 3)
     assert np.array_equal(compiled, plain)

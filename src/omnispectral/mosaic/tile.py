@@ -34,6 +34,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from omnispectral.errors import InputFileError
 from omnispectral.imaging.channels import finite_pixels
 from omnispectral.imaging.geometry import native_width
 from omnispectral.imaging.halffloat import to_float32
@@ -204,16 +205,26 @@ def _records_at_nearest_pixels(img: SourceImage, u: np.ndarray, v: np.ndarray, w
     if kernels is not None:
         ia, ja = np.empty(u.shape, np.int64), np.empty(u.shape, np.int64)
         c_lo, c_hi, r_lo, r_hi = (int(b) for b in kernels.nearest_pixels(u, v, width, height, ia, ja))
-        records = to_float32(img.read_parallax((r_lo, r_hi + 1), (c_lo, c_hi + 1)))
+        records = to_float32(_parallax_window(img, (r_lo, r_hi + 1), (c_lo, c_hi + 1)))
         out = np.empty((*u.shape, records.shape[-1]), np.float32)
         kernels.gather_records(records, ia, ja, r_lo, c_lo, out)
         return out
     ia = np.clip(np.rint(np.nan_to_num(u, nan=-1.0)), 0, width - 1).astype(np.int64)
     ja = np.clip(np.rint(np.nan_to_num(v, nan=-1.0)), 0, height - 1).astype(np.int64)
     r_lo, c_lo = int(ja.min()), int(ia.min())
-    par = img.read_parallax((r_lo, int(ja.max()) + 1), (c_lo, int(ia.max()) + 1))
+    par = _parallax_window(img, (r_lo, int(ja.max()) + 1), (c_lo, int(ia.max()) + 1))
     # one flat index into the (pixel, 3) records: np.take gathers them 2x faster than a 2-D fancy index
     return to_float32(np.take(par.reshape(-1, par.shape[-1]), (ja - r_lo) * par.shape[1] + (ia - c_lo), axis=0))
+
+
+def _parallax_window(img: SourceImage, rows: tuple[int, int], cols: tuple[int, int]) -> np.ndarray:
+    """The window of camera B's parallax map, refused (naming the file) when the map does not cover it: a map
+    smaller than camera A's sensor."""
+    par = img.read_parallax(rows, cols)
+    if par.ndim != 3 or par.shape[:2] != (rows[1] - rows[0], cols[1] - cols[0]) or par.shape[2] < 3:
+        raise InputFileError(img.parallax, f"parallax map does not cover camera A's pixels {rows[0]}..{rows[1]} x "
+                                           f"{cols[0]}..{cols[1]} (window read {par.shape})")
+    return par
 
 
 def warp_source(job: MosaicJob, i: int, rect: Rect) -> Warped | None:

@@ -4,13 +4,12 @@ import numpy as np
 import pytest
 
 from omnispectral.imaging import parallax
-from omnispectral.imaging.parallax import _sweep_level_numpy, _sweep_state, sweep_inverse_depth
+from omnispectral.imaging.parallax import _SWEEP_STATE, _sweep_level_numpy, _sweep_state, sweep_inverse_depth
 from omnispectral.imaging.sweep_kernel import compiled_sweep
 
 pytestmark = pytest.mark.skipif(compiled_sweep() is None, reason="Numba not installed")
 
-STATE = ("best", "best_raw", "best_k", "left", "right", "prev", "score_zero", "score_own", "top1", "rival",
-         "prev_sel", "prev2_sel")
+STATE = tuple(_SWEEP_STATE)
 
 
 def test_level_updates_are_the_numpy_bits_over_a_whole_sweep():

@@ -36,17 +36,18 @@ def finite_pixels(image: np.ndarray) -> np.ndarray:
 
 def any_channel(mask: np.ndarray) -> np.ndarray:
     """``mask.any(axis=-1)`` of a boolean ``(…, C)`` array, one channel at a time (8× faster on a 3-band tile)."""
-    mask = np.asarray(mask, bool)
-    out = np.zeros(mask.shape[:-1], bool)
-    for c in range(mask.shape[-1]):
-        out |= mask[..., c]
-    return out
+    return _per_channel(mask, np.logical_or, False)
 
 
 def all_channels(mask: np.ndarray) -> np.ndarray:
     """``mask.all(axis=-1)`` of a boolean ``(…, C)`` array, one channel at a time."""
+    return _per_channel(mask, np.logical_and, True)
+
+
+def _per_channel(mask: np.ndarray, combine: np.ufunc, empty: bool) -> np.ndarray:
+    """``combine`` of the channels of ``mask``, in place one channel at a time (``empty`` for no channel)."""
     mask = np.asarray(mask, bool)
-    out = np.ones(mask.shape[:-1], bool)
+    out = np.full(mask.shape[:-1], empty, bool)
     for c in range(mask.shape[-1]):
-        out &= mask[..., c]
+        combine(out, mask[..., c], out=out)
     return out

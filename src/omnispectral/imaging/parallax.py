@@ -463,6 +463,8 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
     kernels = compiled_sweep()
     map_x, map_y = np.empty((h, w), np.float32), np.empty((h, w), np.float32)
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float32) if kernels is None else (None, None)
+    update = kernels.level_update if kernels is not None else _sweep_level_numpy
+    state = [getattr(st, name) for name in _SWEEP_STATE]
     for k, wk in enumerate(levels):
         wk2 = np.float32(wk * wk)
         if kernels is not None:
@@ -472,9 +474,7 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
         moved = cv2.remap(gb, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
         raw = np.asarray(score_of(moved), np.float32)
         score = cv2.dilate(raw, shift_kernel)
-        update = kernels.level_update if kernels is not None else _sweep_level_numpy
-        update(k, wk, dw / 2, k == k_zero, raw, score, lo, hi, own, st.best, st.best_raw, st.best_k, st.left,
-               st.right, st.prev, st.score_zero, st.score_own, st.top1, st.rival, st.prev_sel, st.prev2_sel)
+        update(k, wk, dw / 2, k == k_zero, raw, score, lo, hi, own, *state)
     best, best_raw, best_k, left, right = st.best, st.best_raw, st.best_k, st.left, st.right
     score_zero, score_own, top1, rival, prev_sel, prev2_sel = (st.score_zero, st.score_own, st.top1, st.rival,
                                                                st.prev_sel, st.prev2_sel)
@@ -516,14 +516,17 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
     return cv2.medianBlur(out, 3), np.clip(np.where(ambiguous, 0.0, centre), 0.0, 1.0).astype(np.float32)
 
 
+#: The sweep's running per-pixel state, in the order the level updates take it, with its value before the first
+#: level (float32; ``best_k`` int32).
+_SWEEP_STATE = {"best": -np.inf, "best_raw": np.nan, "best_k": 0, "left": np.nan, "right": np.nan, "prev": np.nan,
+                "score_zero": -np.inf, "score_own": -np.inf, "top1": -np.inf, "rival": -np.inf, "prev_sel": -np.inf,
+                "prev2_sel": -np.inf}
+
+
 def _sweep_state(h: int, w: int) -> SimpleNamespace:
     """The sweep's running per-pixel state before its first level (:func:`sweep_inverse_depth`)."""
-    def filled(value, dtype=np.float32):
-        return np.full((h, w), value, dtype)
-    return SimpleNamespace(best=filled(-np.inf), best_raw=filled(np.nan), best_k=filled(0, np.int32),
-                           left=filled(np.nan), right=filled(np.nan), prev=filled(np.nan),
-                           score_zero=filled(-np.inf), score_own=filled(-np.inf), top1=filled(-np.inf),
-                           rival=filled(-np.inf), prev_sel=filled(-np.inf), prev2_sel=filled(-np.inf))
+    return SimpleNamespace(**{name: np.full((h, w), value, np.int32 if name == "best_k" else np.float32)
+                              for name, value in _SWEEP_STATE.items()})
 
 
 def _sweep_level_numpy(k, wk, half_dw, at_zero, raw, score, lo, hi, own, best, best_raw, best_k, left, right,

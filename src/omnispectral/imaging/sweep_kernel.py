@@ -6,7 +6,7 @@ direction.  At each level its NumPy version makes about twenty whole-image passe
 scores at infinity and at the block's own depth, and the two highest local maxima of the score curve.  The
 two kernels here do the same operations (float32 where NumPy's are float32, float64 where they are float64,
 in the same order, without fused multiply-adds) in one pass each, so the sweep gives the NumPy version's
-bits (``tests/imaging/test_parallax.py``).  Numba is imported on first use; ``compiled_sweep()`` returns
+bits (``tests/imaging/test_sweep_kernel.py``).  Numba is imported on first use; ``compiled_sweep()`` returns
 ``None`` without it and the sweep runs its NumPy version.  The kernels release the GIL and start no
 threads.
 

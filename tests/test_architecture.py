@@ -1,7 +1,7 @@
 """The package's layers, checked on its import statements (every one, including those inside functions).
 
     base      omnispectral, errors, io, threads, limits, locking,  (import nothing else of the package)
-              fingerprint, ownership, extras, progress, choices, checksums
+              fingerprint, ownership, extras, progress, choices, checksums, filebytes
     core      imaging → spectral                                   (base; imaging may use spectral, never the reverse)
     rig       omnispectral.rig                                     (base, core)
     stages    capture (the real path), mosaic                      (base, core, rig; mosaic never capture)
@@ -28,7 +28,7 @@ PACKAGE = "omnispectral"
 
 BASE = {"omnispectral", "omnispectral.errors", "omnispectral.io", "omnispectral.threads", "omnispectral.limits",
         "omnispectral.locking", "omnispectral.fingerprint", "omnispectral.ownership", "omnispectral.extras",
-        "omnispectral.checksums", "omnispectral.compiled", "omnispectral.allocator",
+        "omnispectral.checksums", "omnispectral.compiled", "omnispectral.allocator", "omnispectral.filebytes",
         "omnispectral.progress",
         "omnispectral.choices"}  # names and defaults the command line shows: its parsers import nothing heavy
 SIMULATOR = "omnispectral.sim"

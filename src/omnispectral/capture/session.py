@@ -56,6 +56,7 @@ from omnispectral.capture.plan import Plan
 from omnispectral.capture.sourcefiles import decode_source_image
 from omnispectral.checksums import FRAME_FAST_ALGORITHM, bytes_xxh3, file_sha256
 from omnispectral.errors import DamagedFrameError, InputFileError
+from omnispectral.filebytes import file_bytes
 from omnispectral.fingerprint import differences
 from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text, is_temp_name, jsonable
 from omnispectral.limits import check_image_shape
@@ -480,20 +481,11 @@ class Session:
 
 
 def frame_content(path: Path) -> bytes | mmap.mmap:
-    """A frame file's bytes, mapped read-only where the file system allows it, else read.
-
-    Mapped, the bytes are the page cache's own pages: the checksum, the decoding and the merge read them
-    where they are, with no copy into a fresh buffer (reading 14.5 GiB of frames into new buffers took 14 of
-    the 160 CPU-s of a full-scale frame's processing).  The frames of a session are written once, under a
-    temporary name and renamed into place, so a mapped frame never changes under its reader.
-    """
-    try:
-        with open(path, "rb") as fh:
-            if hasattr(mmap, "MAP_POPULATE"):  # Linux: the page tables filled in one call, not page by page
-                return mmap.mmap(fh.fileno(), 0, flags=mmap.MAP_SHARED | mmap.MAP_POPULATE, prot=mmap.PROT_READ)
-            return mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
-    except (OSError, ValueError):  # an empty file (nothing to map), or a file system without mmap
-        return path.read_bytes()
+    """A frame file's bytes: the page cache's own pages, mapped, when it holds them, else read past it with
+    direct I/O (:func:`omnispectral.filebytes.file_bytes`).  The checksum, the decoding and the merge read
+    them where they are, with no further copy.  The frames of a session are written once, under a temporary
+    name and renamed into place, so a mapped frame never changes under its reader."""
+    return file_bytes(path)
 
 
 def decode_frame(path: Path, content: bytes | mmap.mmap | None = None) -> tuple[np.ndarray, dict]:

@@ -84,3 +84,14 @@ def test_mixed_dtypes_take_the_numpy_path(frames):
     assert hdr._fused_frames(model, frames[:2]) is not None
     res = merge_exposures(mixed, TIMES_S[:2], 12)
     assert np.isfinite(res.radiance[res.valid]).all()
+
+
+def test_a_bracket_of_read_only_and_writable_frames_takes_the_compiled_path(frames, monkeypatch):
+    """Frames mapped from the page cache are read-only, frames read past it writable: one bracket can hold both."""
+    mixed = [f.copy() for f in frames]
+    for f in mixed[::2]:
+        f.flags.writeable = False
+    fused = merge_exposures(mixed, TIMES_S, 12, weight="noise")
+    assert all(f.flags.writeable for f in mixed[1::2]), "the caller's frames keep their flags"
+    numpy_path(monkeypatch)
+    assert_same(fused, merge_exposures(frames, TIMES_S, 12, weight="noise"))

@@ -277,11 +277,20 @@ def _fused_frames(model: _Model, frames: list[np.ndarray]):
 
     It applies to linear sensors (no response table) whose frames share one dtype.  (A tuple, not
     a Numba typed list: the kernel is compiled once per bracket length and cached on disk, whereas
-    a typed list costs ~1.4 s of compilation in every new process.)
+    a typed list costs ~1.4 s of compilation in every new process.)  Every array of the tuple is a read-only
+    view: Numba types writable and read-only arrays apart, and a bracket can mix frames mapped from the page
+    cache (read-only) with frames read past it (:mod:`omnispectral.filebytes`), which a tuple of two array
+    types would not index.
     """
     if model.lin_table is not None or len({f.dtype for f in frames}) != 1 or _fused_kernel() is None:
         return None
-    return tuple(f.reshape(-1) for f in frames)
+    return tuple(_read_only_flat(f) for f in frames)
+
+
+def _read_only_flat(frame: np.ndarray) -> np.ndarray:
+    flat = frame.reshape(-1).view()  # a view of its own, so that the caller's array keeps its flags
+    flat.flags.writeable = False
+    return flat
 
 
 def _merge_rows_fused(model: _Model, flat_frames, shape: tuple[int, int, int], rows: slice,

@@ -49,11 +49,11 @@ from omnispectral.spectral.library import load_camera, load_filter
 from omnispectral.spectral.noise import SensorNoiseModel
 from omnispectral.spectral.system import MultibandSystem, build_system
 
-__all__ = ["CAMERA_DRIVERS", "CAMERA_NAMES", "DEFAULT_SUN_FILTER", "HEAD_DRIVERS", "KIND_NAMES", "MAX_SUN_BRACKETS",
-           "ORIENTATIONS", "PRESETS", "SUN_EXPOSURE_BASE", "SUN_FILTER_CHANGERS", "BracketSpec", "CameraSpec",
-           "GridSpec", "HeadSpec", "LensSpec", "MountingSpec", "RawSpec", "Rig", "SunBracketSpec", "camera_model",
-           "camera_system", "load_preset", "load_rig", "one_camera_rig", "resolve_rig", "rig_from_dict", "rig_system",
-           "rig_toml", "rig_with_camera_settings"]
+__all__ = ["CAMERA_DRIVERS", "CAMERA_NAMES", "DARK_EXPOSURE_BASE", "DEFAULT_SUN_FILTER", "HEAD_DRIVERS", "KIND_NAMES",
+           "MAX_SUN_BRACKETS", "ORIENTATIONS", "PRESETS", "SUN_EXPOSURE_BASE", "SUN_FILTER_CHANGERS", "BracketSpec",
+           "CameraSpec", "DarkExtensionSpec", "GridSpec", "HeadSpec", "LensSpec", "MountingSpec", "RawSpec", "Rig",
+           "SunBracketSpec", "camera_model", "camera_system", "load_preset", "load_rig", "one_camera_rig",
+           "resolve_rig", "rig_from_dict", "rig_system", "rig_toml", "rig_with_camera_settings"]
 
 HEAD_DRIVERS = ("simulated", "rodeon", "merlin")
 CAMERA_DRIVERS = ("simulated", "genicam")
@@ -210,6 +210,37 @@ class BracketSpec:
         return float(sum(self.exposures_s))
 
 
+#: Exposure index of the first frame of a direction's dark extension (its files are ``A_e64.tif`` …): after any
+#: regular bracket (at most 64 exposures) and before the sun bracket's.
+DARK_EXPOSURE_BASE = 64
+
+
+@dataclass(frozen=True)
+class DarkExtensionSpec:
+    """Longer exposures for a direction whose darkest pixels stay noisy in the bracket's longest exposure.
+
+    After a direction's bracket the capture meters its longest exposure in every camera: the ``percentile``
+    of each pixel's darkest channel, above the black level.  Where that signal's signal-to-noise ratio (the
+    camera's noise model: shot noise, read noise, quantisation) is below ``snr``, both cameras shoot
+    exposures of 2, 4, 8 … times the longest until the darkest pixels would reach ``snr`` or the next
+    exposure would pass ``longest_s`` (dawn, dusk, deep shade: ``omnispectral.capture.run``).  Processing
+    merges them with the bracket.
+    """
+
+    longest_s: float = 1.008
+    percentile: float = 1.0
+    snr: float = 40.0
+
+    def exposures_s(self, bracket_longest_s: float) -> tuple[float, ...]:
+        """The exposures an extension may shoot after a bracket whose longest exposure is ``bracket_longest_s``:
+        twice it, four times it, … up to :attr:`longest_s`."""
+        out, t = [], 2.0 * bracket_longest_s
+        while t <= self.longest_s * (1.0 + 1e-9) and len(out) < SUN_EXPOSURE_BASE - DARK_EXPOSURE_BASE:
+            out.append(t)
+            t *= 2.0
+        return tuple(out)
+
+
 #: Exposure index of the first frame of a direction's sun bracket (its files are ``A_e100.tif`` …): far from
 #: any regular bracket (at most 64 exposures), so the two never share a key in the journal.
 SUN_EXPOSURE_BASE = 100
@@ -281,6 +312,9 @@ class Rig:
         The TOML it was read from (stored with sessions and products).
     sun : SunBracketSpec or None
         The sun bracket (``[sun]`` table), or ``None``: a saturated sun then stays a lower bound.
+    dark : DarkExtensionSpec or None
+        Longer exposures where the bracket's longest leaves the darkest pixels noisy (``[dark]`` table), or
+        ``None``: every direction gets the bracket alone.
 
     References
     ----------
@@ -301,6 +335,8 @@ class Rig:
     toml_text: str = ""
     #: the sun bracket (``[sun]`` table), or ``None``: a saturated sun then stays a lower bound
     sun: SunBracketSpec | None = None
+    #: longer exposures where the bracket leaves the darkest pixels noisy (``[dark]`` table), or ``None``
+    dark: DarkExtensionSpec | None = None
 
     @property
     def camera_a(self) -> CameraSpec:
@@ -564,6 +600,23 @@ def _sun(r: _Reader | None) -> SunBracketSpec | None:
                           r.get("min_clipped_px", int, default.min_clipped_px, positive=True))
 
 
+def _dark(r: _Reader | None, bracket: BracketSpec) -> DarkExtensionSpec | None:
+    """The ``[dark]`` table (see :class:`DarkExtensionSpec`), or ``None`` without one."""
+    if r is None:
+        return None
+    default = DarkExtensionSpec()
+    longest = r.get("longest_s", float, default.longest_s, positive=True)
+    if not MIN_EXPOSURE_S <= longest <= MAX_EXPOSURE_S:
+        r.fail("longest_s", f"{longest!r} s is outside {MIN_EXPOSURE_S:g}-{MAX_EXPOSURE_S:g} s")
+    if longest < 2.0 * max(bracket.exposures_s):
+        r.fail("longest_s", f"{longest} s is below twice the bracket's longest exposure ({max(bracket.exposures_s)} s):"
+                            " there is no longer exposure to add")
+    percentile = r.get("percentile", float, default.percentile, positive=True)
+    if percentile >= 100:
+        r.fail("percentile", f"must be in (0, 100), got {percentile}")
+    return DarkExtensionSpec(longest, percentile, r.get("snr", float, default.snr, positive=True))
+
+
 def rig_from_dict(data: dict, source: str = "<rig>", toml_text: str = "") -> Rig:
     """Validate a parsed rig description (see the module docstring for the layout)."""
     top = _Reader(data, "", source)
@@ -613,9 +666,10 @@ def rig_from_dict(data: dict, source: str = "<rig>", toml_text: str = "") -> Rig
         g.fail("n_pan", "give n_pan and n_tilt, or overlap")
     if grid.n_pan is not None and grid.n_tilt is not None and grid.n_pan * grid.n_tilt > MAX_DIRECTIONS:
         g.fail("n_pan", f"{grid.n_pan} x {grid.n_tilt} directions is above the limit of {MAX_DIRECTIONS}")
+    bracket = _bracket(top.table("bracket"))
     return Rig(top.get("name", str, Path(source).stem), top.get("description", str, ""), cameras, mounting, head,
-               _bracket(top.table("bracket")), grid, source, toml_text,
-               _sun(top.table("sun") if "sun" in data else None))
+               bracket, grid, source, toml_text, _sun(top.table("sun") if "sun" in data else None),
+               _dark(top.table("dark") if "dark" in data else None, bracket))
 
 
 def load_rig(path: str | Path) -> Rig:

@@ -11,6 +11,7 @@ import subprocess
 import sys
 import textwrap
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -93,7 +94,6 @@ def test_rig_file_errors(tmp_path):
 
 def test_rig_snapshot_round_trip(tmp_path):
     import tomllib
-    from dataclasses import replace
 
     from omnispectral.rig import rig_from_dict
 
@@ -116,8 +116,12 @@ def ramp_renderer(shape):
     return render
 
 
-def small_session(tmp_path, name="s"):
+def small_session(tmp_path, name="s", dark=False):
+    """A session of the ``small`` preset; without its dark extension unless ``dark`` (the ramp's dim directions
+    would trigger it, and these tests count frames: tests/capture/test_dark_extension.py tests it)."""
     rig = load_preset("small")
+    if not dark:
+        rig = replace(rig, dark=None, toml_text="")
     plan = make_plan(rig)
     return rig, Session.create(tmp_path / name, rig, plan, kind="test")
 

@@ -43,8 +43,10 @@ def test_capture_darks_records_the_dark_signal_per_exposure(dark_session, capsys
     path, rig, _ = dark_session
     assert main(["capture", "darks", "-o", str(path), "--dark-frames", "16", "--json"]) == 0
     index = json.loads(capsys.readouterr().out)
-    exposures = Session.open(path).plan().exposures_s
-    assert len(index["frames"]) == 2 * len(exposures)
+    plan = Session.open(path).plan()
+    exposures = plan.exposures_s
+    # the bracket and the dark extension's longer exposures (indices from DARK_EXPOSURE_BASE)
+    assert len(index["frames"]) == 2 * (len(exposures) + len(plan.dark_extension["exposures_s"]))
     darks = load_darks(path)
     cam = rig.camera_a
     dmap = dark_signal_map(cam, (cam.height_px, cam.width_px, 3))

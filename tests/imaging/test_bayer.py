@@ -9,7 +9,7 @@ import tomllib
 import numpy as np
 import pytest
 
-from omnispectral.capture.session import Session
+from omnispectral.capture.session import Session, dark_extensions
 from omnispectral.cli import main
 from omnispectral.errors import ConfigurationError
 from omnispectral.imaging.bayer import CFA_PATTERNS, channel_index, correct_raw, demosaic, mosaic
@@ -144,8 +144,11 @@ def test_cli_simulate_raw_bayer_then_process(tmp_path, capsys):
     assert main(["process", str(tmp_path / "s"), "-o", str(tmp_path / "p"), "--registration", "paper",
                  "--json"]) == 0
     index = json.loads(capsys.readouterr().out)
-    # 144 regular frames and the sun bracket's 8
-    assert index["bands"] == ["A:R", "A:G", "A:B", "B:R", "B:G", "B:B"] and index["session_check"]["n_ok"] == 152
+    # 144 regular frames, the sun bracket's 8 and the dark extension's (2 cameras each)
+    s = Session.open(tmp_path / "s")
+    n_dark = 2 * sum(dark_extensions(s, s.plan()).values())
+    assert index["bands"] == ["A:R", "A:G", "A:B", "B:R", "B:G", "B:B"] and n_dark > 0
+    assert index["session_check"]["n_ok"] == 152 + n_dark
 
 
 @pytest.mark.slow

@@ -10,7 +10,7 @@ import tomllib
 import numpy as np
 import pytest
 
-from omnispectral.capture.session import Session, verify_session
+from omnispectral.capture.session import Session, dark_extensions, verify_session
 from omnispectral.cli import main
 from omnispectral.errors import ConfigurationError
 from omnispectral.mosaic.sources import MergedDirections
@@ -75,8 +75,9 @@ def test_one_camera_session_processes_and_six_bands_beat_three(products):
     session, product, index, report = products["rgb"]
     assert Session.open(session).cameras() == ("A",)
     v = verify_session(session)
-    # 12 directions x 6 exposures x one camera, and the sun bracket's 4 attenuated exposures
-    assert v["complete"] and v["n_planned"] == 12 * 6 + 4
+    # 12 directions x 6 exposures x one camera, the sun bracket's 4 attenuated exposures, the dark extension's
+    s = Session.open(session)
+    assert v["complete"] and v["n_planned"] == 12 * 6 + 4 + sum(dark_extensions(s, s.plan()).values())
     assert index["bands"] == BANDS3 and index["registration"]["method"] == "none"
     merged = MergedDirections.open(product / "merged")
     assert merged.n_bands == 3 and not list((product / "merged").glob("*_B.npy"))
@@ -176,8 +177,9 @@ def test_cli_simulate_one_camera_writes_a_three_band_session_and_truth(tmp_path,
     assert main(["simulate", "--rig", str(tmp_path / "tiny.toml"), "--one-camera", "--gt-width", "64",
                  "-o", str(tmp_path / "s"), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["n_written"] == 12 * 6 + 4 and out["rig"] == "small-A"  # + the sun bracket's 4 exposures
     s = Session.open(tmp_path / "s")
+    # + the sun bracket's 4 exposures and the dark extension's
+    assert out["n_written"] == 12 * 6 + 4 + sum(dark_extensions(s, s.plan()).values()) and out["rig"] == "small-A"
     assert s.cameras() == ("A",) and not list((tmp_path / "s" / "frames").rglob("B_*.tif"))
     gt = json.loads((tmp_path / "s" / "ground_truth" / "ground_truth.json").read_text())
     assert gt["bands"]["names"] == BANDS3 and "camera_b_true" not in gt

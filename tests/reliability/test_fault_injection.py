@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 import tifffile
 
-from omnispectral.capture.session import Session, read_journal, verify_session
+from omnispectral.capture.session import Session, dark_extensions, read_journal, verify_session
 from omnispectral.cli import main
 from omnispectral.errors import ConfigurationError, InputFileError, OmnispectralError
 from omnispectral.io import TEMP_MARK, atomic_write_text, is_temp_name
@@ -35,9 +35,10 @@ TESTS = os.path.dirname(os.path.abspath(__file__))
 SRC = str(Path(TESTS).parents[1] / "src")
 
 
-#: Frames of a tiny session at noon: 12 directions x 6 exposures x 2 cameras, and one sun bracket of 4
-#: attenuated exposures x 2 cameras.
-TINY_FRAMES = 144 + 8
+#: Frames of a tiny session at noon: 12 directions x 6 exposures x 2 cameras, one sun bracket of 4 attenuated
+#: exposures x 2 cameras, and the dark extension of 4 directions whose darkest pixels the bracket leaves noisy
+#: (2 longer exposures x 2 cameras each).
+TINY_FRAMES = 144 + 8 + 16
 
 
 def tiny_rig(width_px: int = 96, height_px: int = 52):
@@ -249,11 +250,15 @@ def test_case03_two_simultaneous_simulations_never_duplicate_frames(tmp_path):
     codes = [p.returncode for p in procs]
     written = sum(json.loads(o)["n_written"] for (o, _), c in zip(outs, codes, strict=True) if c == 0)
     refused = [e for (_, e), c in zip(outs, codes, strict=True) if c != 0]
-    assert written == TINY_FRAMES  # every frame written exactly once, by one of them
+    s = Session.open(tmp_path / "s")
+    # the regular frames and the sun bracket's (TINY_FRAMES less the noon session's dark extension), and the
+    # dark extension this start time needed
+    expected = 144 + 8 + 2 * sum(dark_extensions(s, s.plan()).values())
+    assert written == expected  # every frame written exactly once, by one of them
     assert all("in use by pid" in e and "Traceback" not in e for e in refused)
     lines = (tmp_path / "s" / "journal.jsonl").read_text().splitlines()
     keys = [(r["direction"], r["camera"], r["exposure_index"]) for r in map(json.loads, lines)]
-    assert len(keys) == len(set(keys)) == TINY_FRAMES
+    assert len(keys) == len(set(keys)) == expected
     assert verify_session(tmp_path / "s")["complete"]
 
 

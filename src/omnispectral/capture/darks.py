@@ -28,6 +28,7 @@ from omnispectral.io import atomic_path, atomic_write_json
 from omnispectral.limits import check_image_header
 from omnispectral.locking import directory_lock
 from omnispectral.progress import ProgressCallback
+from omnispectral.rig import DARK_EXPOSURE_BASE
 
 __all__ = ["DARKS_DIR", "DARKS_INDEX", "dark_relpath", "load_darks", "record_darks"]
 
@@ -41,7 +42,9 @@ def dark_relpath(camera: str, exposure_index: int) -> str:
 
 def record_darks(session: Session | str | Path, cameras: dict[str, Camera], n_frames: int = 8,
                  timeout_s: float = 30.0, progress: ProgressCallback | None = None) -> dict:
-    """Record and average ``n_frames`` dark frames per camera and exposure of the session's plan.
+    """Record and average ``n_frames`` dark frames per camera and exposure of the session's plan (its bracket, and
+    the exposures of its dark extension at their exposure indices from
+    :data:`~omnispectral.rig.DARK_EXPOSURE_BASE`).
 
     The exposure actually set (as the camera reports it) is recorded; a dark frame whose exposure differs
     by more than 1 % from the plan's is refused, since the dark signal is proportional to it.  Returns the
@@ -50,12 +53,15 @@ def record_darks(session: Session | str | Path, cameras: dict[str, Camera], n_fr
     session = session if isinstance(session, Session) else Session.open(session)
     if n_frames < 1:
         raise ConfigurationError(f"n_frames must be at least 1, got {n_frames}")
-    exposures = list(session.plan().exposures_s)
+    plan = session.plan()
+    exposures = dict(enumerate(plan.exposures_s))
+    exposures.update({DARK_EXPOSURE_BASE + j: t
+                      for j, t in enumerate((plan.dark_extension or {}).get("exposures_s", ()))})
     total = len(exposures) * len(cameras)
     entries = []
     with directory_lock(session.path, "capture darks"):
         (session.path / DARKS_DIR).mkdir(exist_ok=True)
-        for i, (k, c) in enumerate((k, c) for k in range(len(exposures)) for c in sorted(cameras)):
+        for i, (k, c) in enumerate((k, c) for k in exposures for c in sorted(cameras)):
             cam = cameras[c]
             actual = float(cam.set_exposure(exposures[k]))
             if abs(actual - exposures[k]) > 0.01 * exposures[k]:

@@ -17,6 +17,10 @@ The presets' head speed and settle time reproduce Table 2 (36 directions ~180 s;
 Sun bracket (beyond the paper).  A rig with a ``[sun]`` table shoots one attenuated bracket through a
 neutral-density filter, aimed at the sun once a direction's shortest exposure clips
 (``omnispectral.capture.run``); the plan adds its cost (:func:`sun_bracket_time_s`).
+
+Dark extension (beyond the paper).  A rig with a ``[dark]`` table adds exposures of 2, 4, … times the
+bracket's longest to a direction whose darkest pixels stay noisy in it (:func:`dark_extension_plan`); the plan
+states the most this adds to one direction, not in its total (only dark directions pay it).
 """
 
 from __future__ import annotations
@@ -31,8 +35,9 @@ from omnispectral.io import atomic_path
 from omnispectral.limits import check_directions
 from omnispectral.rig import Rig
 
-__all__ = ["Direction", "Plan", "direction_grid", "estimate_time", "format_duration", "grid_counts", "make_plan",
-           "move_time_s", "overlap_of", "plot_tradeoff", "sun_bracket_plan", "sun_bracket_time_s", "tradeoff"]
+__all__ = ["Direction", "Plan", "dark_extension_plan", "direction_grid", "estimate_time", "format_duration",
+           "grid_counts", "make_plan", "move_time_s", "overlap_of", "plot_tradeoff", "sun_bracket_plan",
+           "sun_bracket_time_s", "tradeoff"]
 
 
 @dataclass(frozen=True)
@@ -65,6 +70,8 @@ class Plan:
     timing_s: dict
     #: the sun bracket (:class:`~omnispectral.rig.SunBracketSpec` as a dict), or ``None``
     sun_bracket: dict | None = None
+    #: the dark extension (:func:`dark_extension_plan`), or ``None``
+    dark_extension: dict | None = None
 
     @property
     def n_directions(self) -> int:
@@ -80,7 +87,8 @@ class Plan:
                 "estimated_s": self.estimated_s, "estimated_hms": format_duration(self.estimated_s),
                 "timing_s": self.timing_s, "exposures_s": list(self.exposures_s),
                 "directions": [d.to_dict() for d in self.directions],
-                **({"sun_bracket": self.sun_bracket} if self.sun_bracket is not None else {})}
+                **({"sun_bracket": self.sun_bracket} if self.sun_bracket is not None else {}),
+                **({"dark_extension": self.dark_extension} if self.dark_extension is not None else {})}
 
     @classmethod
     def from_dict(cls, d: dict) -> Plan:
@@ -88,7 +96,7 @@ class Plan:
                                float(x["tilt_deg"])) for x in d["directions"])
         return cls(d["rig"], int(d["n_pan"]), int(d["n_tilt"]), float(d["overlap"]), float(d["overlap_pan"]),
                    float(d["overlap_tilt"]), dirs, tuple(d["exposures_s"]), dict(d["timing_s"]),
-                   d.get("sun_bracket"))
+                   d.get("sun_bracket"), d.get("dark_extension"))
 
 
 def format_duration(seconds: float) -> str:
@@ -196,6 +204,20 @@ def sun_bracket_plan(rig: Rig) -> dict | None:
             "expected_s": sun_bracket_time_s(rig)}
 
 
+def dark_extension_plan(rig: Rig, exposures_s: tuple[float, ...]) -> dict | None:
+    """What the plan records of the rig's dark extension (:class:`~omnispectral.rig.DarkExtensionSpec`) after a
+    bracket of ``exposures_s``: the exposures it may add (longest last), what triggers it, and the most it can
+    add to one direction's time (not in the plan's total: only dark directions pay it)."""
+    if rig.dark is None:
+        return None
+    extra = rig.dark.exposures_s(max(exposures_s))
+    if not extra:
+        return None
+    readout = max(c.readout_s for c in rig.cameras.values())
+    return {"exposures_s": list(extra), "percentile": rig.dark.percentile, "snr": rig.dark.snr,
+            "longest_s": rig.dark.longest_s, "max_s_per_direction": float(sum(extra)) + len(extra) * readout}
+
+
 def make_plan(rig: Rig, overlap: float | None = None, exposures_s: tuple[float, ...] | None = None) -> Plan:
     """The capture plan of a rig: its grid (or the one ``overlap`` implies), order and time estimate.
 
@@ -247,7 +269,7 @@ def make_plan(rig: Rig, overlap: float | None = None, exposures_s: tuple[float, 
         timing["total"] += timing["sun_bracket"]
         timing["per_direction"] = timing["total"] / len(dirs)
     return Plan(rig.name, n_pan, n_tilt, min(o_pan, o_tilt) if overlap is None else float(overlap),
-                o_pan, o_tilt, dirs, exposures, timing, sun)
+                o_pan, o_tilt, dirs, exposures, timing, sun, dark_extension_plan(rig, exposures))
 
 
 def tradeoff(rig: Rig, overlaps=None) -> list[dict]:

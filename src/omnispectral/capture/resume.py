@@ -25,6 +25,8 @@ from omnispectral.capture.session import (
     FRAME_NAME,
     QUARANTINE_DIR,
     Session,
+    bracket_indices,
+    dark_extensions,
     decode_frame,
     file_record_checksums,
     pixel_problem,
@@ -51,16 +53,18 @@ def sun_bracket_order(plan, cameras: tuple[str, ...]) -> list[tuple[int, str, in
 
 
 def capture_order(session: Session) -> dict[tuple[int, str, int], int]:
-    """Position of every planned frame in the capture loop's order (direction, exposure, camera), the sun
-    brackets right after the direction that found the sun (its ``sun`` event; at the end when unknown)."""
+    """Position of every planned frame in the capture loop's order (direction, exposure, camera), a direction's
+    dark extension (its ``dark`` event) right after its bracket, the sun brackets right after the direction that
+    found the sun (its ``sun`` event; at the end when unknown)."""
     plan = session.plan()
     cameras = session.cameras()
     sun_keys = sun_bracket_order(plan, cameras)
     source = next((e.get("source_direction") for e in session.events()
                    if e.get("event") == "sun" and e.get("source_direction") is not None), None)
+    extensions = dark_extensions(session, plan)
     order, n = {}, 0
     for d in plan.directions:
-        for k in range(len(plan.exposures_s)):
+        for k in bracket_indices(plan, extensions.get(d.index, 0)):
             for c in cameras:
                 order[(d.index, c, k)] = n
                 n += 1

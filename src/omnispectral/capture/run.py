@@ -15,10 +15,17 @@ frames, unless a near object hides the sun from camera B's viewpoint only: then 
 with the sun off-centre in pan (:data:`SUN_RETRY_PAN_FRACTIONS`), which moves B around the pan axis, until
 each camera has seen it whole (:func:`sun_seen_whole`).  A resumed run finishes started sun brackets at
 their recorded poses.
+
+Dark extension (a rig with a ``[dark]`` table): after a direction's bracket, the darkest pixels of its longest
+exposure are metered in every camera (:func:`dark_exposures_needed`); where their signal-to-noise ratio is
+below the plan's, both cameras shoot exposures of 2, 4, … times the longest (exposure indices from
+``DARK_EXPOSURE_BASE``) and the event ``dark`` records how many (0: none needed).  A resumed run meters a direction
+whose bracket it finds complete without a ``dark`` event, and finishes the extensions its events name.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -27,17 +34,17 @@ import numpy as np
 
 from omnispectral.capture.devices import Camera, Clock, DeviceError, DeviceTimeout, FilterChanger, PanTiltHead
 from omnispectral.capture.plan import Direction, Plan
-from omnispectral.capture.session import Session
+from omnispectral.capture.session import Session, dark_extensions
 from omnispectral.errors import OmnispectralError
 from omnispectral.imaging.geometry import ray_to_lonlat
 from omnispectral.io import clean_temp_files
 from omnispectral.locking import directory_lock
 from omnispectral.progress import ProgressCallback
-from omnispectral.rig import MAX_SUN_BRACKETS, SUN_EXPOSURE_BASE
+from omnispectral.rig import DARK_EXPOSURE_BASE, MAX_SUN_BRACKETS, SUN_EXPOSURE_BASE, Rig
 
 __all__ = ["SUN_RETRY_PAN_FRACTIONS", "CaptureResult", "RetryPolicy", "aim_at_clipped_spot", "clipped_centroid_px",
-           "clips", "every_camera_saw_sun", "expose_all", "expose_and_write", "goto_direction", "recorded_sun_pose",
-           "run_capture", "shoot_sun_bracket", "shortest_frame", "sun_poses", "sun_seen_whole"]
+           "clips", "dark_exposures_needed", "every_camera_saw_sun", "expose_all", "expose_and_write", "goto_direction",
+           "recorded_sun_pose", "run_capture", "shoot_sun_bracket", "shortest_frame", "sun_poses", "sun_seen_whole"]
 
 
 @dataclass
@@ -149,6 +156,48 @@ def shortest_frame(session: Session, plan: Plan, direction: int,
     pose = (float(meta.get("pan_deg_reported", meta.get("pan_deg_commanded"))),
             float(meta.get("tilt_deg_reported", meta.get("tilt_deg_commanded"))))
     return np.asarray(frame), int(meta.get("bit_depth", 12)), pose
+
+
+def darkest_signal_dn(frame: np.ndarray, percentile: float, black_level_dn: float = 0.0) -> float:
+    """The ``percentile`` of a frame's per-pixel darkest channel above the black level (DN): the signal of its
+    darkest pixels."""
+    darkest = frame.min(axis=-1) if frame.ndim == 3 else frame
+    return float(np.percentile(darkest, percentile)) - black_level_dn
+
+
+def dark_exposures_needed(frames: dict[str, np.ndarray], rig: Rig, dark: dict) -> int:
+    """How many exposures of the dark extension ``dark`` (the plan's) a direction needs after its bracket.
+
+    Each camera's longest exposure ``frames[c]`` is metered (:func:`darkest_signal_dn`); its darkest pixels need
+    the signal at which the camera's noise model gives the plan's signal-to-noise ratio
+    (:meth:`~omnispectral.spectral.noise.SensorNoiseModel.dn_for_snr`), and each exposure of the extension
+    doubles the signal: ``ceil(log2(needed / metered))`` exposures, the most the plan allows for a pixel at 0 DN,
+    the largest over the cameras."""
+    n_max = len(dark["exposures_s"])
+    need = 0
+    for c, frame in frames.items():
+        cam = rig.cameras[c]
+        signal = darkest_signal_dn(frame, float(dark["percentile"]), cam.black_level_dn)
+        wanted = cam.noise_model().dn_for_snr(float(dark["snr"]))
+        if signal < wanted:
+            need = max(need, n_max if signal <= 0 else min(n_max, math.ceil(math.log2(wanted / signal))))
+    return need
+
+
+def longest_frames(session: Session, plan: Plan, direction: int, names, fresh: dict) -> dict[str, np.ndarray] | None:
+    """Each camera's longest regular exposure of a direction: the frame just shot, else read back (``None``
+    when one is missing or damaged: ``session verify`` names it)."""
+    k_long = int(np.argmax(plan.exposures_s))
+    out = {}
+    for c in names:
+        if c in fresh:
+            out[c] = fresh[c]
+            continue
+        try:
+            out[c] = np.asarray(session.read_frame(direction, c, k_long)[0])
+        except OmnispectralError:
+            return None
+    return out
 
 
 #: Pan offsets (fractions of camera A's pan field of view) of the retries when camera B does not see the sun
@@ -319,7 +368,10 @@ def _run_capture_locked(session: Session, head: PanTiltHead, cameras: dict[str, 
     want_sun = plan.sun_bracket is not None and filters is not None
     n_sun = len(plan.sun_bracket["exposures_s"]) * len(names_all) if plan.sun_bracket else 0
     sun_pose = recorded_sun_pose(session, plan, done) if want_sun else None
-    n_planned = Session.n_planned(plan, names_all) + n_sun * len({k[0] for k in done if k[2] >= SUN_EXPOSURE_BASE})
+    rig = session.rig()
+    extensions = dark_extensions(session, plan)
+    n_planned = (Session.n_planned(plan, names_all) + n_sun * len({k[0] for k in done if k[2] >= SUN_EXPOSURE_BASE})
+                 + sum(extensions.values()) * len(names_all))
     n_before = len(done)
     session.log_event("resume" if n_before or cut else "start", frames_done=n_before, journal_cut=cut)
     t_wall, t_sim = time.perf_counter(), clock.monotonic()
@@ -333,11 +385,36 @@ def _run_capture_locked(session: Session, head: PanTiltHead, cameras: dict[str, 
         if progress is not None:
             progress("capture", len(done), n_planned)
 
+    def dark_extension(d: Direction, longest: dict, pose: tuple[float, float] | None) -> int:
+        """The direction's dark extension (module docstring): metered unless its event says, then shot."""
+        nonlocal n_planned
+        if d.index not in extensions:
+            frames = longest_frames(session, plan, d.index, names_all, longest)
+            if frames is None:
+                return 0
+            extensions[d.index] = dark_exposures_needed(frames, rig, plan.dark_extension)
+            session.log_event("dark", direction=d.index, n_exposures=extensions[d.index])
+            n_planned += extensions[d.index] * len(names_all)
+        n = 0
+        for k, exposure in enumerate(plan.dark_extension["exposures_s"][:extensions[d.index]]):
+            index = DARK_EXPOSURE_BASE + k
+            names = [c for c in names_all if (d.index, c, index) not in done]
+            if not names:
+                continue
+            if pose is None:  # a resumed run: the bracket was shot before, the head is elsewhere
+                pose = goto_direction(head, d, policy)
+            expose_and_write(session, d, cameras, names, index, exposure, policy, pose, clock)
+            for c in names:
+                done.add((d.index, c, index))
+                n += 1
+                on_frame()
+        return n
+
     def sun_brackets(first: Direction, source: int | None) -> int:
         """The aimed bracket, then retries while a camera has not seen the sun whole (module docstring)."""
         nonlocal n_planned
         n = 0
-        poses = sun_poses(first, session.rig().camera_a.pan_fov_deg)
+        poses = sun_poses(first, rig.camera_a.pan_fov_deg)
         for i, pose in enumerate(poses):
             if i and (every_camera_saw_sun(session, plan, poses[:i], done, tuple(names_all))
                       or not every_camera_saw_sun(session, plan, poses[:i], done, ("A",))):
@@ -353,15 +430,17 @@ def _run_capture_locked(session: Session, head: PanTiltHead, cameras: dict[str, 
         return n
 
     try:
-        k_short = int(np.argmin(plan.exposures_s))
+        k_short, k_long = int(np.argmin(plan.exposures_s)), int(np.argmax(plan.exposures_s))
         if sun_pose is not None:  # sun brackets a killed run started: finish them at their poses
             written += sun_brackets(sun_pose, None)
-        model_a = session.rig().camera_model("A") if want_sun else None
+        model_a = rig.camera_model("A") if want_sun else None
         for d in plan.directions:
             todo = [(c, k) for k in range(len(plan.exposures_s)) for c in names_all if (d.index, c, k) not in done]
             fresh: dict = {}
+            longest: dict = {}
+            pose = None
             if todo:
-                pan_r, tilt_r = goto_direction(head, d, policy)
+                pose = pan_r, tilt_r = goto_direction(head, d, policy)
                 for k, exposure in enumerate(plan.exposures_s):
                     names = [c for c in names_all if (d.index, c, k) not in done]
                     if not names:
@@ -374,7 +453,11 @@ def _run_capture_locked(session: Session, head: PanTiltHead, cameras: dict[str, 
                         written += 1
                         if k == k_short:
                             fresh[c] = (data, cameras[c].bit_depth, (pan_r, tilt_r))
+                        if k == k_long:
+                            longest[c] = data
                         on_frame()
+            if plan.dark_extension:
+                written += dark_extension(d, longest, pose)
             if not want_sun or sun_pose is not None:
                 continue
             shot = shortest_frame(session, plan, d.index, fresh)

@@ -61,13 +61,14 @@ from omnispectral.fingerprint import differences
 from omnispectral.io import atomic_path, atomic_write_json, atomic_write_text, is_temp_name, jsonable
 from omnispectral.limits import check_image_shape
 from omnispectral.locking import LOCK_NAME, directory_lock
-from omnispectral.rig import CAMERA_NAMES, SUN_EXPOSURE_BASE, Rig, rig_from_dict, rig_toml
+from omnispectral.rig import CAMERA_NAMES, DARK_EXPOSURE_BASE, SUN_EXPOSURE_BASE, Rig, rig_from_dict, rig_toml
 from omnispectral.threads import ordered_thread_map
 
 __all__ = ["CALIBRATION_DIR", "CAMERAS", "FORMAT_VERSION", "FRAME_NAME", "QUARANTINE_DIR", "JournalReadout", "Session",
-           "content_matches", "decode_frame", "file_record_checksums", "frame_relpath", "half_created_leftovers",
-           "pixel_problem", "pixels_sha256", "read_journal", "record_key", "referenced_problem", "sun_bracket_keys",
-           "sun_directions", "utc_now_iso", "verify_session"]
+           "bracket_indices", "content_matches", "dark_extension_keys", "dark_extensions", "decode_frame",
+           "file_record_checksums", "frame_relpath", "half_created_leftovers", "pixel_problem", "pixels_sha256",
+           "read_journal", "record_key", "referenced_problem", "sun_bracket_keys", "sun_directions", "utc_now_iso",
+           "verify_session"]
 
 FORMAT_VERSION = 1
 #: The folder of a session's calibration views (:mod:`omnispectral.capture.calviews`).
@@ -604,6 +605,26 @@ def sun_directions(session: Session, records: dict) -> list[int]:
     return sorted(found)
 
 
+def dark_extensions(session: Session, plan: Plan) -> dict[int, int]:
+    """How many exposures of the dark extension each metered direction got: its last ``dark`` event, ``direction →
+    n_exposures`` (0: metered, none needed), at most the plan's extension (``omnispectral.capture.run``)."""
+    n_max = len((plan.dark_extension or {}).get("exposures_s", ()))
+    return {int(e["direction"]): min(n_max, max(0, int(e.get("n_exposures", 0))))
+            for e in session.events() if e.get("event") == "dark" and "direction" in e}
+
+
+def dark_extension_keys(extensions: dict[int, int], cameras: tuple[str, ...]) -> list[tuple[int, str, int]]:
+    """Every frame key of the dark extensions ``extensions`` (:func:`dark_extensions`): direction, camera, exposure
+    index from :data:`~omnispectral.rig.DARK_EXPOSURE_BASE`."""
+    return [(d, c, DARK_EXPOSURE_BASE + k) for d, n in sorted(extensions.items()) for k in range(n) for c in cameras]
+
+
+def bracket_indices(plan: Plan, n_dark: int) -> list[int]:
+    """Exposure indices of one direction's frames that the HDR merge takes: the plan's bracket, then the
+    direction's ``n_dark`` exposures of the dark extension."""
+    return list(range(len(plan.exposures_s))) + [DARK_EXPOSURE_BASE + k for k in range(n_dark)]
+
+
 def sun_bracket_keys(session: Session, plan: Plan, records: dict, cameras: tuple[str, ...]) -> list[tuple]:
     """Every frame key of the sun brackets the capture started (all of their exposures, both cameras)."""
     if not plan.sun_bracket:
@@ -635,6 +656,7 @@ def verify_session(path: str | Path, check_pixels: bool = False, checksums: bool
     j = read_journal(s.journal_path)
     cameras = s.cameras()
     expected = [(d.index, c, k) for d in plan.directions for c in cameras for k in range(len(plan.exposures_s))]
+    expected += dark_extension_keys(dark_extensions(s, plan), cameras)
     expected += sun_bracket_keys(s, plan, j.records, cameras)
 
     full_scale = s.full_scale_dn()

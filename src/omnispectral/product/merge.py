@@ -12,7 +12,7 @@ merged directions (:func:`omnispectral.product.process.register_parallax`).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Collection
+from collections.abc import Callable, Collection, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,7 +21,7 @@ import numpy as np
 from scipy import ndimage
 
 from omnispectral.capture.darks import load_darks
-from omnispectral.capture.session import Session
+from omnispectral.capture.session import Session, bracket_indices, dark_extensions
 from omnispectral.errors import OmnispectralError
 from omnispectral.imaging import merge_exposures
 from omnispectral.imaging.bayer import correct_raw, demosaic
@@ -168,12 +168,17 @@ RAW_ORDERS: dict[str, Callable[[Bracket, RawSpec], np.ndarray]] = {
 READ_THREADS = 2
 
 
-def read_direction(session, direction: int, cameras, n_exposures: int) -> dict[str, dict]:
+def _exposure_indices(exposures: int | Sequence[int]) -> list[int]:
+    return list(range(exposures)) if isinstance(exposures, int) else [int(k) for k in exposures]
+
+
+def read_direction(session, direction: int, cameras, exposures: int | Sequence[int]) -> dict[str, dict]:
     """Every frame of one direction's brackets, ``{camera: {exposure index: (pixels, record)}}``, read (and checked,
     :meth:`~omnispectral.capture.session.Session.check_frames_on_read`) as ``session.read_frame`` does, on
     :data:`READ_THREADS` threads: what :func:`merge_session` reads for the next direction while the current one
-    merges."""
-    keys = [(c, k) for c in cameras for k in range(n_exposures)]
+    merges.  ``exposures``: the bracket's exposure indices (:func:`~omnispectral.capture.session.bracket_indices`),
+    or their count ``n`` (indices ``0 .. n - 1``)."""
+    keys = [(c, k) for c in cameras for k in _exposure_indices(exposures)]
     with ThreadPoolExecutor(max_workers=READ_THREADS, thread_name_prefix="frame") as pool:
         frames = list(pool.map(lambda key: session.read_frame(direction, *key), keys))
     out: dict[str, dict] = {c: {} for c in cameras}
@@ -182,7 +187,8 @@ def read_direction(session, direction: int, cameras, n_exposures: int) -> dict[s
     return out
 
 
-def merge_direction(session, direction: int, camera: str, n_exposures: int, raw: RawSettings | None = None,
+def merge_direction(session, direction: int, camera: str, exposures: int | Sequence[int],
+                    raw: RawSettings | None = None,
                     read: dict | None = None, **merge_options) -> tuple[np.ndarray, tuple[float, float]]:
     """HDR merge (Eqs. (1)-(2)) of one camera's bracket; returns radiance (H, W, 3) and the reported pan/tilt.
 
@@ -198,8 +204,9 @@ def merge_direction(session, direction: int, camera: str, n_exposures: int, raw:
         The direction's index in the plan.
     camera : str
         ``"A"`` or ``"B"``.
-    n_exposures : int
-        Exposures of the bracket (indices ``0 .. n_exposures - 1``).
+    exposures : int or sequence of int
+        Exposure indices of the bracket (with a dark extension, its frames too:
+        :func:`~omnispectral.capture.session.bracket_indices`), or their count ``n`` (indices ``0 .. n - 1``).
     raw : RawSettings, optional
         The camera's black level (DN), dark frames and raw layout (default: no correction, RGB frames).
     read : dict, optional
@@ -223,7 +230,7 @@ def merge_direction(session, direction: int, camera: str, n_exposures: int, raw:
        decision", IEEE TIP 16(1), 2007 (the default demosaicing of raw mosaics).
     """
     raw = raw or RawSettings()
-    b = read_bracket(session, direction, camera, range(n_exposures), raw, read, **merge_options)
+    b = read_bracket(session, direction, camera, _exposure_indices(exposures), raw, read, **merge_options)
     if b.pattern is None:  # RGB frames
         return _merged_radiance(b, b.frames), b.pose
     spec = raw.raw or RawSpec()
@@ -295,21 +302,23 @@ def merge_session(session: Session | str | Path, output: str | Path, *, register
         session={"path": str(session.path.resolve()), **_session_summary(session)}, dtype=dtype,
         system=_system_or_none(rig))
     done = writer.done()
-    n, n_exposures = len(directions), len(plan.exposures_s)
+    n = len(directions)
+    extensions = dark_extensions(session, plan)
+    indices = {d.index: bracket_indices(plan, extensions.get(d.index, 0)) for d in directions}
     todo = [d for d in directions if d.index not in done]
     # the next direction's frames are read (decoded, checked) on a worker thread while this one merges: file
     # reads, SHA-256 and TIFF decoding release the GIL; memory holds one direction's frames more
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="frames") as reader:
-        ahead = reader.submit(read_direction, session, todo[0].index, names, n_exposures) if todo else None
+        ahead = reader.submit(read_direction, session, todo[0].index, names, indices[todo[0].index]) if todo else None
         for i, d in enumerate(directions):
             if d.index not in done:
                 frames = ahead.result()
                 later = todo.index(d) + 1
-                ahead = reader.submit(read_direction, session, todo[later].index, names, n_exposures) \
+                ahead = reader.submit(read_direction, session, todo[later].index, names, indices[todo[later].index]) \
                     if later < len(todo) else None
                 images, (pan, tilt) = {}, (0.0, 0.0)
                 for c in names:
-                    images[c], pose = merge_direction(session, d.index, c, n_exposures, raw[c], frames[c],
+                    images[c], pose = merge_direction(session, d.index, c, indices[d.index], raw[c], frames[c],
                                                       **merge_options)
                     if c == "A":
                         pan, tilt = pose

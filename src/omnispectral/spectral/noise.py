@@ -12,6 +12,7 @@ largest code (EMVA 1288's linear camera model without dark current).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,6 +57,14 @@ class SensorNoiseModel:
         g = self.gain_e_per_dn
         signal_e = np.clip(np.asarray(dn, dtype=np.float64), 0.0, None) * g
         return (signal_e + self.read_noise_e**2) / g**2 + 1.0 / 12.0
+
+    def dn_for_snr(self, snr: float) -> float:
+        """The mean value (DN) at which a pixel's signal-to-noise ratio ``dn / sqrt(variance_dn2(dn))`` is ``snr``:
+        the positive root of ``dn^2 = snr^2 (dn / g + read^2 / g^2 + 1/12)``, ``g`` the gain (e-/DN)."""
+        g = self.gain_e_per_dn
+        b = snr**2 / g
+        c = snr**2 * (self.read_noise_e**2 / g**2 + 1.0 / 12.0)
+        return 0.5 * (b + math.sqrt(b * b + 4.0 * c))
 
     def to_dict(self) -> dict:
         return {"name": self.name, "full_well_e": self.full_well_e, "read_noise_e": self.read_noise_e,

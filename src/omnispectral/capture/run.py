@@ -43,8 +43,9 @@ from omnispectral.progress import ProgressCallback
 from omnispectral.rig import DARK_EXPOSURE_BASE, MAX_SUN_BRACKETS, SUN_EXPOSURE_BASE, Rig
 
 __all__ = ["SUN_RETRY_PAN_FRACTIONS", "CaptureResult", "RetryPolicy", "aim_at_clipped_spot", "clipped_centroid_px",
-           "clips", "dark_exposures_needed", "every_camera_saw_sun", "expose_all", "expose_and_write", "goto_direction",
-           "recorded_sun_pose", "run_capture", "shoot_sun_bracket", "shortest_frame", "sun_poses", "sun_seen_whole"]
+           "clips", "dark_exposures_needed", "darkest_signal_dn", "every_camera_saw_sun", "expose_all",
+           "expose_and_write", "goto_direction", "longest_frames", "recorded_sun_pose", "run_capture",
+           "shoot_sun_bracket", "shortest_frame", "sun_poses", "sun_seen_whole"]
 
 
 @dataclass

@@ -5,11 +5,11 @@ A raw frame is read once, by the stage that uses it (checksum, decoding and merg
 - **In the page cache** (a session just captured or read before): the file is mapped read-only, and the bytes
   are the cache's own pages, with no copy (:func:`mapped_bytes`).
 - **Not in the page cache** (a session read back from disk): mapping it makes the kernel give the page cache a
-  fresh page for every 4 KiB. On the development virtual machine that cost 14–20 CPU-s and 23–30 s for the
-  14.5 GiB of a full-scale session, against 0.4 CPU-s and 5–7 s for the same bytes read with direct I/O
-  (``O_DIRECT``, open(2)): the disk's controller writes them straight into the process's buffer
-  (:func:`direct_bytes`).  The cache is left as it was, so a session larger than memory does not evict what
-  else the machine holds.
+  fresh page for every 4 KiB. On the development virtual machine that cost 14.6–20.6 CPU-s and 23–30 s for the
+  14.5 GiB of a full-scale session, against 2.5–3.1 CPU-s and 9–12 s for the same bytes read with direct I/O
+  (``O_DIRECT``, open(2)) into a fresh buffer per file: the disk's controller writes them straight into the
+  process's buffer (:func:`direct_bytes`; docs/benchmarks.md, Processing).  The cache is left as it was, so a
+  session larger than memory does not evict what else the machine holds.
 
 Which case holds is asked of the kernel, page by page, with mincore(2) (:func:`resident_fraction`).  A file
 system that refuses direct I/O (tmpfs on older kernels, some network file systems) gets the mapping.
@@ -128,7 +128,7 @@ def _read_rest(path: str | Path, start: int, stop: int) -> bytes:
 
 def resident_fraction(fd: int, size: int) -> float:
     """Fraction of the file's pages in the page cache (mincore(2) on a mapping that touches none of them);
-    1.0 where the system cannot say, so that the file is mapped as before."""
+    1.0 where the system cannot say, so that the file is mapped."""
     mincore = _mincore()
     if mincore is None:
         return 1.0

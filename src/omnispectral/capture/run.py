@@ -45,7 +45,7 @@ from omnispectral.rig import DARK_EXPOSURE_BASE, MAX_SUN_BRACKETS, SUN_EXPOSURE_
 __all__ = ["SUN_RETRY_PAN_FRACTIONS", "CaptureResult", "RetryPolicy", "aim_at_clipped_spot", "clipped_centroid_px",
            "clips", "dark_exposures_needed", "darkest_signal_dn", "every_camera_saw_sun", "expose_all",
            "expose_and_write", "goto_direction", "longest_frames", "recorded_sun_pose", "run_capture",
-           "shoot_sun_bracket", "shortest_frame", "sun_poses", "sun_seen_whole"]
+           "shoot_missing", "shoot_sun_bracket", "shortest_frame", "sun_poses", "sun_seen_whole"]
 
 
 @dataclass
@@ -338,22 +338,31 @@ def shoot_sun_bracket(session: Session, plan: Plan, d: Direction, cameras: dict[
     if len(keys) == len(sun["exposures_s"]) * len(names_all):
         session.log_event("sun", direction=d.index, filter=sun["filter"], pan_deg=d.pan_deg, tilt_deg=d.tilt_deg,
                           source_direction=source)
-    written = 0
     filters.insert(sun["filter"])
     try:
-        for k, exposure in enumerate(sun["exposures_s"]):
-            index = SUN_EXPOSURE_BASE + k
-            names = [c for c in names_all if (d.index, c, index) not in done]
-            if not names:
-                continue
-            expose_and_write(session, d, cameras, names, index, exposure, policy, pose, clock,
-                             {"filter": sun["filter"]})
-            for c in names:
-                done.add((d.index, c, index))
-                written += 1
-                on_frame()
+        return shoot_missing(session, d, cameras, names_all, enumerate(sun["exposures_s"], SUN_EXPOSURE_BASE), policy,
+                             pose, clock, done, on_frame, {"filter": sun["filter"]})
     finally:
         filters.remove()
+
+
+def shoot_missing(session: Session, d: Direction, cameras: dict[str, Camera], names_all, exposures, policy: RetryPolicy,
+                  pose, clock: Clock, done: set, on_frame: Callable[[], None], extra: dict | None = None) -> int:
+    """Each ``(exposure index, exposure_s)`` of ``exposures`` on the cameras of ``names_all`` that have not shot it
+    in direction ``d`` (``done``, updated), at the head pose ``pose`` (or a callable giving it, called only when
+    something is left to shoot); returns the frames written."""
+    written = 0
+    for index, exposure in exposures:
+        names = [c for c in names_all if (d.index, c, index) not in done]
+        if not names:
+            continue
+        if callable(pose):
+            pose = pose()
+        expose_and_write(session, d, cameras, names, index, exposure, policy, pose, clock, extra)
+        for c in names:
+            done.add((d.index, c, index))
+            written += 1
+            on_frame()
     return written
 
 
@@ -396,20 +405,11 @@ def _run_capture_locked(session: Session, head: PanTiltHead, cameras: dict[str, 
             extensions[d.index] = dark_exposures_needed(frames, rig, plan.dark_extension)
             session.log_event("dark", direction=d.index, n_exposures=extensions[d.index])
             n_planned += extensions[d.index] * len(names_all)
-        n = 0
-        for k, exposure in enumerate(plan.dark_extension["exposures_s"][:extensions[d.index]]):
-            index = DARK_EXPOSURE_BASE + k
-            names = [c for c in names_all if (d.index, c, index) not in done]
-            if not names:
-                continue
-            if pose is None:  # a resumed run: the bracket was shot before, the head is elsewhere
-                pose = goto_direction(head, d, policy)
-            expose_and_write(session, d, cameras, names, index, exposure, policy, pose, clock)
-            for c in names:
-                done.add((d.index, c, index))
-                n += 1
-                on_frame()
-        return n
+        exposures = enumerate(plan.dark_extension["exposures_s"][:extensions[d.index]], DARK_EXPOSURE_BASE)
+        # a resumed run whose bracket was shot before: the head is elsewhere, and goes there only to shoot
+        return shoot_missing(session, d, cameras, names_all, exposures, policy,
+                             pose if pose is not None else (lambda: goto_direction(head, d, policy)),
+                             clock, done, on_frame)
 
     def sun_brackets(first: Direction, source: int | None) -> int:
         """The aimed bracket, then retries while a camera has not seen the sun whole (module docstring)."""

@@ -4,6 +4,7 @@ shot by the capture loop, resumed, verified, recorded in the dark frames and mer
 from __future__ import annotations
 
 import datetime as dt
+import json
 import math
 from dataclasses import replace
 
@@ -14,8 +15,9 @@ from omnispectral.capture.darks import load_darks, record_darks
 from omnispectral.capture.plan import Plan, make_plan
 from omnispectral.capture.run import RetryPolicy, dark_exposures_needed, darkest_signal_dn, run_capture
 from omnispectral.capture.session import Session, bracket_indices, dark_extensions, verify_session
-from omnispectral.errors import ConfigurationError
-from omnispectral.product.merge import merge_direction
+from omnispectral.cli.simulate import _print_exposures_set_otherwise
+from omnispectral.errors import ConfigurationError, InputFileError
+from omnispectral.product.merge import RawSettings, merge_direction
 from omnispectral.rig import DARK_EXPOSURE_BASE, load_preset, rig_from_dict, rig_toml
 from omnispectral.sim.devices import CameraFaults, FakeClock, SimulatedCamera, SimulatedHead
 from omnispectral.sim.simulate import simulated_dark_cameras
@@ -91,9 +93,9 @@ def _rate(pan_deg):
     return 400.0 if pan_deg < 0 else 40000.0
 
 
-def _devices(rig, clock, faults=None):
+def _devices(rig, clock, faults=None, rate=_rate):
     head = SimulatedHead(clock, rig.head.pan_speed_deg_s, rig.head.tilt_speed_deg_s, rig.head.settle_s)
-    cams = {c: SimulatedCamera(c, head, dim_renderer(_rate), clock, 12, rig.cameras[c].readout_s,
+    cams = {c: SimulatedCamera(c, head, dim_renderer(rate), clock, 12, rig.cameras[c].readout_s,
                                faults=(faults or {}).get(c, CameraFaults())) for c in ("A", "B")}
     return head, cams
 
@@ -153,3 +155,45 @@ def test_dark_frames_cover_the_extension(tmp_path):
     record_darks(s, simulated_dark_cameras(rig, seed=1), n_frames=1)
     darks = load_darks(s.path)
     assert {k for c, k in darks if c == "A"} == set(range(15)) | {DARK_EXPOSURE_BASE, DARK_EXPOSURE_BASE + 1}
+
+
+def test_a_camera_that_clamps_the_exposure_is_recorded_and_merged_with_the_exposure_it_set(tmp_path, capsys):
+    """A real camera clamps a request beyond its range (GenTL ``ExposureTime.max``): B here cannot expose longer than
+    0.4 s, so the extension's 0.504 s and 1.008 s become 0.4 s.  The journal, the dark frames and the merge must
+    use 0.4 s; dividing by the requested times would make B's dim radiance 1.3-2.5x too low there."""
+    rig, s = _session(tmp_path)
+    plan = s.plan()
+    clock = FakeClock(START)
+    head, cams = _devices(rig, clock)
+    cams["B"].max_exposure_s = 0.4
+    res = run_capture(s, head, cams, clock, progress=False)
+    assert res.complete
+    dim = sorted(d.index for d in plan.directions if d.pan_deg < 0)
+    assert res.exposures_set_otherwise == [
+        {"camera": "B", "exposure_index": DARK_EXPOSURE_BASE + j, "requested_s": pytest.approx(t), "set_s": 0.4,
+         "n_frames": len(dim)} for j, t in enumerate((0.504, 1.008))]
+    _print_exposures_set_otherwise(res.exposures_set_otherwise)  # what `capture` prints under its summary
+    out = " ".join(capsys.readouterr().out.split())
+    assert f"camera B set 0.4 s for the planned 1.008 s (exposure {DARK_EXPOSURE_BASE + 1}, {len(dim)} frames)" in out
+    _, meta = s.read_frame(dim[0], "B", DARK_EXPOSURE_BASE + 1)
+    assert meta["exposure_s"] == 0.4 and meta["exposure_s_requested"] == pytest.approx(1.008)
+    assert s.read_frame(dim[0], "A", DARK_EXPOSURE_BASE + 1)[1]["exposure_s"] == pytest.approx(1.008)
+    # B's dim radiance (0.7 x 400 DN/s) from the extended bracket: unbiased with the exposure the camera set
+    radiance, _ = merge_direction(s, dim[0], "B", bracket_indices(plan, 2), weight="noise")
+    assert abs(float(np.median(radiance)) / 280.0 - 1.0) < 0.02, float(np.median(radiance))
+    # dark frames are recorded at the exposure the camera sets; one recorded at another exposure is refused by name
+    _, darks_cams = _devices(rig, FakeClock(START), rate=lambda pan_deg: 0.0)  # lenses capped
+    darks_cams["B"].max_exposure_s = 0.4
+    record_darks(s, darks_cams, n_frames=1)
+    index_path = s.path / "darks" / "darks.json"
+    index = json.loads(index_path.read_text())
+    entry = next(e for e in index["frames"] if e["camera"] == "B" and e["exposure_index"] == DARK_EXPOSURE_BASE + 1)
+    assert entry["exposure_s"] == 0.4 and entry["exposure_s_requested"] == pytest.approx(1.008)
+    raw = RawSettings.of(s, rig, "B")
+    merged, _ = merge_direction(s, dim[0], "B", bracket_indices(plan, 2), raw, weight="noise")
+    assert abs(float(np.median(merged)) / 280.0 - 1.0) < 0.02, float(np.median(merged))
+    entry["exposure_s"] = 1.008
+    index_path.write_text(json.dumps(index))
+    with pytest.raises(InputFileError, match=rf"B_e{DARK_EXPOSURE_BASE + 1}\.tif.*recorded at 1\.008 s, but "
+                                             rf"frame frames/d{dim[0]:04d}/B_e{DARK_EXPOSURE_BASE + 1}\.tif"):
+        merge_direction(s, dim[0], "B", bracket_indices(plan, 2), RawSettings.of(s, rig, "B"), weight="noise")

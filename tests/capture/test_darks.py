@@ -9,7 +9,7 @@ import shutil
 import numpy as np
 import pytest
 
-from omnispectral.capture.darks import load_darks
+from omnispectral.capture.darks import dark_frames, load_darks
 from omnispectral.capture.session import Session
 from omnispectral.cli import main
 from omnispectral.errors import InputFileError
@@ -69,7 +69,7 @@ def test_process_subtracts_dark_frames_against_the_ground_truth(dark_session, ca
     plan = s.plan()
     renderer = RigRenderer(rig, scene, b_mounting_error_deg=true_mounting_error_deg(0))
     gain = rig.camera_a.noise_model().gain_e_per_dn
-    darks = {k: v for (c, k), v in load_darks(path).items() if c == "A"}
+    darks = {k: v for (c, k), v in dark_frames(path).items() if c == "A"}
     errors = {"darks": [], "black level": []}
     for d in plan.directions[:6]:
         truth = renderer.electrons_per_second("A", d.pan_deg, d.tilt_deg) / gain

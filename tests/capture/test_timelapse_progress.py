@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import datetime as dt
 
+import pytest
+
+from omnispectral.capture.plan import format_duration, make_plan
 from omnispectral.capture.timelapse import parse_hhmm, parse_interval_s, run_timelapse, slot_times
+from omnispectral.rig import load_preset
 from omnispectral.sim.devices import FakeClock
 
 TZ = dt.UTC
@@ -79,7 +83,17 @@ def test_cli_timelapse_draws_slots_then_each_slots_frames(tmp_path, monkeypatch,
                       ("slots", 1, 2),
                       ("simulate", "slot_0605"), ("capture", 0, 2), ("capture", 1, 2), ("capture", 2, 2),
                       ("slots", 2, 2)]
-    assert "slot_0605: complete" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "slot_0605: complete" in out and "between slots" not in out  # the small preset's plan fits in 5 min
+    # slots closer than a capture can take at dusk: said before the first slot
+    events.clear()
+    assert main(["timelapse", "--preset", "small", "--every", "1min", "--from", "06:00", "--to", "06:01",
+                 "-o", str(tmp_path / "tight")]) == 0
+    out = " ".join(capsys.readouterr().out.split())
+    plan = make_plan(load_preset("small"))
+    assert plan.longest_s == pytest.approx(plan.estimated_s + 36 * plan.dark_extension["max_s_per_direction"])
+    assert (f"A capture takes {format_duration(plan.estimated_s)}, {format_duration(plan.longest_s)} with the dark "
+            "extension in every direction: longer than the 1 min 00 s between slots") in out
 
 
 def test_progress_bars_start_a_stage_again_for_the_next_slot():

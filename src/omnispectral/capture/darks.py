@@ -17,11 +17,12 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import tifffile
 
-from omnispectral.capture.devices import Camera, DeviceError
+from omnispectral.capture.devices import Camera
 from omnispectral.capture.session import Session, utc_now_iso
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.io import atomic_path, atomic_write_json
@@ -30,10 +31,13 @@ from omnispectral.locking import directory_lock
 from omnispectral.progress import ProgressCallback
 from omnispectral.rig import DARK_EXPOSURE_BASE
 
-__all__ = ["DARKS_DIR", "DARKS_INDEX", "dark_relpath", "load_darks", "record_darks"]
+__all__ = ["DARKS_DIR", "DARKS_INDEX", "DARK_EXPOSURE_TOLERANCE", "DarkFrame", "check_dark_exposure", "dark_frames",
+           "dark_relpath", "load_darks", "record_darks"]
 
 DARKS_DIR = "darks"
 DARKS_INDEX = "darks.json"
+#: Relative difference between a dark frame's exposure and a frame's above which the dark frame does not apply.
+DARK_EXPOSURE_TOLERANCE = 0.01
 
 
 def dark_relpath(camera: str, exposure_index: int) -> str:
@@ -46,9 +50,10 @@ def record_darks(session: Session | str | Path, cameras: dict[str, Camera], n_fr
     the exposures of its dark extension at their exposure indices from
     :data:`~omnispectral.rig.DARK_EXPOSURE_BASE`).
 
-    The exposure actually set (as the camera reports it) is recorded; a dark frame whose exposure differs
-    by more than 1 % from the plan's is refused, since the dark signal is proportional to it.  Returns the
-    index written to ``darks/darks.json``.
+    The exposure the camera reports it set is recorded (``exposure_s``; the plan's as ``exposure_s_requested``
+    when the camera set another, as the capture records its frames: a camera clamps to its range).  Processing
+    subtracts a dark frame only from frames of the same exposure (:func:`check_dark_exposure`), since the dark
+    signal grows with it.  Returns the index written to ``darks/darks.json``.
     """
     session = session if isinstance(session, Session) else Session.open(session)
     if n_frames < 1:
@@ -64,9 +69,6 @@ def record_darks(session: Session | str | Path, cameras: dict[str, Camera], n_fr
         for i, (k, c) in enumerate((k, c) for k in exposures for c in sorted(cameras)):
             cam = cameras[c]
             actual = float(cam.set_exposure(exposures[k]))
-            if abs(actual - exposures[k]) > 0.01 * exposures[k]:
-                raise DeviceError(f"camera {c}: exposure {exposures[k]} s was set as {actual} s; dark frames must "
-                                  "match the bracket's exposures")
             total_dn = None
             for _ in range(n_frames):
                 cam.trigger()
@@ -79,7 +81,9 @@ def record_darks(session: Session | str | Path, cameras: dict[str, Camera], n_fr
                 tifffile.imwrite(tmp, mean, photometric="rgb" if mean.ndim == 3 else "minisblack", metadata=None)
             entries.append({"camera": c, "exposure_index": k, "exposure_s": actual, "n_frames": n_frames,
                             "file": rel, "shape": list(mean.shape), "mean_dn": float(mean.mean()),
-                            "p99_dn": float(np.percentile(mean, 99)), "max_dn": float(mean.max())})
+                            "p99_dn": float(np.percentile(mean, 99)), "max_dn": float(mean.max()),
+                            **({"exposure_s_requested": exposures[k]}
+                               if abs(actual - exposures[k]) > DARK_EXPOSURE_TOLERANCE * exposures[k] else {})})
             if progress is not None:
                 progress("darks", i + 1, total)
         index = {"format": "omnispectral-darks", "format_version": 1, "created_utc": utc_now_iso(),
@@ -89,8 +93,32 @@ def record_darks(session: Session | str | Path, cameras: dict[str, Camera], n_fr
     return index
 
 
+class DarkFrame(NamedTuple):
+    """A mean dark frame (float32 DN), the exposure it was recorded at (as the camera set it) and its file."""
+
+    data: np.ndarray
+    exposure_s: float
+    path: Path
+
+
+def check_dark_exposure(dark: DarkFrame, frame_exposure_s: float, frame_name: str) -> None:
+    """Refuse a dark frame recorded at another exposure than the frame it would correct (beyond
+    :data:`DARK_EXPOSURE_TOLERANCE`): its dark signal would be scaled wrongly in every pixel."""
+    if abs(dark.exposure_s - frame_exposure_s) > DARK_EXPOSURE_TOLERANCE * frame_exposure_s:
+        raise InputFileError(dark.path, f"dark frame recorded at {dark.exposure_s:.6g} s, but {frame_name} was "
+                                        f"exposed {frame_exposure_s:.6g} s (record the dark frames again: "
+                                        "'omnispectral capture darks')")
+
+
 def load_darks(session_path: str | Path) -> dict[tuple[str, int], np.ndarray]:
-    """The session's mean dark frames by (camera, exposure index); empty when none were recorded.
+    """The session's mean dark frames by (camera, exposure index); empty when none were recorded
+    (:func:`dark_frames` without their exposures)."""
+    return {k: v.data for k, v in dark_frames(session_path).items()}
+
+
+def dark_frames(session_path: str | Path) -> dict[tuple[str, int], DarkFrame]:
+    """The session's mean dark frames by (camera, exposure index), with the exposure each was recorded at;
+    empty when none were recorded.
 
     A damaged or inconsistent dark frame stops processing with its name (a wrong dark frame would bias
     every pixel silently).
@@ -121,5 +149,9 @@ def load_darks(session_path: str | Path) -> dict[tuple[str, int], np.ndarray]:
             raise InputFileError(p, f"damaged dark frame ({type(exc).__name__}: {exc})") from None
         if list(data.shape) != list(e["shape"]):
             raise InputFileError(p, f"shape {list(data.shape)}, darks.json recorded {e['shape']}")
-        out[(str(e["camera"]), int(e["exposure_index"]))] = data.astype(np.float32)
+        try:
+            exposure_s = float(e["exposure_s"])
+        except (KeyError, TypeError, ValueError):
+            raise InputFileError(index_path, f"entry for {e['file']} has no exposure_s") from None
+        out[(str(e["camera"]), int(e["exposure_index"]))] = DarkFrame(data.astype(np.float32), exposure_s, p)
     return out

@@ -81,6 +81,12 @@ class Plan:
     def estimated_s(self) -> float:
         return float(self.timing_s["total"])
 
+    @property
+    def longest_s(self) -> float:
+        """The estimate with the dark extension in every direction: what a capture can take at dusk (s)."""
+        extra = (self.dark_extension or {}).get("max_s_per_direction", 0.0)
+        return self.estimated_s + self.n_directions * float(extra)
+
     def to_dict(self) -> dict:
         return {"rig": self.rig_name, "n_directions": self.n_directions, "n_pan": self.n_pan, "n_tilt": self.n_tilt,
                 "overlap": self.overlap, "overlap_pan": self.overlap_pan, "overlap_tilt": self.overlap_tilt,

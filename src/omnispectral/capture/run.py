@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -42,10 +42,14 @@ from omnispectral.locking import directory_lock
 from omnispectral.progress import ProgressCallback
 from omnispectral.rig import DARK_EXPOSURE_BASE, MAX_SUN_BRACKETS, SUN_EXPOSURE_BASE, Rig
 
-__all__ = ["SUN_RETRY_PAN_FRACTIONS", "CaptureResult", "RetryPolicy", "aim_at_clipped_spot", "clipped_centroid_px",
-           "clips", "dark_exposures_needed", "darkest_signal_dn", "every_camera_saw_sun", "expose_all",
-           "expose_and_write", "goto_direction", "longest_frames", "recorded_sun_pose", "run_capture",
-           "shoot_missing", "shoot_sun_bracket", "shortest_frame", "sun_poses", "sun_seen_whole"]
+__all__ = ["EXPOSURE_TOLERANCE", "SUN_RETRY_PAN_FRACTIONS", "CaptureResult", "RetryPolicy", "aim_at_clipped_spot",
+           "clipped_centroid_px", "clips", "dark_exposures_needed", "darkest_signal_dn", "every_camera_saw_sun",
+           "expose_all", "expose_and_write", "exposure_differs", "exposures_set_otherwise", "goto_direction",
+           "longest_frames", "recorded_sun_pose", "run_capture", "shoot_missing", "shoot_sun_bracket", "shortest_frame",
+           "sun_poses", "sun_seen_whole"]
+
+#: Relative difference between the requested and the set exposure above which a frame records both.
+EXPOSURE_TOLERANCE = 1e-3
 
 
 @dataclass
@@ -60,6 +64,8 @@ class CaptureResult:
     stopped_reason: str | None
     simulated_s: float
     wall_s: float
+    #: :func:`exposures_set_otherwise` of the session after the run (empty when every camera set what was asked)
+    exposures_set_otherwise: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return dict(self.__dict__)
@@ -94,9 +100,13 @@ def goto_direction(head: PanTiltHead, d: Direction, policy: RetryPolicy) -> tupl
 
 
 def expose_all(cameras: dict[str, Camera], names: list[str], exposure_s: float, policy: RetryPolicy) -> dict:
-    """Set the exposure on the named cameras, trigger them together, read every frame (bounded retries)."""
-    for n in names:
-        cameras[n].set_exposure(exposure_s)
+    """Set the exposure on the named cameras, trigger them together, read every frame (bounded retries).
+
+    Returns ``{name: (frame, metadata, exposure_set_s)}``: ``exposure_set_s`` is the exposure the camera reports
+    it set (a real camera clamps to its range and rounds to its clock: :meth:`Camera.set_exposure`), which is
+    the one the merge must divide by.
+    """
+    set_s = {n: float(cameras[n].set_exposure(exposure_s)) for n in names}
     for n in names:
         cameras[n].trigger()
     frames = {}
@@ -104,7 +114,7 @@ def expose_all(cameras: dict[str, Camera], names: list[str], exposure_s: float, 
         problem = ""
         for attempt in range(policy.retries + 1):
             try:
-                frames[n] = cameras[n].read_frame(policy.timeout_s)
+                frames[n] = (*cameras[n].read_frame(policy.timeout_s), set_s[n])
                 break
             except DeviceTimeout as exc:
                 problem = str(exc)
@@ -113,6 +123,23 @@ def expose_all(cameras: dict[str, Camera], names: list[str], exposure_s: float, 
         else:
             raise DeviceError(f"camera {n}: no frame after {policy.retries + 1} attempts: {problem}")
     return frames
+
+
+def exposures_set_otherwise(session: Session) -> list[dict]:
+    """The session's exposures a camera set otherwise than planned: one entry per camera, exposure index and
+    the two times, with the number of frames (journal records with ``exposure_s_requested``)."""
+    counts: dict[tuple, int] = {}
+    for (_, c, k), rec in session.completed().items():
+        if "exposure_s_requested" in rec:
+            key = (c, k, float(rec["exposure_s_requested"]), float(rec["exposure_s"]))
+            counts[key] = counts.get(key, 0) + 1
+    return [{"camera": c, "exposure_index": k, "requested_s": req, "set_s": got, "n_frames": n}
+            for (c, k, req, got), n in sorted(counts.items())]
+
+
+def exposure_differs(requested_s: float, set_s: float) -> bool:
+    """Whether a camera set an exposure other than the one asked, beyond :data:`EXPOSURE_TOLERANCE` (relative)."""
+    return abs(set_s - requested_s) > EXPOSURE_TOLERANCE * requested_s
 
 
 def clips(frame: np.ndarray, bit_depth: int, clip_fraction: float, min_pixels: int) -> bool:
@@ -313,16 +340,24 @@ def expose_and_write(session: Session, d: Direction, cameras: dict[str, Camera],
                      exposure_s: float, policy: RetryPolicy, pose: tuple[float, float], clock: Clock,
                      extra: dict | None = None) -> dict:
     """One exposure on the named cameras (:func:`expose_all`), each frame written with its journal record
-    (exposure ``index``, the head's commanded and reported pose, ``extra`` fields); returns the frames."""
+    (exposure ``index``, the exposure the camera set, the head's commanded and reported pose, ``extra``
+    fields); returns the frames.
+
+    A camera that set another exposure than ``exposure_s`` (:func:`exposure_differs`: out of its range) is
+    recorded with the one it set and the requested one as ``exposure_s_requested``
+    (:func:`exposures_set_otherwise` lists them)."""
     frames = expose_all(cameras, names, exposure_s, policy)
     for c in names:
-        data, meta = frames[c]
-        session.write_frame(data, direction=d.index, camera=c, exposure_index=index, exposure_s=exposure_s,
+        data, meta, set_s = frames[c]
+        fields = {"camera_metadata": meta, **(extra or {})}
+        if exposure_differs(exposure_s, set_s):
+            fields["exposure_s_requested"] = exposure_s
+        session.write_frame(data, direction=d.index, camera=c, exposure_index=index, exposure_s=set_s,
                             pan_deg_commanded=d.pan_deg, tilt_deg_commanded=d.tilt_deg,
                             pan_deg_reported=pose[0], tilt_deg_reported=pose[1],
                             timestamp=clock.now().isoformat(timespec="milliseconds"),
-                            bit_depth=cameras[c].bit_depth, extra={"camera_metadata": meta, **(extra or {})})
-    return frames
+                            bit_depth=cameras[c].bit_depth, extra=fields)
+    return {c: frames[c][:2] for c in names}
 
 
 def shoot_sun_bracket(session: Session, plan: Plan, d: Direction, cameras: dict[str, Camera], names_all,
@@ -479,4 +514,4 @@ def _run_capture_locked(session: Session, head: PanTiltHead, cameras: dict[str, 
     if complete:
         session.log_event("complete", frames_done=len(done))
     return CaptureResult(str(session.path), n_planned, written, n_before, complete, stopped,
-                         clock.monotonic() - t_sim, time.perf_counter() - t_wall)
+                         clock.monotonic() - t_sim, time.perf_counter() - t_wall, exposures_set_otherwise(session))

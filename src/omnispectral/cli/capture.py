@@ -64,7 +64,8 @@ def cmd_plan(args) -> int:
         console.print(f"dark extension: {', '.join(f'{t * 1e3:.4g}' for t in dark['exposures_s'])} ms on both "
                       f"cameras where the darkest {dark['percentile']:g} % of a direction's pixels stay below a "
                       f"signal-to-noise ratio of {dark['snr']:g} in the longest exposure; at most "
-                      f"+{format_duration(dark['max_s_per_direction'])} per such direction, not in the total")
+                      f"+{format_duration(dark['max_s_per_direction'])} per such direction, not in the total "
+                      f"({format_duration(plan.longest_s)} if every direction needs it)")
     if args.tradeoff:
         console.print(f"Overlap trade-off (paper Fig. 15a; the rig's own grid marked at "
                       f"{100 * make_plan(rig).overlap:.1f} %): {out['tradeoff']['png']} and {out['tradeoff']['json']}")

@@ -10,6 +10,7 @@ from rich.markup import escape
 from omnispectral.capture.calviews import calibration_folder
 from omnispectral.capture.drivers import rig_device_kind
 from omnispectral.capture.hardware import capture_calibration_views, capture_darks, capture_with_devices, dry_run
+from omnispectral.capture.plan import format_duration, make_plan
 from omnispectral.capture.session import Session
 from omnispectral.capture.timelapse import parse_hhmm, parse_interval_s, run_timelapse, slot_times
 from omnispectral.choices import DEFAULT_DATE
@@ -178,7 +179,16 @@ def cmd_capture(args) -> int:
                       f"{out['n_planned']} into {out['session']}"
                       + ("" if out["complete"] else f"; stopped: {escape(str(out['stopped_reason']))} "
                                                     "(run the same command again to resume)"))
+        _print_exposures_set_otherwise(out.get("exposures_set_otherwise") or [])
     return 0 if out["complete"] else 1
+
+
+def _print_exposures_set_otherwise(entries: list[dict]) -> None:
+    """One line per camera and exposure the camera set otherwise than planned (out of its range)."""
+    for e in entries:
+        console.print(f"[yellow]camera {escape(str(e['camera']))} set {e['set_s']:.6g} s for the planned "
+                      f"{e['requested_s']:.6g} s (exposure {e['exposure_index']}, {e['n_frames']} frames)[/yellow]: "
+                      "the frames record the exposure set, and the merge uses it")
 
 
 def _print_problems(rig, problems: list[str]) -> None:
@@ -197,7 +207,14 @@ def cmd_timelapse(args) -> int:
     rig = rig_from_args(args, default_preset="small")
     start = _start_time(args.start, args.date)
     end = _start_time(args.end, args.date)
-    slots = slot_times(start, end, parse_interval_s(args.every))
+    every_s = parse_interval_s(args.every)
+    slots = slot_times(start, end, every_s)
+    plan = make_plan(rig)
+    if plan.longest_s > every_s and not args.json:
+        console.print(f"[yellow]A capture takes {format_duration(plan.estimated_s)}, "
+                      f"{format_duration(plan.longest_s)} with the dark extension in every direction: longer than "
+                      f"the {format_duration(every_s)} between slots[/yellow], so a slot may start late and the "
+                      "slots it overruns are skipped")
     clock = FakeClock(start)  # simulated devices: simulated time
     # one mounting of the cameras for the whole series: its views once, in SERIES/calibration/ (the first slot)
     views = False if args.no_calibration_views else calibration_folder(args.output)
@@ -221,7 +238,7 @@ def cmd_timelapse(args) -> int:
     # one bar for the slots (drawn from the start, before the first slot's capture), one for the frames of each
     with ProgressBars(enabled=not args.json, transient=True) as bars:
         index = run_timelapse(args.output, slots, clock, capture,
-                              {"rig": rig.name, "every_s": parse_interval_s(args.every), "scene": args.scene},
+                              {"rig": rig.name, "every_s": every_s, "scene": args.scene},
                               on_slot=report, progress=bars)
     if args.json:
         print_json(index)

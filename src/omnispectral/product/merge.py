@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from omnispectral.capture.darks import load_darks
-from omnispectral.capture.session import Session, bracket_indices, dark_extensions
+from omnispectral.capture.darks import check_dark_exposure, dark_frames
+from omnispectral.capture.session import Session, bracket_indices, dark_extensions, frame_relpath
 from omnispectral.errors import OmnispectralError
 from omnispectral.imaging import merge_exposures
 from omnispectral.imaging.bayer import correct_raw, demosaic
@@ -51,9 +51,10 @@ class RawSettings:
     """How one camera's raw frames are corrected and demosaiced before/after the HDR merge.
 
     ``black_level_dn`` is the rig file's (a frame's own ``camera_metadata.black_level`` wins); ``darks`` maps
-    an exposure index to its mean dark frame (:mod:`omnispectral.capture.darks`), which replaces the black
-    level; ``raw`` is the rig's :class:`~omnispectral.rig.RawSpec` (None: RGB frames, unless a frame's
-    metadata names a CFA layout, which is then demosaiced with the defaults).
+    an exposure index to its mean dark frame (:class:`~omnispectral.capture.darks.DarkFrame`), which replaces the
+    black level in frames of the exposure it was recorded at (another exposure is refused); ``raw`` is the rig's
+    :class:`~omnispectral.rig.RawSpec` (None: RGB frames, unless a frame's metadata names a CFA layout, which is
+    then demosaiced with the defaults).
     """
 
     black_level_dn: float = 0.0
@@ -63,7 +64,7 @@ class RawSettings:
     @classmethod
     def of(cls, session: Session, rig, camera: str) -> RawSettings:
         cam = rig.cameras[camera]
-        darks = {k: frame for (c, k), frame in load_darks(session.path).items() if c == camera}
+        darks = {k: dark for (c, k), dark in dark_frames(session.path).items() if c == camera}
         return cls(cam.black_level_dn, darks, cam.raw)
 
 
@@ -127,8 +128,11 @@ def read_bracket(session, direction: int, camera: str, indices, raw: RawSettings
                                                                         camera_meta.get("full_scale_dn"))}
         bit_depth = int(meta.get("bit_depth", bit_depth))
         black = float(camera_meta.get("black_level", raw.black_level_dn))
-        if k in raw.darks or black:
-            frame = correct_raw(frame, bit_depth, black, raw.darks.get(k))
+        dark = raw.darks.get(k)
+        if dark is not None:
+            check_dark_exposure(dark, float(meta["exposure_s"]), f"frame {frame_relpath(direction, camera, k)}")
+        if dark is not None or black:
+            frame = correct_raw(frame, bit_depth, black, None if dark is None else dark.data)
         if frame.ndim == 2 and (camera_meta.get("cfa_pattern") or raw.raw is not None):
             pattern = camera_meta.get("cfa_pattern") or raw.raw.cfa_pattern
         frames.append(frame)

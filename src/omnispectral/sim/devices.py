@@ -187,13 +187,15 @@ class SimulatedCamera:
     frames_read: int = 0
     #: the filter a :class:`SimulatedFilterChanger` put in front of the lens (``None``: none)
     filter_name: str | None = None
+    #: the longest exposure the camera can set (``None``: any); a longer request is clamped, as real cameras do
+    max_exposure_s: float | None = None
     _pending: tuple | None = None
 
 
     def set_exposure(self, exposure_s: float) -> float:
         if not (np.isfinite(exposure_s) and exposure_s > 0):
             raise DeviceError(f"camera {self.name}: exposure {exposure_s} s is not positive")
-        self.exposure_s = float(exposure_s)
+        self.exposure_s = float(exposure_s if self.max_exposure_s is None else min(exposure_s, self.max_exposure_s))
         return self.exposure_s
 
     def trigger(self) -> None:

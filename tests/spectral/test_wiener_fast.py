@@ -116,3 +116,22 @@ def test_singular_component_falls_back_to_reference(setup):
     else:
         assert peak_relative_error(est.estimate(rho, dtype=np.float64),
                                    est._estimate_reference(rho, dtype=np.float64)) <= TOL
+
+
+def test_estimate_writes_into_a_given_output(setup, estimators):
+    """``out=``: the same spectra written in place (every path: mixture, per-pixel noise, one linear map); a wrong
+    output is refused before anything is computed."""
+    rho = setup[2]["realistic"].reshape(30, 50, 6)
+    mix, pooled = estimators
+    var = np.full(rho.shape, 1e-4, np.float32)
+    for est, kwargs in ((mix, {}), (mix, {"noise_variance": var}), (pooled, {})):
+        for dtype in (np.float32, np.float64):
+            buf = np.full((30, 50, 61), np.nan, dtype)
+            got = est.estimate(rho, dtype=dtype, out=buf, **kwargs)
+            assert got is buf
+            np.testing.assert_array_equal(buf, est.estimate(rho, dtype=dtype, **kwargs))
+    for bad in (np.empty((30, 50, 60), np.float32), np.empty((30, 50, 61), np.float64),
+                np.empty((50, 30, 61), np.float32).transpose(1, 0, 2)):
+        with pytest.raises(ValueError, match=r"out must be a writeable C-contiguous float32 array of shape "
+                                             r"\(30, 50, 61\)"):
+            mix.estimate(rho, out=bad)

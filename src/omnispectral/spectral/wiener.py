@@ -60,7 +60,6 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
-from scipy.linalg import blas
 
 from omnispectral.errors import ConfigurationError
 from omnispectral.spectral.prior import SpectralPrior
@@ -73,6 +72,9 @@ __all__ = ["BLOCK_PIXELS", "DEFAULT_CHUNK_PIXELS", "NOISY_BLOCK_PIXELS", "SMALL_
 DEFAULT_CHUNK_PIXELS = 1 << 15
 BLOCK_PIXELS = 4096  # pixels per block of the fast kernels: the block's temporaries stay in the L2 cache
 SMALL_CALL_PIXELS = 256  # below this no thread control: its overhead (~0.1 ms) would dominate
+#: pixels per block of the mixture estimate: its float32 product and posterior run faster on longer blocks
+#: (one thread, output reused, per 2048 × 1088 frame: 4096 → 0.46 s, 8192 and 16384 → 0.41-0.42 s, 32768 → 0.45 s)
+ESTIMATE_BLOCK_PIXELS = 16384
 NOISY_BLOCK_PIXELS = 16384  # per-pixel noise: ~100 vector operations per component, longer vectors amortise them
 
 
@@ -186,6 +188,15 @@ def _finish_std(variance: np.ndarray, g: np.ndarray, out: np.ndarray) -> None:
     out[...] = variance
 
 
+def _checked_output(out: np.ndarray, shape: tuple[int, ...], dtype) -> np.ndarray:
+    """``out`` when it is a C-contiguous array of ``shape`` and ``dtype`` (an ``out=`` argument), else ValueError."""
+    if not isinstance(out, np.ndarray) or out.shape != tuple(shape) or out.dtype != np.dtype(dtype) \
+            or not out.flags.c_contiguous or not out.flags.writeable:
+        raise ValueError(f"out must be a writeable C-contiguous {np.dtype(dtype).name} array of shape {tuple(shape)}, "
+                         f"got {getattr(out, 'dtype', type(out).__name__)} of shape {getattr(out, 'shape', None)}")
+    return out
+
+
 class _Workspace(dict):
     """Per-thread scratch arrays reused from block to block (no allocation, no page faults per block)."""
 
@@ -237,7 +248,9 @@ class _MixtureKernel:
         self.has_offset = bool(np.any(self.b))
         self.T_mean = np.einsum("k,kmn->mn", est.weights, self.T)
         self.D64 = (self.T - self.T_mean).reshape(K * m, n)
-        self.D32 = self.D64.astype(np.float32)
+        # single precision, one product: rows [p (x) rho | rho | p] against [D; T_mean; b] (the last without offsets)
+        self.stacked32 = np.concatenate([self.D64, self.T_mean, *([self.b] if self.has_offset else [])]
+                                        ).astype(np.float32)
         self.post_var = np.array(post_var)  # (K, n) per unit squared brightness in the normalized form
         self.means = est.means
         self.prior_A = np.array([rc[j] @ R.T + est.sigma2 * eye for j in range(K)])  # (K, m, m)
@@ -288,17 +301,20 @@ class _MixtureKernel:
             np.divide(r64.T, g, out=rho_n_t)
         return r64, g, rho_n_t
 
-    def posterior(self, rho_n_t: np.ndarray, ws: _Workspace) -> np.ndarray:
-        """Component posterior ``p(j | rho)`` ``(K, N)`` under ``sigma2 I`` noise (float64), in ``ws``.
+    def posterior(self, rho_n_t: np.ndarray, ws: _Workspace, dtype=np.float64) -> np.ndarray:
+        """Component posterior ``p(j | rho)`` ``(K, N)`` under ``sigma2 I`` noise, in ``ws``.
 
         The K log-likelihoods are one product of the quadratic features of ``rho_n`` (products,
-        values, 1) with ``quad_form`` ``(K, F)``; the softmax runs in ``(K, N)`` layout (reductions
-        over K along contiguous rows), in place.  Posteriors below 1e-30 are set to zero: they
-        are far below float32 resolution, and subnormal numbers would slow the products that
-        follow tenfold.
+        values, 1) with ``quad_form`` ``(K, F)``, in float64 (the quadratic terms cancel); the softmax
+        runs in ``(K, N)`` layout (reductions over K along contiguous rows), in place.  Subnormal numbers
+        would slow the products that follow tenfold: in float64, log-likelihoods are floored 100 below
+        the pixel's largest and posteriors below 1e-30 set to zero; in float32 (the estimate's single
+        precision path) the floor is 69 below (e^-69 ≈ 1e-30, a normal float32, far below what moves an
+        estimate), and the exponentials keep ~1e-5 of their value at worst (a float32 log-likelihood
+        difference near -69), ~2e-6 where they matter.
         """
         N = rho_n_t.shape[1]
-        p = ws.get("posterior", (self.K, N))
+        p = ws.get("posterior", (self.K, N), dtype)
         if self.K == 1:
             p[...] = 1.0
             return p
@@ -308,15 +324,20 @@ class _MixtureKernel:
             np.multiply(rho_n_t[a], rho_n_t[b], out=feats[i])
         feats[n_quad:-1] = rho_n_t
         feats[-1] = 1.0
-        np.matmul(self.quad_form, feats, out=p)
+        log_like = ws.get("log_likelihood", (self.K, N))
+        np.matmul(self.quad_form, feats, out=log_like)
         column = ws.get("column", (N,))
-        np.max(p, axis=0, out=column)
-        p -= column
-        np.maximum(p, -100.0, out=p)
+        np.max(log_like, axis=0, out=column)
+        log_like -= column
+        single = np.dtype(dtype) == np.float32
+        np.maximum(log_like, -69.0 if single else -100.0, out=log_like)
+        np.copyto(p, log_like)
         np.exp(p, out=p)
-        p[p < 1e-30] = 0.0
-        np.sum(p, axis=0, out=column)
-        p /= column
+        if not single:
+            p[p < 1e-30] = 0.0
+        total = ws.get("total", (N,), dtype)
+        np.sum(p, axis=0, out=total)
+        p /= total
         return p
 
     def posterior_into(self, r: np.ndarray, out: np.ndarray, ws: _Workspace) -> None:
@@ -326,39 +347,44 @@ class _MixtureKernel:
     def estimate(self, r: np.ndarray, out: np.ndarray, ws: _Workspace) -> None:
         """Mixture estimate of a block ``r`` ``(N, m)`` into ``out`` ``(N, n)`` (float32 or float64).
 
-        ``out = rho @ T_mean (+ p @ b) + (p (x) rho) @ D``: the first part in float64, the
-        ``(K m) x n`` product accumulated onto it by one BLAS ``gemm`` (beta = 1).  The product runs
-        in float32 for float32 input and output in the normalized form (measured error <= 6e-7 of
-        each spectrum's peak: its terms cancel ~10x); the absolute form's maps cancel ~25x, so it
-        and float64 data stay in float64.  All temporaries live in the thread's workspace ``ws``.
+        ``out = rho @ T_mean + (p (x) rho) @ D (+ p @ b)``.  For float32 input and output in the
+        normalized form the whole sum is one float32 BLAS ``gemm`` of the stacked rows
+        ``[p (x) rho | rho | p]`` against ``stacked32``, written into ``out`` (measured error <= 6e-7 of
+        each spectrum's peak: the terms of ``D`` cancel ~10x); the absolute form's maps cancel ~25x, so
+        it and float64 data run in float64, the mean map first and the differences accumulated onto it.
+        All temporaries live in the thread's workspace ``ws``.
         """
+        if out.dtype == np.float32 and r.dtype == np.float32 and self.a is not None and out.flags.c_contiguous:
+            self._estimate_single(r, out, ws)
+            return
         N = r.shape[0]
         r64, _, rho_n_t = self.normalized(r, ws)
         p = self.posterior(rho_n_t, ws)
-        single = out.dtype == np.float32 and r.dtype == np.float32 and self.a is not None
-        work = np.float32 if single else np.float64
-        coef_t = ws.get("coef_t", (self.K, self.m, N), work)  # (p (x) rho)^t, pixels contiguous
-        p_w = ws.get("p_work", (self.K, N), work)
-        np.copyto(p_w, p)
-        r_w = ws.get("r_work_t", (self.m, N), work)
-        np.copyto(r_w, r.T)
-        np.multiply(p_w[:, None, :], r_w[None, :, :], out=coef_t)
-        coef_t = coef_t.reshape(self.K * self.m, N)
+        coef_t = ws.get("coef_t", (self.K, self.m, N))  # (p (x) rho)^t, pixels contiguous
+        np.multiply(p[:, None, :], r64.T[None, :, :], out=coef_t)
         base = ws.get("base", (N, self.n))
         np.matmul(r64, self.T_mean, out=base)
         if self.has_offset:
             base += p.T @ self.b
-        if out.dtype == work and out.flags.c_contiguous:
-            np.copyto(out, base)
-            gemm = blas.sgemm if single else blas.dgemm
-            # Fortran view: out^t (n, N) += D^t (n, K m) @ coef^t (K m, N), written in place
-            res = gemm(1.0, self.D32.T if single else self.D64.T, coef_t.T, beta=1.0, c=out.T,
-                       trans_b=1, overwrite_c=1)
-            if not np.shares_memory(res, out):
-                out[...] = res.T
-        else:
-            base += coef_t.T @ self.D64
-            out[...] = base
+        product = ws.get("product", (N, self.n))
+        np.matmul(coef_t.reshape(self.K * self.m, N).T, self.D64, out=product)
+        base += product
+        out[...] = base
+
+    def _estimate_single(self, r: np.ndarray, out: np.ndarray, ws: _Workspace) -> None:
+        """:meth:`estimate`'s float32 path: one float32 product of ``[p (x) rho | rho | p]`` into ``out``."""
+        N, K, m = r.shape[0], self.K, self.m
+        _, _, rho_n_t = self.normalized(r, ws)
+        p = self.posterior(rho_n_t, ws, np.float32)
+        rows = ws.get("rows_t", (self.stacked32.shape[0], N), np.float32)
+        r_t = rows[K * m:K * m + m]
+        np.copyto(r_t, r.T)
+        np.multiply(p[:, None, :], r_t[None, :, :], out=rows[:K * m].reshape(K, m, N))
+        if self.has_offset:
+            rows[K * m + m:] = p
+        # NumPy's matmul calls sgemm on the transposed view and releases the GIL (SciPy's BLAS wrappers hold it,
+        # which kept a second thread idle)
+        np.matmul(rows.T, self.stacked32, out=out)
 
     def posterior_std(self, r: np.ndarray, out: np.ndarray, ws: _Workspace) -> None:
         """Posterior standard deviation (within-component variance plus spread of the component estimates).
@@ -686,15 +712,18 @@ class WienerEstimator:
         return kernel if finite else None
 
     def _run_fast(self, rho, noise_variance, chunk_pixels, kernel_fn, width, dtype,
-                  block_pixels: int = BLOCK_PIXELS) -> np.ndarray:
+                  block_pixels: int = BLOCK_PIXELS, out: np.ndarray | None = None) -> np.ndarray:
         """Apply ``kernel_fn(rho_block, var_block, out_block, workspace)`` over blocks of pixels on a few threads.
 
         Blocks are at most ``min(chunk_pixels, block_pixels)`` pixels, so the temporaries stay bounded
         and cache-resident; the threads take contiguous runs of blocks (one thread inside another
-        pool, see :func:`omnispectral.threads.kernel_threads`) with BLAS held to one thread.
+        pool, see :func:`omnispectral.threads.kernel_threads`) with BLAS held to one thread.  ``out``
+        (:func:`_checked_output`) is written in place.
         """
         lead, flat, var = self._flat_inputs(rho, noise_variance)
-        out = np.empty((flat.shape[0], width), dtype=dtype)
+        given = out
+        out = (np.empty((flat.shape[0], width), dtype=dtype) if given is None
+               else _checked_output(given, (*lead, width), dtype).reshape(flat.shape[0], width))
         block = max(1, min(int(chunk_pixels), block_pixels))
         slices = blocks(flat.shape[0], block)
 
@@ -705,7 +734,7 @@ class WienerEstimator:
 
         if flat.shape[0] < SMALL_CALL_PIXELS:  # a few small products: BLAS starts no threads for them
             run(slices)
-            return out.reshape(*lead, width)
+            return out.reshape(*lead, width) if given is None else given
         threads = min(kernel_threads(), len(slices))
         parts = [list(p) for p in np.array_split(np.array(slices, dtype=object), threads)]
         with single_threaded_blas():
@@ -714,11 +743,11 @@ class WienerEstimator:
             else:
                 with ThreadPoolExecutor(threads) as pool:
                     list(pool.map(run, parts))
-        return out.reshape(*lead, width)
+        return out.reshape(*lead, width) if given is None else given
 
     def estimate(self, rho: np.ndarray, noise_variance: np.ndarray | float | None = None,
                  nonnegative: bool = False, chunk_pixels: int = DEFAULT_CHUNK_PIXELS,
-                 dtype=np.float32) -> np.ndarray:
+                 dtype=np.float32, out: np.ndarray | None = None) -> np.ndarray:
         """Estimate spectra for band values ``rho`` ``(..., m)``; returns ``(..., n)``.
 
         Parameters
@@ -733,6 +762,9 @@ class WienerEstimator:
             Pixels per chunk; bounds the temporary memory.
         dtype
             The output's float type.
+        out
+            A C-contiguous ``(..., n)`` array of ``dtype`` to write the spectra into (frames of one size in a
+            loop: no fresh output to fault in each time); returned.
 
         Returns
         -------
@@ -745,18 +777,23 @@ class WienerEstimator:
            for Omnidirectional Scene Capture", J. Imaging 4(4):53, 2018, Eq. (7).
         """
         kernel = self._kernel
-        if self.n_components == 1 and noise_variance is None:
-            M, b = self.linear_map()
-            out = apply_linear_map(self._check_bands(rho), M, b, dtype=dtype, chunk_pixels=chunk_pixels)
-        elif kernel is None:
-            return self._estimate_reference(rho, noise_variance, nonnegative, chunk_pixels, dtype)
+        width = self.means.shape[1]
+        if (self.n_components == 1 and noise_variance is None) or kernel is None:
+            if self.n_components == 1 and noise_variance is None:
+                M, b = self.linear_map()
+                result = apply_linear_map(self._check_bands(rho), M, b, dtype=dtype, chunk_pixels=chunk_pixels)
+            else:
+                result = self._estimate_reference(rho, noise_variance, False, chunk_pixels, dtype)
+            if out is not None:
+                _checked_output(out, result.shape, dtype)[...] = result
+                result = out
         elif noise_variance is None:
-            out = self._run_fast(rho, None, chunk_pixels, lambda r, v, o, ws: kernel.estimate(r, o, ws),
-                                 self.means.shape[1], dtype)
+            result = self._run_fast(rho, None, chunk_pixels, lambda r, v, o, ws: kernel.estimate(r, o, ws), width,
+                                    dtype, ESTIMATE_BLOCK_PIXELS, out)
         else:
-            out = self._run_fast(rho, noise_variance, chunk_pixels, kernel.estimate_noisy, self.means.shape[1], dtype,
-                                 NOISY_BLOCK_PIXELS)
-        return np.maximum(out, 0, out=out) if nonnegative else out
+            result = self._run_fast(rho, noise_variance, chunk_pixels, kernel.estimate_noisy, width, dtype,
+                                    NOISY_BLOCK_PIXELS, out)
+        return np.maximum(result, 0, out=result) if nonnegative else result
 
     def posterior_std(self, rho: np.ndarray, noise_variance: np.ndarray | float | None = None,
                       chunk_pixels: int = DEFAULT_CHUNK_PIXELS // 4, dtype=np.float32) -> np.ndarray:

@@ -324,3 +324,18 @@ def test_cli_unreadable_file(tmp_path):
     r = run_cli("register", str(good), str(bad))
     assert r.returncode == 1
     assert "broken.png" in r.stderr and "Traceback" not in r.stderr
+
+
+@pytest.mark.parametrize("kind", ["hann", "tukey", "none"])
+def test_windowing_one_image_equals_the_batch_definition(kind):
+    """The one-image path (a compiled two-pass kernel) and the batch path (2-D window, NumPy) agree to float32
+    rounding: the window-weighted mean removed, then the window applied."""
+    from omnispectral.imaging.registration import apply_window
+
+    rng = np.random.default_rng(3)
+    x = (rng.random((96, 130)) * 1000 + 50).astype(np.float32)
+    one, batch = apply_window(x, kind), apply_window(x[None], kind)[0]
+    assert one.dtype == np.float32 and one.shape == x.shape
+    assert np.abs(one - batch).max() <= 2e-6 * np.abs(x).max()
+    # the weighted mean is removed: sum (x - mean) w = 0
+    assert abs(float(one.sum(dtype=np.float64))) <= 1e-5 * float(np.abs(one).sum(dtype=np.float64))

@@ -79,6 +79,7 @@ import scipy.fft as sfft
 from scipy import ndimage
 
 from omnispectral.choices import DEFAULT_BAND_LIMIT, DEFAULT_MIN_CONFIDENCE, DEFAULT_PREPROCESS, PREPROCESS, WINDOWS
+from omnispectral.compiled import built_on_first_use
 from omnispectral.errors import ConfigurationError
 from omnispectral.threads import single_threaded_blas
 
@@ -679,19 +680,50 @@ def _window_at(n: int, kind: str, shift: float) -> np.ndarray:
 def _window_separable(x: np.ndarray, wy: np.ndarray, wx: np.ndarray) -> np.ndarray:
     """:func:`apply_window` for one image and a separable window ``wy wx^T``: ``(x - mean_w) * wy * wx``.
 
-    The weighted mean is two matrix-vector products (one thread), the rest one new array and two
-    in-place products: no 2-D window is built and fewer large temporaries are touched (the time of
-    this step doubled when other work had just evicted the caches; docs/benchmarks.md).
+    No 2-D window is built: the compiled kernel (:func:`_window_kernel`) reads the image twice (the weighted
+    mean, then the product) and writes the result once; without Numba, the weighted mean is two matrix-vector
+    products (one thread) and the rest one new array and two in-place products (the time of this step
+    doubled when other work had just evicted the caches; docs/benchmarks.md).
     """
     x = np.ascontiguousarray(x, dtype=np.float32)
     wy32, wx32 = np.asarray(wy, dtype=np.float32), np.asarray(wx, dtype=np.float32)
+    norm = float(wy32.sum(dtype=np.float64)) * float(wx32.sum(dtype=np.float64))
+    kernel = _window_kernel()
+    if kernel is not None:
+        return kernel(x, wy32, wx32, norm, np.empty_like(x))
     with single_threaded_blas():
         weighted = float(wy32 @ (x @ wx32))
-    mean = weighted / (float(wy32.sum(dtype=np.float64)) * float(wx32.sum(dtype=np.float64)))
-    out = np.subtract(x, np.float32(mean))
+    out = np.subtract(x, np.float32(weighted / norm))
     out *= wy32[:, None]
     out *= wx32[None, :]
     return out
+
+
+@built_on_first_use
+def _window_kernel(numba):
+    """``centred_windowed(x, wy, wx, norm, out)``: :func:`_window_separable` in two passes over ``x`` (2-D float32).
+
+    Row sums in float32 in any order (``reassoc``: vectorised; they differ from NumPy's by float32
+    rounding), the rows' sum in float64."""
+
+    @numba.njit(nogil=True, cache=True, boundscheck=False, fastmath={"reassoc", "contract"})
+    def centred_windowed(x, wy, wx, norm, out):
+        h, w = x.shape
+        total = 0.0
+        for i in range(h):
+            row = x[i]
+            s = np.float32(0.0)
+            for j in range(w):
+                s += row[j] * wx[j]
+            total += float(s) * float(wy[i])
+        mean = np.float32(total / norm)
+        for i in range(h):
+            row, o, a = x[i], out[i], wy[i]
+            for j in range(w):
+                o[j] = (row[j] - mean) * (a * wx[j])
+        return out
+
+    return centred_windowed
 
 
 def _overlap(shape: tuple[int, int], sx: int, sy: int) -> tuple[slice, slice, slice, slice] | None:

@@ -339,3 +339,33 @@ def test_windowing_one_image_equals_the_batch_definition(kind):
     assert np.abs(one - batch).max() <= 2e-6 * np.abs(x).max()
     # the weighted mean is removed: sum (x - mean) w = 0
     assert abs(float(one.sum(dtype=np.float64))) <= 1e-5 * float(np.abs(one).sum(dtype=np.float64))
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_a_non_finite_pixel_is_refused_by_name(bad):
+    """The one-pass pre-processing checks every value: one NaN or infinity among a million is named."""
+    rng = np.random.default_rng(5)
+    a = (rng.random((1024, 1024)) * 100).astype(np.float32)
+    b = a.copy()
+    b[700, 3] = bad
+    with pytest.raises(ConfigurationError, match="moving: image contains NaN or infinite values"):
+        phase_correlate(a, b)
+    with pytest.raises(ConfigurationError, match="reference: image contains NaN or infinite values"):
+        phase_correlate(b, a)
+
+
+@pytest.mark.parametrize("power", [0.5, 0.0, 1.0])
+def test_weighted_cross_power_equals_its_definition(power):
+    """The compiled band product equals the NumPy definition (complex128) to float32 rounding."""
+    from omnispectral.imaging.registration import weighted_cross_power
+
+    rng = np.random.default_rng(int(power * 10))
+    f, g = ((rng.standard_normal((41, 21)) + 1j * rng.standard_normal((41, 21))).astype(np.complex64)
+            for _ in range(2))
+    x = g.astype(np.complex128) * np.conj(f.astype(np.complex128))
+    want = x * (np.abs(x) + 1e-30) ** (power - 1.0)
+    want[:, 1:] *= 2.0
+    want[0, 0] = 0.0
+    got = weighted_cross_power(g, f, power)
+    assert got.dtype == np.complex64 and got.shape == f.shape
+    assert np.abs(got - want).max() <= 1e-6 * np.abs(want).max()

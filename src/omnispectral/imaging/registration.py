@@ -72,6 +72,7 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import asdict, dataclass
+from types import SimpleNamespace
 
 import cv2
 import numpy as np
@@ -147,10 +148,11 @@ class Registration:
 
 
 # ------------------------------------------------------------------------------------------ input
-def as_gray(image, name: str = "image") -> np.ndarray:
+def as_gray(image, name: str = "image", check_finite: bool = True) -> np.ndarray:
     """``(H, W)`` or ``(H, W, C)`` numeric array → ``(H, W)`` float32 (mean of the channels).
 
-    Raises :class:`ConfigurationError` for other shapes, non-numeric data, NaN or infinity.
+    Raises :class:`ConfigurationError` for other shapes, non-numeric data, NaN or infinity (``check_finite``
+    False: the caller checks the values itself, :func:`prepare_for_poc`).
     """
     arr = np.asarray(image)
     if arr.dtype.kind not in "uif":
@@ -165,9 +167,13 @@ def as_gray(image, name: str = "image") -> np.ndarray:
         raise ConfigurationError(f"{name}: image {arr.shape[0]}x{arr.shape[1]} is too small for phase correlation "
                                  f"(at least {MIN_SIZE_PX}x{MIN_SIZE_PX} px)")
     arr = np.asarray(arr, dtype=np.float32)
-    if arr.dtype.kind == "f" and not np.isfinite(arr.sum(dtype=np.float64)) and not np.isfinite(arr).all():
-        raise ConfigurationError(f"{name}: image contains NaN or infinite values; fill or crop them first")
+    if check_finite and not np.isfinite(arr.sum(dtype=np.float64)) and not np.isfinite(arr).all():
+        _not_finite(name)
     return arr
+
+
+def _not_finite(name: str):
+    raise ConfigurationError(f"{name}: image contains NaN or infinite values; fill or crop them first")
 
 
 def check_image_pair(reference, moving) -> tuple[np.ndarray, np.ndarray]:
@@ -336,8 +342,14 @@ def prepare_for_poc(image, name: str, preprocess: str, saturation) -> tuple[np.n
     saturated : numpy.ndarray or None
         ``(H, W)`` boolean mask of clipped pixels, or ``None`` when there are none.
     """
-    gray = as_gray(image, name)
-    return preprocess_image(gray, preprocess), saturation_mask(image, saturation)
+    kernels = _poc_kernels() if preprocess == "sqrt" else None
+    gray = as_gray(image, name, check_finite=kernels is None)
+    if kernels is None:
+        return preprocess_image(gray, preprocess), saturation_mask(image, saturation)
+    out = np.empty(gray.shape, np.float32)
+    if not kernels.sqrt_of_positive(gray, out):  # one pass: the values checked and transformed
+        _not_finite(name)
+    return out, saturation_mask(image, saturation)
 
 
 def _shift_mask(mask: np.ndarray, dx: float, dy: float) -> np.ndarray:
@@ -680,17 +692,17 @@ def _window_at(n: int, kind: str, shift: float) -> np.ndarray:
 def _window_separable(x: np.ndarray, wy: np.ndarray, wx: np.ndarray) -> np.ndarray:
     """:func:`apply_window` for one image and a separable window ``wy wx^T``: ``(x - mean_w) * wy * wx``.
 
-    No 2-D window is built: the compiled kernel (:func:`_window_kernel`) reads the image twice (the weighted
-    mean, then the product) and writes the result once; without Numba, the weighted mean is two matrix-vector
-    products (one thread) and the rest one new array and two in-place products (the time of this step
-    doubled when other work had just evicted the caches; docs/benchmarks.md).
+    No 2-D window is built: the compiled kernel (:func:`_poc_kernels`) reads the image twice, for the weighted
+    mean and for the product, and writes the result once; without Numba, the
+    weighted mean is two matrix-vector products (one thread) and the rest one new array and two in-place
+    products (the time of this step doubled when other work had just evicted the caches; docs/benchmarks.md).
     """
-    x = np.ascontiguousarray(x, dtype=np.float32)
     wy32, wx32 = np.asarray(wy, dtype=np.float32), np.asarray(wx, dtype=np.float32)
     norm = float(wy32.sum(dtype=np.float64)) * float(wx32.sum(dtype=np.float64))
-    kernel = _window_kernel()
-    if kernel is not None:
-        return kernel(x, wy32, wx32, norm, np.empty_like(x))
+    x = np.ascontiguousarray(x, dtype=np.float32)  # a crop copied: the kernel vectorises contiguous rows only
+    kernels = _poc_kernels()
+    if kernels is not None:
+        return kernels.centred_windowed(x, wy32, wx32, norm, np.empty_like(x))
     with single_threaded_blas():
         weighted = float(wy32 @ (x @ wx32))
     out = np.subtract(x, np.float32(weighted / norm))
@@ -700,13 +712,18 @@ def _window_separable(x: np.ndarray, wy: np.ndarray, wx: np.ndarray) -> np.ndarr
 
 
 @built_on_first_use
-def _window_kernel(numba):
-    """``centred_windowed(x, wy, wx, norm, out)``: :func:`_window_separable` in two passes over ``x`` (2-D float32).
+def _poc_kernels(numba):
+    """Compiled passes of the one-image POC path.
 
-    Row sums in float32 in any order (``reassoc``: vectorised; they differ from NumPy's by float32
-    rounding), the rows' sum in float64."""
+    ``centred_windowed(x, wy, wx, norm, out)``: :func:`_window_separable` in two passes over ``x`` (2-D
+    float32, C-contiguous): row sums in float32 in any order (``reassoc``: vectorised; they differ from
+    NumPy's by float32 rounding), the rows' sum in float64.  ``sqrt_of_positive(x, out)``: the ``"sqrt"``
+    pre-processing ``sqrt(max(x, 0))`` (:func:`preprocess_image`) in one pass, False when a value is NaN
+    or infinite.
+    """
+    options = {"nogil": True, "cache": True, "boundscheck": False}
 
-    @numba.njit(nogil=True, cache=True, boundscheck=False, fastmath={"reassoc", "contract"})
+    @numba.njit(fastmath={"reassoc", "contract"}, **options)
     def centred_windowed(x, wy, wx, norm, out):
         h, w = x.shape
         total = 0.0
@@ -723,7 +740,37 @@ def _window_kernel(numba):
                 o[j] = (row[j] - mean) * (a * wx[j])
         return out
 
-    return centred_windowed
+    @numba.njit(**options)
+    def sqrt_of_positive(x, out):
+        h, w = x.shape
+        zero, inf = np.float32(0.0), np.float32(np.inf)
+        finite = True
+        for i in range(h):
+            row, o = x[i], out[i]
+            for j in range(w):
+                v = row[j]
+                finite &= abs(v) < inf  # False for NaN too
+                o[j] = np.sqrt(max(v, zero))
+        return finite
+
+    @numba.njit(**options)
+    def weighted_cross_power(b_mov, b_ref, power, out):
+        h, w = b_mov.shape
+        tiny, two = np.float32(1e-30), np.float32(2.0)
+        half = power == np.float32(0.5)
+        exponent = power - np.float32(1.0)
+        for i in range(h):
+            m, r, o = b_mov[i], b_ref[i], out[i]
+            for j in range(w):
+                x = m[j] * np.conj(r[j])
+                mag = abs(x) + tiny
+                scale = np.float32(1.0) / np.sqrt(mag) if half else mag ** exponent
+                o[j] = x * (scale * two if j > 0 else scale)
+        out[0, 0] = 0.0
+        return out
+
+    return SimpleNamespace(centred_windowed=centred_windowed, sqrt_of_positive=sqrt_of_positive,
+                           weighted_cross_power=weighted_cross_power)
 
 
 def _overlap(shape: tuple[int, int], sx: int, sy: int) -> tuple[slice, slice, slice, slice] | None:
@@ -785,6 +832,28 @@ def _refine(a: np.ndarray, b: np.ndarray, dx: float, dy: float, window: str, ban
     return dx, dy
 
 
+def weighted_cross_power(b_mov: np.ndarray, b_ref: np.ndarray, power: float) -> np.ndarray:
+    """``W R`` of :func:`_weighted_peak` over the bands (:func:`_band_spectrum`: rows 0..K0 and -K0..-1, columns
+    0..K1), complex64: ``x = G F*`` scaled by ``(|x| + 1e-30)^(power - 1)``, columns from 1 doubled (the other
+    half of the Hermitian spectrum), the mean term zeroed.  One compiled pass (:func:`_poc_kernels`) for
+    same-shape C-contiguous complex64 bands, else NumPy."""
+    kernels = _poc_kernels()
+    if (kernels is not None and b_mov.dtype == b_ref.dtype == np.complex64 and b_mov.shape == b_ref.shape
+            and b_mov.flags.c_contiguous and b_ref.flags.c_contiguous):
+        return kernels.weighted_cross_power(b_mov, b_ref, np.float32(power), np.empty_like(b_mov))
+    x = b_mov * np.conj(b_ref)
+    mag = np.abs(x)
+    mag += np.float32(1e-30)
+    if power == 0.5:
+        np.sqrt(mag, out=mag)
+        x /= mag
+    else:
+        x *= mag ** np.float32(power - 1.0)
+    x[:, 1:] *= np.float32(2.0)
+    x[0, 0] = 0.0
+    return x
+
+
 def _weighted_peak(b_ref: np.ndarray, b_mov: np.ndarray, shape: tuple[int, int], k: tuple[int, int], dx: float,
                    dy: float, power: float, iterations: int = 4) -> tuple[float, float]:
     """Newton maximisation of the weighted correlation over the band, at continuous ``d``.
@@ -795,16 +864,7 @@ def _weighted_peak(b_ref: np.ndarray, b_mov: np.ndarray, shape: tuple[int, int],
     """
     n0, n1 = shape
     k0, k1 = k
-    x = b_mov * np.conj(b_ref)  # the bands (:func:`_band_spectrum`): rows 0..K0 and -K0..-1, columns 0..K1
-    mag = np.abs(x)
-    mag += np.float32(1e-30)
-    if power == 0.5:
-        np.sqrt(mag, out=mag)
-        x /= mag
-    else:
-        x *= mag ** np.float32(power - 1.0)
-    x[:, 1:] *= np.float32(2.0)  # the other half of the spectrum (Hermitian)
-    x[0, 0] = 0.0
+    x = weighted_cross_power(b_mov, b_ref, power)
     wy = (2 * np.pi / n0) * np.r_[0:k0 + 1, -k0:0].astype(np.float64)
     wx = (2 * np.pi / n1) * np.arange(k1 + 1, dtype=np.float64)
     centre, q = None, None

@@ -91,9 +91,9 @@ def test_cli_timelapse_draws_slots_then_each_slots_frames(tmp_path, monkeypatch,
                  "-o", str(tmp_path / "tight")]) == 0
     out = " ".join(capsys.readouterr().out.split())
     plan = make_plan(load_preset("small"))
-    assert plan.longest_s == pytest.approx(plan.estimated_s + 36 * plan.dark_extension["max_s_per_direction"])
-    assert (f"A capture takes {format_duration(plan.estimated_s)}, {format_duration(plan.longest_s)} with the dark "
-            "extension in every direction: longer than the 1 min 00 s between slots") in out
+    assert plan.estimated_max_s == pytest.approx(plan.estimated_s + 36 * plan.dark_extension["max_s_per_direction"])
+    assert (f"A capture takes {format_duration(plan.estimated_s)}, {format_duration(plan.estimated_max_s)} with the "
+            "dark extension in every direction: longer than the 1 min 00 s between slots") in out
 
 
 def test_progress_bars_start_a_stage_again_for_the_next_slot():

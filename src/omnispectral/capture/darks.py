@@ -23,6 +23,7 @@ import numpy as np
 import tifffile
 
 from omnispectral.capture.devices import Camera
+from omnispectral.capture.run import exposure_differs
 from omnispectral.capture.session import Session, utc_now_iso
 from omnispectral.errors import ConfigurationError, InputFileError
 from omnispectral.io import atomic_path, atomic_write_json
@@ -82,8 +83,8 @@ def record_darks(session: Session | str | Path, cameras: dict[str, Camera], n_fr
             entries.append({"camera": c, "exposure_index": k, "exposure_s": actual, "n_frames": n_frames,
                             "file": rel, "shape": list(mean.shape), "mean_dn": float(mean.mean()),
                             "p99_dn": float(np.percentile(mean, 99)), "max_dn": float(mean.max()),
-                            **({"exposure_s_requested": exposures[k]}
-                               if abs(actual - exposures[k]) > DARK_EXPOSURE_TOLERANCE * exposures[k] else {})})
+                            **({"exposure_s_requested": exposures[k]} if exposure_differs(exposures[k], actual)
+                               else {})})
             if progress is not None:
                 progress("darks", i + 1, total)
         index = {"format": "omnispectral-darks", "format_version": 1, "created_utc": utc_now_iso(),

@@ -82,7 +82,7 @@ class Plan:
         return float(self.timing_s["total"])
 
     @property
-    def longest_s(self) -> float:
+    def estimated_max_s(self) -> float:
         """The estimate with the dark extension in every direction: what a capture can take at dusk (s)."""
         extra = (self.dark_extension or {}).get("max_s_per_direction", 0.0)
         return self.estimated_s + self.n_directions * float(extra)

@@ -65,7 +65,7 @@ from omnispectral.rig import CAMERA_NAMES, DARK_EXPOSURE_BASE, SUN_EXPOSURE_BASE
 from omnispectral.threads import ordered_thread_map
 
 __all__ = ["CALIBRATION_DIR", "CAMERAS", "FORMAT_VERSION", "FRAME_NAME", "QUARANTINE_DIR", "JournalReadout", "Session",
-           "bracket_indices", "content_matches", "dark_extension_keys", "dark_extensions", "decode_frame",
+           "bracket_indices", "content_matches", "dark_extensions", "decode_frame",
            "file_record_checksums", "frame_relpath", "half_created_leftovers", "pixel_problem", "pixels_sha256",
            "read_journal", "record_key", "referenced_problem", "sun_bracket_keys", "sun_directions", "utc_now_iso",
            "verify_session"]
@@ -613,12 +613,6 @@ def dark_extensions(session: Session, plan: Plan) -> dict[int, int]:
             for e in session.events() if e.get("event") == "dark" and "direction" in e}
 
 
-def dark_extension_keys(extensions: dict[int, int], cameras: tuple[str, ...]) -> list[tuple[int, str, int]]:
-    """Every frame key of the dark extensions ``extensions`` (:func:`dark_extensions`): direction, camera, exposure
-    index from :data:`~omnispectral.rig.DARK_EXPOSURE_BASE`."""
-    return [(d, c, DARK_EXPOSURE_BASE + k) for d, n in sorted(extensions.items()) for k in range(n) for c in cameras]
-
-
 def bracket_indices(plan: Plan, n_dark: int) -> list[int]:
     """Exposure indices of one direction's frames that the HDR merge takes: the plan's bracket, then the
     direction's ``n_dark`` exposures of the dark extension."""
@@ -655,8 +649,9 @@ def verify_session(path: str | Path, check_pixels: bool = False, checksums: bool
     plan = s.plan()
     j = read_journal(s.journal_path)
     cameras = s.cameras()
-    expected = [(d.index, c, k) for d in plan.directions for c in cameras for k in range(len(plan.exposures_s))]
-    expected += dark_extension_keys(dark_extensions(s, plan), cameras)
+    extensions = dark_extensions(s, plan)
+    expected = [(d.index, c, k) for d in plan.directions for c in cameras
+                for k in bracket_indices(plan, extensions.get(d.index, 0))]
     expected += sun_bracket_keys(s, plan, j.records, cameras)
 
     full_scale = s.full_scale_dn()

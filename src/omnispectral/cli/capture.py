@@ -65,7 +65,7 @@ def cmd_plan(args) -> int:
                       f"cameras where the darkest {dark['percentile']:g} % of a direction's pixels stay below a "
                       f"signal-to-noise ratio of {dark['snr']:g} in the longest exposure; at most "
                       f"+{format_duration(dark['max_s_per_direction'])} per such direction, not in the total "
-                      f"({format_duration(plan.longest_s)} if every direction needs it)")
+                      f"({format_duration(plan.estimated_max_s)} if every direction needs it)")
     if args.tradeoff:
         console.print(f"Overlap trade-off (paper Fig. 15a; the rig's own grid marked at "
                       f"{100 * make_plan(rig).overlap:.1f} %): {out['tradeoff']['png']} and {out['tradeoff']['json']}")

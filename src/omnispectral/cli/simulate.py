@@ -210,10 +210,10 @@ def cmd_timelapse(args) -> int:
     every_s = parse_interval_s(args.every)
     slots = slot_times(start, end, every_s)
     plan = make_plan(rig)
-    if plan.longest_s > every_s and not args.json:
+    if plan.estimated_max_s > every_s and not args.json:
         console.print(f"[yellow]A capture takes {format_duration(plan.estimated_s)}, "
-                      f"{format_duration(plan.longest_s)} with the dark extension in every direction: longer than "
-                      f"the {format_duration(every_s)} between slots[/yellow], so a slot may start late and the "
+                      f"{format_duration(plan.estimated_max_s)} with the dark extension in every direction: longer "
+                      f"than the {format_duration(every_s)} between slots[/yellow], so a slot may start late and the "
                       "slots it overruns are skipped")
     clock = FakeClock(start)  # simulated devices: simulated time
     # one mounting of the cameras for the whole series: its views once, in SERIES/calibration/ (the first slot)

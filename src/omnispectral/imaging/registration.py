@@ -90,7 +90,8 @@ __all__ = [
     "MIN_SIZE_PX", "PREPROCESS",
     "SPECTRAL_WEIGHT_POWER", "WINDOWS", "Registration", "apply_window", "as_gray", "band_limited_poc", "band_size",
     "check_image_pair", "check_poc_options", "fade_saturated", "fit_peak", "phase_correlate", "poc_shift",
-    "prepare_for_poc", "preprocess_image", "register_with_fallback", "saturation_mask", "window_1d", "window_2d",
+    "prepare_for_poc", "preprocess_image", "register_with_fallback", "saturation_mask", "weighted_cross_power",
+    "window_1d", "window_2d",
 ]
 
 DEFAULT_WINDOW = "hann"

@@ -324,14 +324,15 @@ class _MixtureKernel:
             np.multiply(rho_n_t[a], rho_n_t[b], out=feats[i])
         feats[n_quad:-1] = rho_n_t
         feats[-1] = 1.0
-        log_like = ws.get("log_likelihood", (self.K, N))
+        single = np.dtype(dtype) == np.float32
+        log_like = ws.get("log_likelihood", (self.K, N)) if single else p  # float64: in place
         np.matmul(self.quad_form, feats, out=log_like)
         column = ws.get("column", (N,))
         np.max(log_like, axis=0, out=column)
         log_like -= column
-        single = np.dtype(dtype) == np.float32
         np.maximum(log_like, -69.0 if single else -100.0, out=log_like)
-        np.copyto(p, log_like)
+        if single:
+            np.copyto(p, log_like)
         np.exp(p, out=p)
         if not single:
             p[p < 1e-30] = 0.0
@@ -778,21 +779,22 @@ class WienerEstimator:
         """
         kernel = self._kernel
         width = self.means.shape[1]
-        if (self.n_components == 1 and noise_variance is None) or kernel is None:
-            if self.n_components == 1 and noise_variance is None:
-                M, b = self.linear_map()
-                result = apply_linear_map(self._check_bands(rho), M, b, dtype=dtype, chunk_pixels=chunk_pixels)
-            else:
-                result = self._estimate_reference(rho, noise_variance, False, chunk_pixels, dtype)
-            if out is not None:
-                _checked_output(out, result.shape, dtype)[...] = result
-                result = out
+        if out is not None:  # refused before anything is computed
+            _checked_output(out, (*self._check_bands(rho).shape[:-1], width), dtype)
+        if self.n_components == 1 and noise_variance is None:
+            M, b = self.linear_map()
+            result = apply_linear_map(self._check_bands(rho), M, b, dtype=dtype, chunk_pixels=chunk_pixels)
+        elif kernel is None:
+            result = self._estimate_reference(rho, noise_variance, False, chunk_pixels, dtype)
         elif noise_variance is None:
             result = self._run_fast(rho, None, chunk_pixels, lambda r, v, o, ws: kernel.estimate(r, o, ws), width,
                                     dtype, ESTIMATE_BLOCK_PIXELS, out)
         else:
             result = self._run_fast(rho, noise_variance, chunk_pixels, kernel.estimate_noisy, width, dtype,
                                     NOISY_BLOCK_PIXELS, out)
+        if out is not None and result is not out:  # the paths that make their own array
+            out[...] = result
+            result = out
         return np.maximum(result, 0, out=result) if nonnegative else result
 
     def posterior_std(self, rho: np.ndarray, noise_variance: np.ndarray | float | None = None,

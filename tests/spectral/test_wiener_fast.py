@@ -135,3 +135,41 @@ def test_estimate_writes_into_a_given_output(setup, estimators):
         with pytest.raises(ValueError, match=r"out must be a writeable C-contiguous float32 array of shape "
                                              r"\(30, 50, 61\)"):
             mix.estimate(rho, out=bad)
+
+
+def test_compiled_posterior_passes_equal_their_numpy_definition(setup):
+    """The single-precision estimate's two compiled passes against NumPy: the relative log-likelihoods
+    (float64 quadratic forms, floored 69 below the pixel's largest), the normalized posterior and the product's
+    rows, the posterior's own rows included; a pixel of zero brightness and a NaN pixel stay in their column."""
+    from omnispectral.spectral.wiener import _Workspace
+    from omnispectral.spectral.wiener_kernels import mixture_kernels
+
+    system, prior, data = setup
+    mix = WienerEstimator.fit(system, prior, 1e-5, mixture=True)
+    k, compiled = mix._kernel, mixture_kernels()
+    r = np.concatenate([data["realistic"], data["random"][:37], np.zeros((1, 6), np.float32),
+                        np.full((1, 6), np.nan, np.float32)])  # 1539 px: a partial last sub-block
+    N, K, m = r.shape[0], k.K, k.m
+    rel = np.empty((K, N), np.float32)
+    compiled.relative_log_likelihoods(r, k.a, k.quad_form, *k.triu, -69.0, rel)
+
+    ws = _Workspace()
+    rho_n_t = k.normalized(r, ws)[2]
+    feats = np.concatenate([rho_n_t[k.triu[0]] * rho_n_t[k.triu[1]], rho_n_t, np.ones((1, N))])
+    log_like = k.quad_form @ feats
+    expected = np.maximum(log_like - log_like.max(axis=0), -69.0)
+    ok = np.isfinite(expected).all(axis=0)
+    assert ok.sum() == N - 1 and not ok[-1]
+    # float64 sums in another order: the terms reach ~1e5 where a pixel's log-likelihoods differ by O(1)
+    assert np.abs(rel[:, ok] - expected[:, ok]).max() <= 1e-5 * np.abs(log_like[:, ok]).max()
+    assert np.isnan(rel[:, -1]).any()
+
+    p = np.exp(rel)
+    rows = np.full((K * m + m + K, N), -1.0, np.float32)
+    compiled.posterior_weighted_rows(p, r, rows, True)
+    reference = k.posterior(rho_n_t, ws, np.float32)
+    assert np.abs(p[:, ok] - reference[:, ok]).max() <= 2e-6
+    np.testing.assert_allclose(p[:, ok].sum(axis=0), 1.0, atol=1e-6)
+    want = np.concatenate([(p[:, None, :] * r.T[None]).reshape(K * m, N), r.T, p])
+    np.testing.assert_allclose(rows[:, ok], want[:, ok], rtol=1e-6, atol=0)
+    assert np.isnan(rows[:, -1]).any() and not np.isnan(rows[:, :-1]).any()

@@ -64,6 +64,7 @@ import numpy as np
 from omnispectral.errors import ConfigurationError
 from omnispectral.spectral.prior import SpectralPrior
 from omnispectral.spectral.system import MultibandSystem
+from omnispectral.spectral.wiener_kernels import mixture_kernels
 from omnispectral.threads import blocks, kernel_threads, single_threaded_blas
 
 __all__ = ["BLOCK_PIXELS", "DEFAULT_CHUNK_PIXELS", "NOISY_BLOCK_PIXELS", "SMALL_CALL_PIXELS", "WienerEstimator",
@@ -277,7 +278,7 @@ class _MixtureKernel:
         self.noisy_basis = np.concatenate([self.RC, (self.means - self.mean_of_means)[:, None, :]], axis=1)
         self.noisy_quad = _spread_quadratic(self.noisy_basis)
         # diag(RC^t A^-1 RC) = sum over i <= j of A^-1_ij RC_i RC_j (2 - delta_ij): one product per pixel block
-        self.triu = iu
+        self.triu = tuple(np.asarray(i, np.int64) for i in iu)
         self.quad = np.array([(self.RC[j][iu[0]] * self.RC[j][iu[1]])
                               * np.where(iu[0] == iu[1], 1.0, 2.0)[:, None] for j in range(K)])  # (K, m(m+1)/2, n)
 
@@ -373,16 +374,27 @@ class _MixtureKernel:
         out[...] = base
 
     def _estimate_single(self, r: np.ndarray, out: np.ndarray, ws: _Workspace) -> None:
-        """:meth:`estimate`'s float32 path: one float32 product of ``[p (x) rho | rho | p]`` into ``out``."""
+        """:meth:`estimate`'s float32 path: one float32 product of ``[p (x) rho | rho | p]`` into ``out``.
+
+        The posterior and the rows come from two compiled passes
+        (:mod:`omnispectral.spectral.wiener_kernels`) around NumPy's vectorised ``exp``, with the same
+        arithmetic as :meth:`posterior`'s float32 form; without Numba, from :meth:`posterior`.
+        """
         N, K, m = r.shape[0], self.K, self.m
-        _, _, rho_n_t = self.normalized(r, ws)
-        p = self.posterior(rho_n_t, ws, np.float32)
         rows = ws.get("rows_t", (self.stacked32.shape[0], N), np.float32)
-        r_t = rows[K * m:K * m + m]
-        np.copyto(r_t, r.T)
-        np.multiply(p[:, None, :], r_t[None, :, :], out=rows[:K * m].reshape(K, m, N))
-        if self.has_offset:
-            rows[K * m + m:] = p
+        compiled = mixture_kernels() if K > 1 else None
+        if compiled is not None:
+            p = ws.get("posterior", (K, N), np.float32)
+            compiled.relative_log_likelihoods(r, self.a, self.quad_form, *self.triu, -69.0, p)
+            np.exp(p, out=p)
+            compiled.posterior_weighted_rows(p, r, rows, self.has_offset)
+        else:
+            p = self.posterior(self.normalized(r, ws)[2], ws, np.float32)
+            r_t = rows[K * m:K * m + m]
+            np.copyto(r_t, r.T)
+            np.multiply(p[:, None, :], r_t[None, :, :], out=rows[:K * m].reshape(K, m, N))
+            if self.has_offset:
+                rows[K * m + m:] = p
         # NumPy's matmul calls sgemm on the transposed view and releases the GIL (SciPy's BLAS wrappers hold it,
         # which kept a second thread idle)
         np.matmul(rows.T, self.stacked32, out=out)

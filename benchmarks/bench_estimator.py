@@ -17,7 +17,8 @@ average before and after is printed.
 its peer, one plain ``(N, 6) @ (6, 61)`` float32 matmul of the same pixels into a reused output (what a
 linear estimator costs), alternating in this process, for each ``--threads`` count on both sides (ours:
 ``OMNISPECTRAL_THREADS``; the matmul: BLAS threads), medians of ``--repeat``; ours twice, into a fresh
-output (a plain call) and into a reused one (``estimate(..., out=)``, the matmul's footing).
+output (a plain call) and into a reused one (``estimate(..., out=)``, the matmul's footing).  Every timed call
+starts after a pause of ``PAUSE_S`` (the BLAS workers' spinning, :func:`alternate`).
 """
 
 from __future__ import annotations
@@ -54,15 +55,26 @@ def peak_relative_error(fast, ref) -> float:
     return float((np.abs(fast - ref).max(axis=1) / np.abs(ref).max(axis=1)).max())
 
 
+PAUSE_S = 0.25  # before each timed call: OpenBLAS's idle workers spin 2^28 TSC cycles (~0.1 s) after a call
+
+
 def alternate(fast, reference, repeat: int):
-    """Median seconds of ``fast`` and ``reference`` run alternately ``repeat`` times (after one warm-up of each)."""
+    """Median seconds of ``fast`` and ``reference`` run alternately ``repeat`` times (after one warm-up of each).
+
+    Each timed call starts ``PAUSE_S`` after the previous one ended: OpenBLAS's worker threads busy-wait
+    ``2**THREAD_TIMEOUT`` cycles (28 by default, ~0.1 s) for more work after a multi-threaded call, and would
+    take a core from whatever runs next (measured: ours on two threads 0.234 s right after a two-thread matmul,
+    0.194 s after the pause; the matmul's time moves within its spread either way).
+    """
     out_fast, out_ref = fast(), reference()
     t_fast, t_ref = [], []
     for _ in range(repeat):
+        time.sleep(PAUSE_S)
         t0 = time.perf_counter()
         out_fast = fast()
         t_fast.append(time.perf_counter() - t0)
         del out_fast
+        time.sleep(PAUSE_S)
         t0 = time.perf_counter()
         out_ref = reference()
         t_ref.append(time.perf_counter() - t0)

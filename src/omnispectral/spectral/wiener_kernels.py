@@ -34,7 +34,7 @@ SUB_BLOCK_PIXELS = 128  # 27 float64 features x 128 px = 27 KiB: in a 32-48 KiB 
 @built_on_first_use
 def mixture_kernels(numba):
     """The compiled passes (module docstring), or ``None`` without Numba."""
-    options = {"nogil": True, "cache": True, "boundscheck": False}
+    options = {"nogil": True, "cache": True, "boundscheck": False, "error_model": "numpy"}  # no checks, no raise
     sub = SUB_BLOCK_PIXELS
 
     @numba.njit(fastmath={"contract"}, **options)

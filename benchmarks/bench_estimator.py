@@ -63,8 +63,8 @@ def alternate(fast, reference, repeat: int):
 
     Each timed call starts ``PAUSE_S`` after the previous one ended: OpenBLAS's worker threads busy-wait
     ``2**THREAD_TIMEOUT`` cycles (28 by default, ~0.1 s) for more work after a multi-threaded call, and would
-    take a core from whatever runs next (measured: ours on two threads 0.234 s right after a two-thread matmul,
-    0.194 s after the pause; the matmul's time moves within its spread either way).
+    take a core from whatever runs next (measured in one process, medians of 7: ours on two threads 0.219 s right
+    after a two-thread matmul, 0.163-0.170 s after nothing, a one-thread matmul, a pause, or the matmul then a pause).
     """
     out_fast, out_ref = fast(), reference()
     t_fast, t_ref = [], []

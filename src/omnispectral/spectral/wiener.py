@@ -382,7 +382,7 @@ class _MixtureKernel:
         """
         N, K, m = r.shape[0], self.K, self.m
         rows = ws.get("rows_t", (self.stacked32.shape[0], N), np.float32)
-        compiled = mixture_kernels() if K > 1 else None
+        compiled = mixture_kernels() if K > 1 and r.flags.c_contiguous else None  # strided rows: one compilation less
         if compiled is not None:
             p = ws.get("posterior", (K, N), np.float32)
             compiled.relative_log_likelihoods(r, self.a, self.quad_form, *self.triu, -69.0, p)

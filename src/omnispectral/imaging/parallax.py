@@ -20,14 +20,18 @@ at every pixel:
    over 5 × 5 blocks), else of the ground plane (rays below the horizon: its height given, or fitted to the
    direction's measured blocks that look down, :func:`level_ground_prior`), else 0 (sky): :func:`fill_blocks`;
 3. every pixel sweeps the inverse depths spanned by its 5 × 5 neighbouring blocks (every 0.25 px of
-   parallax) and keeps the one whose warped-B neighbourhood matches A best
+   parallax; its prior is interpolated between the blocks around it unless they differ by a depth step,
+   :func:`block_prior`) and keeps the one whose warped-B neighbourhood matches A best
    (:class:`~omnispectral.imaging.similarity.LocalLinearScore`: how well B's channels are a linear
    function of A's over 11 × 11 px, which the different filters of the two cameras allow; parabolic
    sub-step refinement; shiftable windows: a pixel takes the depth of its own surface, never a blend of
    two); a pixel whose match is not distinctive takes its distinctive neighbours' depth, and one left
    at infinity whose B colour plainly misfits A takes its surface's depth by colour
    (:func:`settle_by_colour`): :func:`sweep_inverse_depth`;
-4. pixels of A that B cannot see because a nearer surface hides them (z-buffer forward warp,
+4. a binned analysis is brought to full resolution by cells (:func:`upsampled_by_colour`), then pixels where
+   B's colour misfits A's try the depths of the cells around them and, on edges across the line, parallaxes
+   within a binned pixel of their own (:func:`settled_at_steps`);
+5. pixels of A that B cannot see because a nearer surface hides them (z-buffer forward warp,
    :func:`omnispectral.imaging.blockpoc.occlusion_zbuffer`), and those where B plainly shows another surface
    than the one A sees (a near object outside A's frame in front of a flat background:
    :func:`sees_another_surface`), are flagged as occluded: the mosaic takes B's bands there from other
@@ -55,22 +59,29 @@ from omnispectral.imaging.registration import as_gray
 from omnispectral.imaging.similarity import NCC_WINDOW_PX, LocalLinearScore, as_channels, local_ncc
 from omnispectral.imaging.sweep_kernel import compiled_sweep
 
-__all__ = ["COLOUR_MISFIT_MIN", "DEPTH_STEP_PX", "GROUND_HEIGHT_PERCENTILE", "GROUND_MIN_BLOCKS",
+__all__ = ["COLOUR_MISFIT_MIN", "DEPTH_STEP_PX", "EDGE_MAX_FIT", "EDGE_MIN_MISFIT", "EDGE_MIN_RELATIVE_GRADIENT",
+           "EDGE_SEARCH_COST_PER_PX", "EDGE_SEARCH_PX", "EDGE_SEARCH_STEP_PX", "GROUND_HEIGHT_PERCENTILE",
+           "GROUND_MIN_BLOCKS",
            "GROUND_MIN_DEPRESSION_DEG", "MAX_PERPENDICULAR_PX", "MIN_ALONG_WEIGHT", "MIN_BLOCK_SEEN",
            "NEAREST_OBJECT_M", "OCCLUSION_HIDDEN", "OCCLUSION_OTHER_SURFACE", "OCCLUSION_TOL_PX",
            "OTHER_SURFACE_MISFIT", "OTHER_SURFACE_RADIUS", "PARALLAX_ANALYSIS_PX", "PARALLAX_MIN_CONFIDENCE",
-           "SAME_SURFACE_COLOUR", "SWEEP_MARGIN_STEPS", "SWEEP_MAX_LEVELS", "SWEEP_MIN_NCC", "SWEEP_RANGE_BLOCKS",
+           "SAME_SURFACE_COLOUR", "SETTLE_MIN_MISFIT", "SMOOTH_PRIOR_MAX_SPAN_PX", "STEP_SETTLE_GAIN",
+           "SWEEP_MARGIN_STEPS", "SWEEP_MAX_LEVELS", "SWEEP_MIN_NCC", "SWEEP_RANGE_BLOCKS",
            "SWEEP_STEP_PX", "SWEEP_ZERO_MARGIN", "UPSAMPLE_DISTANCE_COST", "BlockParallax", "Parallax",
-           "block_parallax", "colour_map_a_to_b", "could_be_shadowed", "epipolar_field", "fill_blocks",
+           "block_parallax", "block_prior", "colour_map_a_to_b", "could_be_shadowed", "epipolar_field", "fill_blocks",
            "fill_from_neighbours", "level_ground_prior", "moved_by_parallax", "neighbourhood_stack", "parallax_map",
-           "sees_another_surface", "settle_by_colour", "shifted_positions", "sweep_inverse_depth",
-           "upsampled_by_colour"]
+           "sees_another_surface", "settle_by_colour", "settled_at_steps", "shifted_positions",
+           "step_cell_pixels", "sweep_inverse_depth", "upsampled_by_colour"]
 
 #: A block measures parallax when its structure measures shifts along the epipolar line at least this
 #: well (``eᵀJe / |e|²`` with the normalised structure tensor J: 0 for an edge parallel to the line).
 MIN_ALONG_WEIGHT = 0.3
 #: Largest part of a block's disparity perpendicular to its epipolar line (px) that is still accepted.
 MAX_PERPENDICULAR_PX = 0.75
+#: Largest parallax spread (px of the analysed grid) of four neighbouring blocks over which the sweep's prior
+#: is interpolated between them (:func:`block_prior`); beyond it they are a depth step and each pixel takes
+#: its nearest block's value.
+SMOOTH_PRIOR_MAX_SPAN_PX = 1.5
 #: Parallax step (px) between the levels of the per-pixel sweep, and the most levels per direction.
 SWEEP_STEP_PX = 0.25
 SWEEP_MAX_LEVELS = 48
@@ -118,6 +129,23 @@ OCCLUSION_OTHER_SURFACE = 2.0
 #: and the cost per binned cell of distance added to the colour distance (ties go to the nearest cell).
 DEPTH_STEP_PX = 0.5
 UPSAMPLE_DISTANCE_COST = 0.02
+#: :func:`settled_at_steps`: a pixel whose B colour misfits A's by more than ``SETTLE_MIN_MISFIT`` (relative,
+#: :func:`_colour_residual`) tries other depths and switches to one at which the misfit is below ``STEP_SETTLE_GAIN``
+#: times its own.  Beside a depth step it tries its 3 × 3 binned cells' values; on an edge of A across the
+#: epipolar line (A's brightness changing along the line by at least ``EDGE_MIN_RELATIVE_GRADIENT`` of itself
+#: per pixel) with a misfit above ``EDGE_MIN_MISFIT``, parallaxes within ``EDGE_SEARCH_PX`` of its own
+#: (full-resolution px: a binned pixel, about what a binned sweep cannot tell from infinity) every
+#: ``EDGE_SEARCH_STEP_PX``, each px away costing ``EDGE_SEARCH_COST_PER_PX`` of misfit (the nearest of equal
+#: fits), and only when the fit reached is below ``EDGE_MAX_FIT`` (a chart's patch never takes its neighbour's
+#: depth because one linear map misfits its saturated colour).
+STEP_SETTLE_GAIN = 0.7
+SETTLE_MIN_MISFIT = 0.05
+EDGE_MIN_RELATIVE_GRADIENT = 0.1
+EDGE_MIN_MISFIT = 0.1
+EDGE_SEARCH_PX = 4.0
+EDGE_SEARCH_STEP_PX = 0.5
+EDGE_SEARCH_COST_PER_PX = 0.02
+EDGE_MAX_FIT = 0.1
 #: :func:`level_ground_prior`: blocks looking at least this far below the horizon (degrees) tell the ground's
 #: depth below the head; at least this many measured ones are needed; the percentile of their heights taken
 #: (objects standing on the ground are nearer than it along the same ray: their heights fall below the ground's).
@@ -374,6 +402,44 @@ def level_ground_prior(bp: BlockParallax, down: np.ndarray) -> np.ndarray | None
     return (np.maximum(down, 0.0) / height_m).astype(np.float32)
 
 
+def block_prior(w_blocks: np.ndarray, y_px: np.ndarray, x_px: np.ndarray, h: int, w: int,
+                max_span: float) -> np.ndarray:
+    """``(H, W)`` float32 per-pixel prior from the block values: bilinear between the four block centres around a
+    pixel where their values span at most ``max_span`` (a smooth surface: inverse depth is affine in the ray on
+    a plane, so a slanted ground's blocks step by a pixel or two of parallax that no pixel between them has),
+    else the nearest block's value (a depth step: a blend would be neither surface).
+
+    Parameters
+    ----------
+    w_blocks
+        ``(ny, nx)`` inverse depth of every block (1/m, :func:`fill_blocks`).
+    y_px, x_px
+        Block centres (px), increasing.
+    h, w
+        The image's size (px).
+    max_span
+        Largest spread of the four values (1/m) that is interpolated.
+    """
+    def axis(centres: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        pos = np.interp(np.arange(n), centres, np.arange(centres.size))
+        i0 = np.clip(np.floor(pos).astype(int), 0, max(centres.size - 2, 0))
+        i1 = np.minimum(i0 + 1, centres.size - 1)
+        return i0, i1, np.clip(pos - i0, 0.0, 1.0).astype(np.float32)
+
+    y0, y1, fy = axis(y_px, h)
+    x0, x1, fx = axis(x_px, w)
+    wb = w_blocks.astype(np.float32)
+    c00, c01 = wb[y0[:, None], x0[None, :]], wb[y0[:, None], x1[None, :]]
+    c10, c11 = wb[y1[:, None], x0[None, :]], wb[y1[:, None], x1[None, :]]
+    fy, fx = fy[:, None], fx[None, :]
+    smooth = (c00 * (1 - fx) + c01 * fx) * (1 - fy) + (c10 * (1 - fx) + c11 * fx) * fy
+    span = np.maximum(np.maximum(c00, c01), np.maximum(c10, c11)) - np.minimum(np.minimum(c00, c01),
+                                                                             np.minimum(c10, c11))
+    by = np.where(fy < 0.5, y0[:, None], y1[:, None])
+    bx = np.where(fx < 0.5, x0[None, :], x1[None, :])
+    return np.where(span <= max_span, smooth, wb[by, bx]).astype(np.float32)
+
+
 def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blocks: np.ndarray,
                         measured: np.ndarray, y_px: np.ndarray, x_px: np.ndarray, step_px: float = SWEEP_STEP_PX,
                         max_levels: int = SWEEP_MAX_LEVELS, window: int = NCC_WINDOW_PX,
@@ -387,9 +453,11 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
     level within the range of its 5 × 5 neighbouring blocks (± 4 steps: a block larger than an object
     mixes it with its background), refined by a parabola through the neighbouring levels.  Where nothing
     correlates (best correlation below :data:`SWEEP_MIN_NCC`: flat areas, noise) or no neighbouring block
-    was measured, the pixel keeps its own block's value.  A prior must be beaten by a margin
+    was measured, the pixel keeps the blocks' value at its place (:func:`block_prior`: interpolated between
+    the four blocks around it on a smooth surface, whose blocks on a slanted ground step by 2 px of parallax at
+    full scale; the nearest block's across a depth step).  A prior must be beaten by a margin
     (``zero_margin``, :data:`SWEEP_ZERO_MARGIN` at full resolution): infinity where the blocks around see
-    infinity, else the block's value.
+    infinity, else the blocks' value.
     A pixel whose best match is not distinctive (another local maximum of the score comes within the
     margin: inside a uniform patch a few pixels wide, whose windows hold only edges along the line), or
     that matched nothing, takes the median depth of its distinctive neighbours
@@ -436,7 +504,7 @@ def sweep_inverse_depth(ga: np.ndarray, gb: np.ndarray, field: np.ndarray, w_blo
     lo_b = ndimage.minimum_filter(w_blocks, size=SWEEP_RANGE_BLOCKS, mode="nearest") - SWEEP_MARGIN_STEPS * dw
     hi_b = ndimage.maximum_filter(w_blocks, size=SWEEP_RANGE_BLOCKS, mode="nearest") + SWEEP_MARGIN_STEPS * dw
     lo, hi = lo_b[by[:, None], bx[None, :]], hi_b[by[:, None], bx[None, :]]
-    own = w_blocks[by[:, None], bx[None, :]]
+    own = block_prior(w_blocks, y_px, x_px, h, w, SMOOTH_PRIOR_MAX_SPAN_PX / float(np.median(valid)))
     w_lo, w_hi = float(lo_b.min()), float(hi_b.max())
     n = int(np.ceil((w_hi - w_lo) / dw)) + 1
     if n > max_levels:
@@ -632,8 +700,9 @@ def colour_map_a_to_b(a: np.ndarray, b: np.ndarray, sample: np.ndarray, max_samp
 def _colour_residual(a: np.ndarray, b: np.ndarray, m: np.ndarray) -> np.ndarray:
     """Relative misfit ``|B − M A| / (|M A| + |B|)`` per pixel (0: B is what A predicts; 1: unrelated)."""
     pred = a @ m.T.astype(np.float32)
-    num = np.linalg.norm(b - pred, axis=-1)
-    den = np.linalg.norm(pred, axis=-1) + np.linalg.norm(b, axis=-1)
+    d = b - pred
+    num = np.sqrt(np.einsum("...c,...c->...", d, d))
+    den = np.sqrt(np.einsum("...c,...c->...", pred, pred)) + np.sqrt(np.einsum("...c,...c->...", b, b))
     return np.where(den > 0, num / np.maximum(den, 1e-30), 0.0).astype(np.float32)
 
 
@@ -1052,7 +1121,7 @@ def parallax_map(image_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, mo
                  ground_inv_depth=None, min_confidence: float = PARALLAX_MIN_CONFIDENCE,
                  target_px: int = PARALLAX_ANALYSIS_PX, ground_down=None,
                  zero_margin: float = SWEEP_ZERO_MARGIN) -> Parallax:
-    """Steps 1-4 of the module docstring for one direction.
+    """Steps 1-5 of the module docstring for one direction.
 
     Images larger than about ``target_px`` are analysed binned (inverse depth does not depend on the pixel
     size; the sweep costs ~50 remaps per pixel), and the result is brought back to every pixel (each takes
@@ -1114,6 +1183,8 @@ def parallax_map(image_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, mo
         inv_depth, confidence, other = upsampled_by_colour(
             image_a, binned_a, low.inv_depth_per_m, small_field, f, [low.inv_depth_per_m, low.confidence,
                                                                      low.other_surface])
+        inv_depth = settled_at_steps(image_a, warped_b, field, inv_depth, low.inv_depth_per_m, small_field, f,
+                                     (confidence > 0) & seen)
         return Parallax(inv_depth, confidence, _occluded(inv_depth, field) | other, low.blocks, other)
     h, w = image_a.shape[:2]
     block = block or block_size_for(w, h)
@@ -1168,19 +1239,10 @@ def upsampled_by_colour(image_a: np.ndarray, binned_a: np.ndarray, inv_depth: np
     h, w = image_a.shape[:2]
     hb, wb = inv_depth.shape
     out = [_repeat_to(x, factor, h, w) for x in layers]
-    parallax_px = (np.nan_to_num(inv_depth * np.hypot(binned_field[..., 0], binned_field[..., 1])) * factor
-                   ).astype(np.float32)
-    kernel = np.ones((3, 3), np.uint8)
-    step_cells = (cv2.dilate(parallax_px, kernel) - cv2.erode(parallax_px, kernel)) > step_px
-    if not step_cells.any():
+    step = step_cell_pixels(inv_depth, binned_field, factor, h, w, step_px)
+    if step is None:
         return out
-    # the full-resolution pixels of the step cells (the cells' factor × factor blocks inside the image)
-    sy, sx = np.nonzero(step_cells)
-    iy, ix = np.divmod(np.arange(factor * factor), factor)
-    ys, xs = (sy[:, None] * factor + iy[None, :]).ravel(), (sx[:, None] * factor + ix[None, :]).ravel()
-    cy, cx = np.repeat(sy, factor * factor), np.repeat(sx, factor * factor)
-    inside = (ys < h) & (xs < w)
-    ys, xs, cy, cx = ys[inside], xs[inside], cy[inside], cx[inside]
+    ys, xs, cy, cx = step
     a = as_channels(image_a[ys, xs][None])[0]
     ab = as_channels(binned_a)
     ab_norm = np.sqrt(np.einsum("...c,...c->...", ab, ab))
@@ -1204,6 +1266,154 @@ def upsampled_by_colour(image_a: np.ndarray, binned_a: np.ndarray, inv_depth: np
     return out
 
 
+def step_cell_pixels(inv_depth: np.ndarray, binned_field: np.ndarray, factor: int, h: int, w: int,
+                     step_px: float = DEPTH_STEP_PX) -> tuple[np.ndarray, ...] | None:
+    """The full-resolution pixels of the binned cells beside a depth step (:func:`upsampled_by_colour`): rows,
+    columns and their cells' rows and columns ``(n,)`` each, or ``None`` when there is no step."""
+    parallax_px = (np.nan_to_num(inv_depth * np.hypot(binned_field[..., 0], binned_field[..., 1])) * factor
+                   ).astype(np.float32)
+    kernel = np.ones((3, 3), np.uint8)
+    step_cells = (cv2.dilate(parallax_px, kernel) - cv2.erode(parallax_px, kernel)) > step_px
+    if not step_cells.any():
+        return None
+    sy, sx = np.nonzero(step_cells)
+    iy, ix = np.divmod(np.arange(factor * factor), factor)
+    ys, xs = (sy[:, None] * factor + iy[None, :]).ravel(), (sx[:, None] * factor + ix[None, :]).ravel()
+    cy, cx = np.repeat(sy, factor * factor), np.repeat(sx, factor * factor)
+    inside = (ys < h) & (xs < w)
+    return ys[inside], xs[inside], cy[inside], cx[inside]
+
+
+def settled_at_steps(image_a: np.ndarray, warped_b: np.ndarray, field: np.ndarray, inv_depth: np.ndarray,
+                     binned_inv_depth: np.ndarray, binned_field: np.ndarray, factor: int, reliable: np.ndarray,
+                     gain: float = STEP_SETTLE_GAIN) -> np.ndarray:
+    """Full-resolution inverse depth of a binned analysis corrected where camera B's colour misfits A's.
+
+    The binned grid's depth reaches the full grid by cells (:func:`upsampled_by_colour`), and where it is wrong
+    by a pixel or two B shows the other side of an edge there: a strip narrower than a cell (a plate's shadow
+    beside its edge) has no cell of its colour, and far content whose parallax is under a binned pixel (a
+    building 40 m off: 1.8 px at full scale, 0.45 binned px) is left at infinity by the binned sweep, its
+    silhouette's B edge 1.8 px from A's.  Each pixel whose B colour at its parallax misfits the colour A's
+    pixel predicts (one linear map between the cameras, :func:`colour_map_a_to_b`, fitted on ``reliable``
+    pixels; :data:`SETTLE_MIN_MISFIT`) tries
+
+    1. beside a depth step, the values of its binned cell and the eight around it;
+    2. on an edge of A across the epipolar line, parallaxes within :data:`EDGE_SEARCH_PX` of its own (the
+       nearest of equal fits, and only a fit below :data:`EDGE_MAX_FIT`),
+
+    and takes the best when its misfit is below ``gain`` times the current one.  At full scale (2026-11-28,
+    docs/benchmarks.md, Processing) this took camera B's band NRMSE within 2 px of depth edges from 0.172
+    to 0.131.
+
+    Parameters
+    ----------
+    image_a, warped_b
+        ``(H, W, C)`` camera A's image and camera B's resampled onto A's grid.
+    field
+        ``(H, W, 2+)`` :func:`epipolar_field` (px · m).
+    inv_depth
+        ``(H, W)`` inverse depth (1/m) upsampled from the binned grid.
+    binned_inv_depth, binned_field
+        The binned grid's inverse depth and epipolar field (binned px · m).
+    factor
+        The binning factor.
+    reliable
+        ``(H, W)`` boolean, pixels whose depth is trusted (the colour map's sample).
+    gain
+        Largest ratio of the new misfit to the current one that switches.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(H, W)`` float32 inverse depth (1/m).
+    """
+    h, w = inv_depth.shape
+    out = inv_depth.astype(np.float32, copy=True)
+    a = as_channels(image_a)
+    b = as_channels(warped_b)
+    m = _colour_map_at(a, b, field, out, reliable)
+    if not np.isfinite(m).all():
+        return out
+    step = step_cell_pixels(binned_inv_depth, binned_field, factor, h, w)
+    if step is not None:
+        _settle_among_cells(a, b, field, out, m, binned_inv_depth, step, gain)
+    _settle_along_line(a, b, field, out, m, gain)
+    return out
+
+
+def _colour_map_at(a: np.ndarray, b: np.ndarray, field: np.ndarray, inv_depth: np.ndarray,
+                   reliable: np.ndarray, max_samples: int = 20000) -> np.ndarray:
+    """:func:`colour_map_a_to_b` fitted on (at most ``max_samples`` of) the ``reliable`` pixels, B moved by their
+    parallax."""
+    sample = np.flatnonzero(reliable.ravel())
+    if sample.size > max_samples:
+        sample = sample[np.linspace(0, sample.size - 1, max_samples).astype(np.int64)]
+    sy, sx = np.divmod(sample, inv_depth.shape[1])
+    return colour_map_a_to_b(a[sy, sx][:, None], _sample_moved(b, field, sy, sx, inv_depth[sy, sx])[:, None],
+                             np.ones((sy.size, 1), bool))
+
+
+def _settle_among_cells(a: np.ndarray, b: np.ndarray, field: np.ndarray, out: np.ndarray, m: np.ndarray,
+                        binned_inv_depth: np.ndarray, step: tuple[np.ndarray, ...], gain: float) -> None:
+    """:func:`settled_at_steps`' first part, in place: the step pixels whose B colour misfits A's try their
+    3 × 3 cells' values (each only where it differs from the pixel's own)."""
+    ys, xs, cy, cx = step
+    current = out[ys, xs]
+    misfit0 = _colour_residual(a[ys, xs][None], _sample_moved(b, field, ys, xs, current)[None], m)[0]
+    todo = misfit0 > SETTLE_MIN_MISFIT
+    ys, xs, cy, cx, current, misfit0 = ys[todo], xs[todo], cy[todo], cx[todo], current[todo], misfit0[todo]
+    ap = a[ys, xs][None]
+    per_px = np.hypot(field[ys, xs, 0], field[ys, xs, 1])
+    hb, wb = binned_inv_depth.shape
+    best, best_w = misfit0.copy(), current.copy()
+    for dy, dx in ((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)):
+        cand = binned_inv_depth[np.clip(cy + dy, 0, hb - 1), np.clip(cx + dx, 0, wb - 1)].astype(np.float32)
+        differs = np.flatnonzero(np.abs(cand - current) * per_px > 0.1)
+        r = _colour_residual(ap[:, differs], _sample_moved(b, field, ys[differs], xs[differs], cand[differs])[None],
+                             m)[0]
+        better = r < best[differs]
+        best[differs[better]], best_w[differs[better]] = r[better], cand[differs[better]]
+    switch = best < gain * misfit0
+    out[ys[switch], xs[switch]] = best_w[switch]
+
+
+def _settle_along_line(a: np.ndarray, b: np.ndarray, field: np.ndarray, out: np.ndarray, m: np.ndarray,
+                       gain: float) -> None:
+    """:func:`settled_at_steps`' second part, in place: pixels on an edge of A across the epipolar line whose B
+    colour misfits try parallaxes within :data:`EDGE_SEARCH_PX` of their own, every half pixel (nearest first)."""
+    gray = a.sum(axis=-1)
+    centred = np.array([[-0.5, 0.0, 0.5]], np.float32)
+    gx = cv2.filter2D(gray, -1, centred, borderType=cv2.BORDER_REPLICATE)
+    gy = cv2.filter2D(gray, -1, centred.T, borderType=cv2.BORDER_REPLICATE)
+    fx, fy = field[..., 0], field[..., 1]
+    e_len = np.sqrt(fx * fx + fy * fy)
+    along = np.abs(gx * fx + gy * fy)
+    edge = (along > np.float32(EDGE_MIN_RELATIVE_GRADIENT) * gray * e_len) & (e_len > 0)
+    edge = cv2.dilate(edge.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    ys, xs = np.nonzero(edge)
+    if ys.size == 0:
+        return
+    ap = a[ys, xs][None]
+    current = out[ys, xs]
+    misfit0 = _colour_residual(ap, _sample_moved(b, field, ys, xs, current)[None], m)[0]
+    todo = misfit0 > EDGE_MIN_MISFIT
+    ys, xs, ap, current, misfit0 = ys[todo], xs[todo], ap[:, todo], current[todo], misfit0[todo]
+    if ys.size == 0:
+        return
+    per_px = 1.0 / e_len[ys, xs]
+    n = round(EDGE_SEARCH_PX / EDGE_SEARCH_STEP_PX)
+    best, best_cost, best_w = misfit0.copy(), misfit0.copy(), current.copy()
+    for k in sorted(range(-n, n + 1), key=abs)[1:]:
+        cand = np.maximum(current + np.float32(k * EDGE_SEARCH_STEP_PX) * per_px, 0.0).astype(np.float32)
+        r = _colour_residual(ap, _sample_moved(b, field, ys, xs, cand)[None], m)[0]
+        cost = r + np.float32(EDGE_SEARCH_COST_PER_PX * abs(k) * EDGE_SEARCH_STEP_PX)
+        better = cost < best_cost
+        best, best_cost, best_w = np.where(better, r, best), np.where(better, cost, best_cost), \
+            np.where(better, cand, best_w)
+    switch = (best < gain * misfit0) & (best < EDGE_MAX_FIT)
+    out[ys[switch], xs[switch]] = best_w[switch]
+
+
 def _repeat_to(x: np.ndarray, factor: int, h: int, w: int) -> np.ndarray:
     """Each cell of ``x`` repeated over its ``factor × factor`` pixels, cut or edge-extended to ``(h, w)``."""
     up = np.repeat(np.repeat(x, factor, axis=0), factor, axis=1)[:h, :w]
@@ -1213,7 +1423,7 @@ def _repeat_to(x: np.ndarray, factor: int, h: int, w: int) -> np.ndarray:
 
 
 def _occluded(inv_depth: np.ndarray, field: np.ndarray, e_len: np.ndarray | None = None) -> np.ndarray:
-    """Step 4: pixels hidden from B by a nearer surface (z-buffer of the forward warp, nearness in px along
+    """Step 5: pixels hidden from B by a nearer surface (z-buffer of the forward warp, nearness in px along
     the epipolar line); ``e_len``: the field's length, when the caller has it."""
     if e_len is None:
         e_len = np.hypot(field[..., 0], field[..., 1]).astype(np.float32)

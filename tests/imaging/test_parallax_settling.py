@@ -4,8 +4,13 @@ misfits A's."""
 
 import numpy as np
 
-from omnispectral.imaging.parallax import (block_prior, moved_by_parallax, settled_at_steps, sweep_inverse_depth,
-                                           _colour_residual)
+from omnispectral.imaging.parallax import (
+    _colour_residual,
+    block_prior,
+    moved_by_parallax,
+    settled_at_steps,
+    sweep_inverse_depth,
+)
 
 
 def _affine(y, x):
@@ -32,7 +37,7 @@ def test_sweep_prior_follows_a_slanted_ground_between_blocks_and_keeps_steps():
     flat = np.full((h, w, 3), 100.0, np.float32)
     field = np.zeros((h, w, 2), np.float32)
     field[..., 1] = e_px_m
-    got, confidence = sweep_inverse_depth(flat, flat, field, blocks, np.ones_like(blocks, bool), y_px, x_px)
+    got, _ = sweep_inverse_depth(flat, flat, field, blocks, np.ones_like(blocks, bool), y_px, x_px)
     core = inside & (yy > y_px[0] + 1) & (yy < y_px[-1] - 1) & (xx > x_px[0] + 1) & (xx < x_px[-1] - 1)
     assert np.abs(got - truth)[core].max() * e_px_m < 0.02
     # a step: a near object's blocks beside the far ground's keep their own values

@@ -1329,8 +1329,9 @@ def settled_at_steps(image_a: np.ndarray, warped_b: np.ndarray, field: np.ndarra
     """
     h, w = inv_depth.shape
     out = inv_depth.astype(np.float32, copy=True)
-    a = as_channels(image_a)
-    b = as_channels(warped_b)
+    # NaN (B's frame edge) stays: its misfit is NaN and never switches
+    a, b = (x[..., None] if x.ndim == 2 else x for x in (np.asarray(image_a, np.float32),
+                                                         np.asarray(warped_b, np.float32)))
     m = _colour_map_at(a, b, field, out, reliable)
     if not np.isfinite(m).all():
         return out
@@ -1349,8 +1350,8 @@ def _colour_map_at(a: np.ndarray, b: np.ndarray, field: np.ndarray, inv_depth: n
     if sample.size > max_samples:
         sample = sample[np.linspace(0, sample.size - 1, max_samples).astype(np.int64)]
     sy, sx = np.divmod(sample, inv_depth.shape[1])
-    return colour_map_a_to_b(a[sy, sx][:, None], _sample_moved(b, field, sy, sx, inv_depth[sy, sx])[:, None],
-                             np.ones((sy.size, 1), bool))
+    sa, sb = a[sy, sx][:, None], _sample_moved(b, field, sy, sx, inv_depth[sy, sx])[:, None]
+    return colour_map_a_to_b(sa, sb, (np.isfinite(sa).all(axis=-1) & np.isfinite(sb).all(axis=-1)))
 
 
 def _settle_among_cells(a: np.ndarray, b: np.ndarray, field: np.ndarray, out: np.ndarray, m: np.ndarray,

@@ -1303,7 +1303,8 @@ def settled_at_steps(image_a: np.ndarray, warped_b: np.ndarray, field: np.ndarra
 
     and takes the best when its misfit is below ``gain`` times the current one.  At full scale (2026-11-28,
     docs/benchmarks.md, Processing) this took camera B's band NRMSE within 2 px of depth edges from 0.172
-    to 0.131.
+    to 0.131.  An unbinned analysis, whose sweep is at full resolution already, does not use it: there the
+    search along the line moved a ColorChecker's 3-px patches onto their neighbours' depths.
 
     Parameters
     ----------

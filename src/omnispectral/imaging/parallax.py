@@ -684,9 +684,7 @@ def colour_map_a_to_b(a: np.ndarray, b: np.ndarray, sample: np.ndarray, max_samp
     numpy.ndarray
         ``(C_B, C_A)`` float64; all NaN when fewer than ``4 C_A`` usable pixels.
     """
-    idx = np.flatnonzero(sample.ravel())
-    if idx.size > max_samples:
-        idx = idx[np.linspace(0, idx.size - 1, max_samples).astype(np.int64)]
+    idx = _evenly_spaced(np.flatnonzero(sample.ravel()), max_samples)
     xa = a.reshape(-1, a.shape[-1])[idx].astype(np.float64)
     xb = b.reshape(-1, b.shape[-1])[idx].astype(np.float64)
     norm = np.linalg.norm(xa, axis=1)
@@ -695,6 +693,11 @@ def colour_map_a_to_b(a: np.ndarray, b: np.ndarray, sample: np.ndarray, max_samp
         return np.full((b.shape[-1], a.shape[-1]), np.nan)
     m, *_ = np.linalg.lstsq(xa[ok] / norm[ok, None], xb[ok] / norm[ok, None], rcond=None)
     return m.T
+
+
+def _evenly_spaced(idx: np.ndarray, max_n: int) -> np.ndarray:
+    """At most ``max_n`` of ``idx``, evenly spaced (all of them when there are fewer)."""
+    return idx[np.linspace(0, idx.size - 1, max_n).astype(np.int64)] if idx.size > max_n else idx
 
 
 def _colour_residual(a: np.ndarray, b: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -1347,10 +1350,7 @@ def _colour_map_at(a: np.ndarray, b: np.ndarray, field: np.ndarray, inv_depth: n
                    reliable: np.ndarray, max_samples: int = 20000) -> np.ndarray:
     """:func:`colour_map_a_to_b` fitted on (at most ``max_samples`` of) the ``reliable`` pixels, B moved by their
     parallax."""
-    sample = np.flatnonzero(reliable.ravel())
-    if sample.size > max_samples:
-        sample = sample[np.linspace(0, sample.size - 1, max_samples).astype(np.int64)]
-    sy, sx = np.divmod(sample, inv_depth.shape[1])
+    sy, sx = np.divmod(_evenly_spaced(np.flatnonzero(reliable.ravel()), max_samples), inv_depth.shape[1])
     sa, sb = a[sy, sx][:, None], _sample_moved(b, field, sy, sx, inv_depth[sy, sx])[:, None]
     return colour_map_a_to_b(sa, sb, (np.isfinite(sa).all(axis=-1) & np.isfinite(sb).all(axis=-1)))
 
@@ -1365,12 +1365,12 @@ def _settle_among_cells(a: np.ndarray, b: np.ndarray, field: np.ndarray, out: np
     todo = misfit0 > SETTLE_MIN_MISFIT
     ys, xs, cy, cx, current, misfit0 = ys[todo], xs[todo], cy[todo], cx[todo], current[todo], misfit0[todo]
     ap = a[ys, xs][None]
-    per_px = np.hypot(field[ys, xs, 0], field[ys, xs, 1])
+    e_len = np.hypot(field[ys, xs, 0], field[ys, xs, 1])
     hb, wb = binned_inv_depth.shape
     best, best_w = misfit0.copy(), current.copy()
     for dy, dx in ((dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)):
         cand = binned_inv_depth[np.clip(cy + dy, 0, hb - 1), np.clip(cx + dx, 0, wb - 1)].astype(np.float32)
-        differs = np.flatnonzero(np.abs(cand - current) * per_px > 0.1)
+        differs = np.flatnonzero(np.abs(cand - current) * e_len > 0.1)  # > 0.1 px of parallax apart
         r = _colour_residual(ap[:, differs], _sample_moved(b, field, ys[differs], xs[differs], cand[differs])[None],
                              m)[0]
         better = r < best[differs]
@@ -1402,11 +1402,11 @@ def _settle_along_line(a: np.ndarray, b: np.ndarray, field: np.ndarray, out: np.
     ys, xs, ap, current, misfit0 = ys[todo], xs[todo], ap[:, todo], current[todo], misfit0[todo]
     if ys.size == 0:
         return
-    per_px = 1.0 / e_len[ys, xs]
+    w_per_px = 1.0 / e_len[ys, xs]
     n = round(EDGE_SEARCH_PX / EDGE_SEARCH_STEP_PX)
     best, best_cost, best_w = misfit0.copy(), misfit0.copy(), current.copy()
     for k in sorted(range(-n, n + 1), key=abs)[1:]:
-        cand = np.maximum(current + np.float32(k * EDGE_SEARCH_STEP_PX) * per_px, 0.0).astype(np.float32)
+        cand = np.maximum(current + np.float32(k * EDGE_SEARCH_STEP_PX) * w_per_px, 0.0).astype(np.float32)
         r = _colour_residual(ap, _sample_moved(b, field, ys, xs, cand)[None], m)[0]
         cost = r + np.float32(EDGE_SEARCH_COST_PER_PX * abs(k) * EDGE_SEARCH_STEP_PX)
         better = cost < best_cost

@@ -37,14 +37,17 @@ def assert_same(a, b):
 
 
 @pytest.mark.parametrize("weight", ["triangle", "noise"])
-@pytest.mark.parametrize("workers", [1, 2])
-def test_fused_equals_numpy_path(frames, weight, workers, monkeypatch):
+@pytest.mark.parametrize(("workers", "count"), [(1, 15), (2, 15), (1, 4), (2, 7)])
+def test_fused_equals_numpy_path(frames, weight, workers, count, monkeypatch):
+    """Brackets of 15, 4 and 7 exposures: the kernel takes five at a time, padding 4 and 7 with weightless
+    exposures."""
     assert hdr._fused_kernel() is not None
-    fused = merge_exposures(frames, TIMES_S, 12, weight=weight, chunk_rows=16, workers=workers)
+    fused = merge_exposures(frames[-count:], TIMES_S[-count:], 12, weight=weight, chunk_rows=16, workers=workers)
     assert fused.saturated[:5, :5].all() and fused.dark[-5:, -5:].all()
     assert 0.0 < np.nanmean(fused.radiance) and np.isfinite(fused.radiance).all()
     numpy_path(monkeypatch)
-    assert_same(fused, merge_exposures(frames, TIMES_S, 12, weight=weight, chunk_rows=16, workers=workers))
+    assert_same(fused, merge_exposures(frames[-count:], TIMES_S[-count:], 12, weight=weight, chunk_rows=16,
+                                       workers=workers))
 
 
 def test_fused_matches_float64_eq1(frames):

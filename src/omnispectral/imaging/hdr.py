@@ -25,8 +25,8 @@ with the merged value beyond their noise (``|I_k/t_k - I| > z sigma``, with a re
 model error) is re-merged from one reference exposure and the exposures consistent with it.
 
 Speed: the work is fused per row chunk in float32.  For linear sensors (raw frames) a compiled
-kernel (Numba, :func:`_fused_kernel`) walks each block of 2048 values through all exposures with
-the four sums of Eq. (1) held in cache: one read of the inputs and one write of the outputs, the
+kernel (Numba, :func:`_fused_kernel`) walks each block of 2048 values through all exposures, five at a
+time, with the sums of Eq. (1) held in cache: one read of the inputs and one write of the outputs, the
 same float32 operations in the same order as the NumPy evaluation (:func:`_merge_rows`, kept for
 recovered responses, for mixed frame dtypes and when Numba is missing; the tests hold the two
 bit-identical).  Row chunks run on :func:`omnispectral.threads.kernel_threads` threads; no
@@ -196,25 +196,80 @@ def _merge_rows(model: _Model, frames: list[np.ndarray], rows: slice):
     return rad, var, den
 
 
+#: Exposures the compiled kernel takes in one pass over a block: their weights are summed in registers, in
+#: Eq. (1)'s order, so the block's sums are loaded and stored once per five exposures instead of once per
+#: exposure (a bracket whose length is not a multiple of it is padded with weightless exposures).
+FUSED_GROUP = 5
+
+
 @built_on_first_use
 def _fused_kernel(numba):
     """The compiled Eq. (1) kernel for linear sensors, or ``None`` without Numba (imported on first use,
     :mod:`omnispectral.compiled`: modules that import ``hdr`` without merging do not pay for it)."""
 
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False, inline="always")
+    def weight(x, on, ts, top, sat, var_a, var_b, triangle):
+        """One code's weight (Eq. (2) or the inverse variance) times ``on`` (1, or 0 for a padding pass)."""
+        zero = np.float32(0.0)
+        if not ((x < sat) & (x > zero)):
+            return zero
+        if triangle:
+            return max(min(x, top - x), zero) * on  # triangle_weight, inline
+        return (ts * on) / (x * var_a + var_b)
+
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
-    def merge_linear(frames, start, stop, inv_t, t_squared, top, sat, var_a, var_b, triangle,
+    def five_exposures(f0, f1, f2, f3, f4, k, on, inv_t, t_squared, top, sat, var_a, var_b, triangle, num, den,
+                       vnum):
+        """Add exposures ``k … k+4`` (frames ``f0 … f4``) to the sums, each sum in the order of
+        :func:`_merge_rows` (one exposure after the other), so the result is the same bit for bit."""
+        i0, i1, i2, i3, i4 = inv_t[k], inv_t[k + 1], inv_t[k + 2], inv_t[k + 3], inv_t[k + 4]
+        o0, o1, o2, o3, o4 = on[k], on[k + 1], on[k + 2], on[k + 3], on[k + 4]
+        q0, q1, q2, q3, q4 = t_squared[k], t_squared[k + 1], t_squared[k + 2], t_squared[k + 3], t_squared[k + 4]
+        if not triangle:  # two loops: a test of ``triangle`` inside one keeps LLVM from vectorising it
+            for i in range(num.size):
+                x0, x1, x2 = np.float32(f0[i]), np.float32(f1[i]), np.float32(f2[i])
+                x3, x4 = np.float32(f3[i]), np.float32(f4[i])
+                w0 = weight(x0, o0, q0, top, sat, var_a, var_b, False)
+                w1 = weight(x1, o1, q1, top, sat, var_a, var_b, False)
+                w2 = weight(x2, o2, q2, top, sat, var_a, var_b, False)
+                w3 = weight(x3, o3, q3, top, sat, var_a, var_b, False)
+                w4 = weight(x4, o4, q4, top, sat, var_a, var_b, False)
+                den[i] = ((((den[i] + w0) + w1) + w2) + w3) + w4
+                s = (num[i] + w0 * (x0 * i0)) + w1 * (x1 * i1)
+                num[i] = ((s + w2 * (x2 * i2)) + w3 * (x3 * i3)) + w4 * (x4 * i4)
+            return
+        for i in range(num.size):
+            x0, x1, x2 = np.float32(f0[i]), np.float32(f1[i]), np.float32(f2[i])
+            x3, x4 = np.float32(f3[i]), np.float32(f4[i])
+            w0 = weight(x0, o0, q0, top, sat, var_a, var_b, True)
+            w1 = weight(x1, o1, q1, top, sat, var_a, var_b, True)
+            w2 = weight(x2, o2, q2, top, sat, var_a, var_b, True)
+            w3 = weight(x3, o3, q3, top, sat, var_a, var_b, True)
+            w4 = weight(x4, o4, q4, top, sat, var_a, var_b, True)
+            den[i] = ((((den[i] + w0) + w1) + w2) + w3) + w4
+            s = (num[i] + w0 * (x0 * i0)) + w1 * (x1 * i1)
+            num[i] = ((s + w2 * (x2 * i2)) + w3 * (x3 * i3)) + w4 * (x4 * i4)
+            v = vnum[i] + w0 * w0 * (x0 * var_a + var_b) * (i0 * i0)
+            v = v + w1 * w1 * (x1 * var_a + var_b) * (i1 * i1)
+            v = v + w2 * w2 * (x2 * var_a + var_b) * (i2 * i2)
+            v = v + w3 * w3 * (x3 * var_a + var_b) * (i3 * i3)
+            vnum[i] = v + w4 * w4 * (x4 * var_a + var_b) * (i4 * i4)
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
+    def merge_linear(frames, start, stop, inv_t, t_squared, on, top, sat, var_a, var_b, triangle,
                      sat64, shortest, longest, rad, var, den_out, saturated, dark):
         """Eq. (1) over flat values ``start:stop`` of all frames into ``rad[0:stop-start]`` etc.
 
         float32, the operations of :func:`_merge_rows` (and, when ``saturated`` is not empty, of
         :func:`_fallbacks`) in the same order; blocks of 2048 values keep the sums in cache while
-        all exposures pass.
+        all exposures pass, :data:`FUSED_GROUP` at a time (``frames`` padded to a multiple of it; ``on``
+        is 0 for the padding).
         """
         block = 2048
         num_b = np.empty(block, np.float32)
         den_b = np.empty(block, np.float32)
         vnum_b = np.empty(block, np.float32)
-        zero = np.float32(0.0)
+        zero, one = np.float32(0.0), np.float32(1.0)
         fallbacks = saturated.size > 0
         # every loop runs over slices indexed from 0: index arithmetic like f[s0 + i] may wrap
         # around (negative indices), which stops LLVM from vectorising (3-4x slower)
@@ -224,33 +279,24 @@ def _fused_kernel(numba):
             num[:] = zero
             den[:] = zero
             vnum[:] = zero
-            for k in range(len(frames)):
-                f = frames[k][s0:s0 + n]
-                it = inv_t[k]
-                it2 = it * it
-                if triangle:
-                    for i in range(n):
-                        x = np.float32(f[i])
-                        v = x * var_a + var_b
-                        # triangle_weight, inline
-                        w = max(min(x, top - x), zero) if (x < sat) & (x > zero) else zero
-                        den[i] += w
-                        num[i] += w * (x * it)
-                        vnum[i] += w * w * v * it2
-                else:
-                    ts = t_squared[k]
-                    for i in range(n):
-                        x = np.float32(f[i])
-                        w = ts / (x * var_a + var_b) if (x < sat) & (x > zero) else zero
-                        den[i] += w
-                        num[i] += w * (x * it)
+            for k in range(0, len(frames), FUSED_GROUP):
+                five_exposures(frames[k][s0:s0 + n], frames[k + 1][s0:s0 + n], frames[k + 2][s0:s0 + n],
+                               frames[k + 3][s0:s0 + n], frames[k + 4][s0:s0 + n], k, on, inv_t, t_squared, top, sat,
+                               var_a, var_b, triangle, num, den, vnum)
             o = s0 - start
             rad_o, var_o, den_o = rad[o:o + n], var[o:o + n], den_out[o:o + n]
-            for i in range(n):
-                d = den[i]
-                rad_o[i] = num[i] / d
-                var_o[i] = vnum[i] / (d * d) if triangle else np.float32(1.0) / d
-                den_o[i] = d
+            if triangle:
+                for i in range(n):
+                    d = den[i]
+                    rad_o[i] = num[i] / d
+                    var_o[i] = vnum[i] / (d * d)
+                    den_o[i] = d
+            else:
+                for i in range(n):
+                    d = den[i]
+                    rad_o[i] = num[i] / d
+                    var_o[i] = one / d
+                    den_o[i] = d
             if fallbacks:  # saturated everywhere: the shortest exposure; dark: the longest
                 fs, fl = frames[shortest][s0:s0 + n], frames[longest][s0:s0 + n]
                 sat_o, dark_o = saturated[o:o + n], dark[o:o + n]
@@ -280,11 +326,18 @@ def _fused_frames(model: _Model, frames: list[np.ndarray]):
     a typed list costs ~1.4 s of compilation in every new process.)  Every array of the tuple is a read-only
     view: Numba types writable and read-only arrays apart, and a bracket can mix frames mapped from the page
     cache (read-only) with frames read past it (:mod:`omnispectral.filebytes`), which a tuple of two array
-    types would not index.
+    types would not index.  The last frame is repeated up to a multiple of :data:`FUSED_GROUP`; the kernel gives
+    the repeats no weight (:func:`_padding_factors`).
     """
     if model.lin_table is not None or len({f.dtype for f in frames}) != 1 or _fused_kernel() is None:
         return None
-    return tuple(_read_only_flat(f) for f in frames)
+    flat = [_read_only_flat(f) for f in frames]
+    return tuple(flat + flat[-1:] * (-len(flat) % FUSED_GROUP))
+
+
+def _padding_factors(values: np.ndarray, n_padded: int) -> np.ndarray:
+    """float32 ``values`` (one per exposure) with the last one repeated up to ``n_padded``."""
+    return np.concatenate([values, np.repeat(values[-1:], n_padded - values.size)]).astype(np.float32)
 
 
 def _read_only_flat(frame: np.ndarray) -> np.ndarray:
@@ -310,10 +363,15 @@ def _merge_rows_fused(model: _Model, flat_frames, shape: tuple[int, int, int], r
     else:
         rad, var = np.empty(hi - lo, np.float32), np.empty(hi - lo, np.float32)
         saturated = dark = np.empty(0, bool)
-    _fused_kernel()(flat_frames, lo, hi, (1.0 / model.times).astype(np.float32),
-                     (model.times**2).astype(np.float32), np.float32(model.top), np.float32(model.saturation_dn),
-                     np.float32(model.var_a), np.float32(model.var_b), not WEIGHTS[model.weight].inverse_variance,
-                     float(model.saturation_dn), extremes[0], extremes[1], rad, var, den, saturated, dark)
+    n = len(flat_frames)
+    on = np.zeros(n, np.float32)
+    on[:model.times.size] = 1.0
+    inv_t = _padding_factors((1.0 / model.times).astype(np.float32), n)
+    t_squared = _padding_factors((model.times**2).astype(np.float32), n)
+    _fused_kernel()(flat_frames, lo, hi, inv_t, t_squared, on, np.float32(model.top),
+                     np.float32(model.saturation_dn), np.float32(model.var_a), np.float32(model.var_b),
+                     not WEIGHTS[model.weight].inverse_variance, float(model.saturation_dn), extremes[0], extremes[1],
+                     rad, var, den, saturated, dark)
     shape = (r1 - r0, w, c)
     return rad.reshape(shape), var.reshape(shape), den.reshape(shape)
 

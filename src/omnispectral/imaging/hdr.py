@@ -206,6 +206,9 @@ FUSED_GROUP = 5
 def _fused_kernel(numba):
     """The compiled Eq. (1) kernel for linear sensors, or ``None`` without Numba (imported on first use,
     :mod:`omnispectral.compiled`: modules that import ``hdr`` without merging do not pay for it)."""
+    # the helpers are module globals, not closure cells: Numba keys its disk cache on the pickled closure, which
+    # differs in every process, and would compile the kernel that calls them on every run
+    global weight, five_exposures
 
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False, inline="always")
     def weight(x, on, ts, top, sat, var_a, var_b, triangle):

@@ -14,6 +14,9 @@ from omnispectral.spectral.wiener import WienerEstimator, apply_linear_map
 from omnispectral.threads import kernel_threads, single_threaded_blas
 
 TOL = 1e-6  # relative to each pixel's largest value
+#: The float32 mixture estimate sums 60 products per value in single precision, in the order of the host's sgemm
+#: kernel: 1.04e-6 on an AMD EPYC host (AVX-512), 6.2e-7 on an Intel one; 32 float32 roundings of the peak.
+TOL_FLOAT32 = 32 * float(np.finfo(np.float32).eps)
 
 
 def peak_relative_error(fast: np.ndarray, ref: np.ndarray) -> float:
@@ -51,7 +54,7 @@ def test_mixture_estimate_std_and_posterior_equal_reference(setup, estimators, d
     assert mix.n_components == 9 and mix._kernel is not None
     err = peak_relative_error(mix.estimate(rho, dtype=dtype, chunk_pixels=256),
                               mix._estimate_reference(rho, dtype=dtype))
-    assert err <= TOL
+    assert err <= (TOL if dtype is np.float64 else TOL_FLOAT32)
     err = peak_relative_error(mix.posterior_std(rho, dtype=dtype, chunk_pixels=256),
                               mix._posterior_std_reference(rho, dtype=dtype))
     assert err <= TOL

@@ -208,10 +208,10 @@ def _fused_kernel(numba):
     :mod:`omnispectral.compiled`: modules that import ``hdr`` without merging do not pay for it)."""
     # the helpers are module globals, not closure cells: Numba keys its disk cache on the pickled closure, which
     # differs in every process, and would compile the kernel that calls them on every run
-    global weight, five_exposures
+    global _code_weight, _five_exposures
 
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False, inline="always")
-    def weight(x, on, ts, top, sat, var_a, var_b, triangle):
+    def _code_weight(x, on, ts, top, sat, var_a, var_b, triangle):
         """One code's weight (Eq. (2) or the inverse variance) times ``on`` (1, or 0 for a padding pass)."""
         zero = np.float32(0.0)
         if not ((x < sat) & (x > zero)):
@@ -221,8 +221,8 @@ def _fused_kernel(numba):
         return (ts * on) / (x * var_a + var_b)
 
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
-    def five_exposures(f0, f1, f2, f3, f4, k, on, inv_t, t_squared, top, sat, var_a, var_b, triangle, num, den,
-                       vnum):
+    def _five_exposures(f0, f1, f2, f3, f4, k, on, inv_t, t_squared, top, sat, var_a, var_b, triangle, num, den,
+                        vnum):
         """Add exposures ``k … k+4`` (frames ``f0 … f4``) to the sums, each sum in the order of
         :func:`_merge_rows` (one exposure after the other), so the result is the same bit for bit."""
         i0, i1, i2, i3, i4 = inv_t[k], inv_t[k + 1], inv_t[k + 2], inv_t[k + 3], inv_t[k + 4]
@@ -232,11 +232,11 @@ def _fused_kernel(numba):
             for i in range(num.size):
                 x0, x1, x2 = np.float32(f0[i]), np.float32(f1[i]), np.float32(f2[i])
                 x3, x4 = np.float32(f3[i]), np.float32(f4[i])
-                w0 = weight(x0, o0, q0, top, sat, var_a, var_b, False)
-                w1 = weight(x1, o1, q1, top, sat, var_a, var_b, False)
-                w2 = weight(x2, o2, q2, top, sat, var_a, var_b, False)
-                w3 = weight(x3, o3, q3, top, sat, var_a, var_b, False)
-                w4 = weight(x4, o4, q4, top, sat, var_a, var_b, False)
+                w0 = _code_weight(x0, o0, q0, top, sat, var_a, var_b, False)
+                w1 = _code_weight(x1, o1, q1, top, sat, var_a, var_b, False)
+                w2 = _code_weight(x2, o2, q2, top, sat, var_a, var_b, False)
+                w3 = _code_weight(x3, o3, q3, top, sat, var_a, var_b, False)
+                w4 = _code_weight(x4, o4, q4, top, sat, var_a, var_b, False)
                 den[i] = ((((den[i] + w0) + w1) + w2) + w3) + w4
                 s = (num[i] + w0 * (x0 * i0)) + w1 * (x1 * i1)
                 num[i] = ((s + w2 * (x2 * i2)) + w3 * (x3 * i3)) + w4 * (x4 * i4)
@@ -244,11 +244,11 @@ def _fused_kernel(numba):
         for i in range(num.size):
             x0, x1, x2 = np.float32(f0[i]), np.float32(f1[i]), np.float32(f2[i])
             x3, x4 = np.float32(f3[i]), np.float32(f4[i])
-            w0 = weight(x0, o0, q0, top, sat, var_a, var_b, True)
-            w1 = weight(x1, o1, q1, top, sat, var_a, var_b, True)
-            w2 = weight(x2, o2, q2, top, sat, var_a, var_b, True)
-            w3 = weight(x3, o3, q3, top, sat, var_a, var_b, True)
-            w4 = weight(x4, o4, q4, top, sat, var_a, var_b, True)
+            w0 = _code_weight(x0, o0, q0, top, sat, var_a, var_b, True)
+            w1 = _code_weight(x1, o1, q1, top, sat, var_a, var_b, True)
+            w2 = _code_weight(x2, o2, q2, top, sat, var_a, var_b, True)
+            w3 = _code_weight(x3, o3, q3, top, sat, var_a, var_b, True)
+            w4 = _code_weight(x4, o4, q4, top, sat, var_a, var_b, True)
             den[i] = ((((den[i] + w0) + w1) + w2) + w3) + w4
             s = (num[i] + w0 * (x0 * i0)) + w1 * (x1 * i1)
             num[i] = ((s + w2 * (x2 * i2)) + w3 * (x3 * i3)) + w4 * (x4 * i4)
@@ -283,9 +283,9 @@ def _fused_kernel(numba):
             den[:] = zero
             vnum[:] = zero
             for k in range(0, len(frames), FUSED_GROUP):
-                five_exposures(frames[k][s0:s0 + n], frames[k + 1][s0:s0 + n], frames[k + 2][s0:s0 + n],
-                               frames[k + 3][s0:s0 + n], frames[k + 4][s0:s0 + n], k, on, inv_t, t_squared, top, sat,
-                               var_a, var_b, triangle, num, den, vnum)
+                _five_exposures(frames[k][s0:s0 + n], frames[k + 1][s0:s0 + n], frames[k + 2][s0:s0 + n],
+                                frames[k + 3][s0:s0 + n], frames[k + 4][s0:s0 + n], k, on, inv_t, t_squared, top,
+                                sat, var_a, var_b, triangle, num, den, vnum)
             o = s0 - start
             rad_o, var_o, den_o = rad[o:o + n], var[o:o + n], den_out[o:o + n]
             if triangle:
@@ -330,7 +330,7 @@ def _fused_frames(model: _Model, frames: list[np.ndarray]):
     view: Numba types writable and read-only arrays apart, and a bracket can mix frames mapped from the page
     cache (read-only) with frames read past it (:mod:`omnispectral.filebytes`), which a tuple of two array
     types would not index.  The last frame is repeated up to a multiple of :data:`FUSED_GROUP`; the kernel gives
-    the repeats no weight (:func:`_padding_factors`).
+    the repeats no weight (``on`` = 0, :func:`_merge_rows_fused`).
     """
     if model.lin_table is not None or len({f.dtype for f in frames}) != 1 or _fused_kernel() is None:
         return None

@@ -15,7 +15,10 @@ So pixels whose first ``s²`` rays spread by more than :data:`REFINE_RELATIVE_RA
 (:func:`pixels_to_refine`) are rendered again with :data:`REFINE_RAYS_PER_SIDE` ² rays (Whitted's adaptive
 supersampling, "An improved illumination model for shaded display", CACM 23(6), 1980; Mitchell, "Generating
 antialiased images at low sampling densities", SIGGRAPH 1987, for the contrast test), and those rays' mean
-replaces theirs.  An edge then carries a coverage error of at most about ``1 / 8`` of a pixel's width.
+replaces theirs.  An edge then carries a coverage error of at most about ``1 / 8`` of a pixel's width, except
+one that runs along a row or column of the grid within a quarter of a pixel of the border between two pixels:
+no pixel's first rays straddle it, and it keeps an error of up to a quarter of a pixel (docs/benchmarks.md,
+"Registration across conditions": the full-scale truth's pavement edge along a latitude).
 """
 
 from __future__ import annotations

@@ -7,7 +7,8 @@ import pytest
 
 from omnispectral.rig import load_preset
 from omnispectral.sim import truth
-from omnispectral.sim.antialias import pixels_to_refine, refined_mean, with_neighbours
+from omnispectral.imaging.geometry import equirect_pixel_to_lonlat, lonlat_to_ray
+from omnispectral.sim.antialias import differs_from_neighbours, pixels_to_refine, refined_mean, with_neighbours
 from omnispectral.sim.scenes.base import footprint_kwargs
 from omnispectral.sim.scenes.build import build_scene
 from omnispectral.sim.simulate import RigRenderer
@@ -56,6 +57,46 @@ def test_pixels_to_refine_marks_disagreeing_rays_only():
     wrapped = with_neighbours(at_seam.ravel(), 5, 5, wrap_columns=True).reshape(5, 5)
     assert plain.sum() == 6 and not plain[:, 4].any()
     assert wrapped.sum() == 9 and wrapped[1:4, 4].all() and wrapped[1:4, :2].all()
+
+
+def test_differs_from_neighbours_marks_both_sides_of_a_step_between_pixels():
+    means = np.ones((5, 6, 2))
+    means[3:, :, 1] = 0.5  # a step between rows 2 and 3 in one band
+    marked = differs_from_neighbours(means.reshape(-1, 2), 5, 6).reshape(5, 6)
+    assert marked[2:4].all() and not marked[[0, 1, 4]].any()
+    assert not differs_from_neighbours(np.ones((30, 3)) * [1.0, 1.04, 0.97], 5, 6).any()  # 4 % apart: left
+    seam = np.ones((4, 5, 1))
+    seam[:, 0] = 2.0
+    plain = differs_from_neighbours(seam.reshape(-1, 1), 4, 5).reshape(4, 5)
+    wrapped = differs_from_neighbours(seam.reshape(-1, 1), 4, 5, wrap_columns=True).reshape(4, 5)
+    assert plain[:, :2].all() and not plain[:, 4].any() and wrapped[:, 4].all()
+    valid = np.ones((5, 6), bool)
+    valid[3:] = False  # the darker rows are outside the lens model: no pair across the step counts
+    assert not differs_from_neighbours(means.reshape(-1, 2), 5, 6, valid=valid.ravel()).any()
+
+
+@pytest.mark.parametrize("edge_row", [21, 24])  # inside a chunk of 8 rows, and at a chunk's first row
+def test_truth_refines_an_edge_along_a_row_between_two_pixels_rays(edge_row):
+    """A boundary of constant latitude 0.1 px below the top of a truth row: no pixel's 2 × 2 rays straddle it;
+    the two rows beside it differ, so both are refined (across a chunk border too)."""
+    width, height = 64, 32
+    _, lat_edge = equirect_pixel_to_lonlat(np.array([0.0]), np.array([edge_row - 0.5 + 0.1]), width, height)
+    bright_above = lonlat_to_ray(0.0, float(lat_edge[0]))[1]
+
+    def fn(rays, spread):
+        return np.where(rays[:, 1:2] > bright_above, 1.0, 0.2) * np.ones((1, 2))
+
+    arr = np.empty((height, width, 2), np.float32)
+    truth._fill_equirect(arr, fn, 8, supersample=2, height=height)
+    exact = 0.1 * 1.0 + 0.9 * 0.2
+    assert np.abs(arr[edge_row] - exact).max() <= 0.125 * 0.8 * 0.3  # a share of 1/8 of the rays, at most
+    assert np.allclose(arr[edge_row - 1], 1.0) and np.allclose(arr[edge_row + 1], 0.2)
+    with pytest.MonkeyPatch.context() as m:  # the contrast between pixels left out: 2 x 2 rays miss the edge
+        m.setattr(truth, "differs_from_neighbours", lambda means, *a, **k: np.zeros(means.shape[0], bool))
+        m.setattr(truth, "unlike_pairs", lambda a, b: np.zeros(a.shape[0], bool))
+        plain = np.empty_like(arr)
+        truth._fill_equirect(plain, fn, 8, supersample=2, height=height)
+    assert np.abs(plain[edge_row] - exact).max() > 0.07
 
 
 @pytest.fixture(scope="module")

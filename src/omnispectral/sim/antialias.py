@@ -12,13 +12,13 @@ Textures are not the problem: a scene that filters its texture over each ray's f
 pixel whose rays differ by more than the bound below is refined all the same).
 
 So pixels whose first ``s²`` rays spread by more than :data:`REFINE_RELATIVE_RANGE` of their mean in some band
-(:func:`pixels_to_refine`) are rendered again with :data:`REFINE_RAYS_PER_SIDE` ² rays (Whitted's adaptive
-supersampling, "An improved illumination model for shaded display", CACM 23(6), 1980; Mitchell, "Generating
-antialiased images at low sampling densities", SIGGRAPH 1987, for the contrast test), and those rays' mean
-replaces theirs.  An edge then carries a coverage error of at most about ``1 / 8`` of a pixel's width, except
-one that runs along a row or column of the grid within a quarter of a pixel of the border between two pixels:
-no pixel's first rays straddle it, and it keeps an error of up to a quarter of a pixel (docs/benchmarks.md,
-"Registration across conditions": the full-scale truth's pavement edge along a latitude).
+(:func:`pixels_to_refine`), with their 8 neighbours, and pixels whose mean differs by as much from a
+4-neighbour's (:func:`differs_from_neighbours`: an edge along a row or column within a quarter of a pixel of the
+border between two pixels straddles neither pixel's first rays, and would keep an error of up to a quarter of a
+pixel) are rendered again with :data:`REFINE_RAYS_PER_SIDE` ² rays (Whitted's adaptive supersampling, "An
+improved illumination model for shaded display", CACM 23(6), 1980; Mitchell, "Generating antialiased images at
+low sampling densities", SIGGRAPH 1987, for the contrast test), and those rays' mean replaces theirs.  An edge
+then carries a coverage error of at most about ``1 / 8`` of a pixel's width.
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["REFINE_RAYS_PER_SIDE", "REFINE_RELATIVE_RANGE", "pixels_to_refine", "refined_mean", "subpixel_offsets",
-           "with_neighbours"]
+__all__ = ["REFINE_RAYS_PER_SIDE", "REFINE_RELATIVE_RANGE", "differs_from_neighbours", "pixels_to_refine",
+           "refined_mean", "subpixel_offsets", "unlike_pairs", "with_neighbours"]
 
 #: Rays per pixel side where a pixel is refined.
 REFINE_RAYS_PER_SIDE = 8
@@ -71,6 +71,40 @@ def with_neighbours(marked: np.ndarray, height: int, width: int, wrap_columns: b
         grid = np.pad(grid, ((0, 0), (1, 1)), mode="wrap")
     grown = ndimage.binary_dilation(grid, structure=np.ones((3, 3), bool))
     return (grown[:, 1:-1] if wrap_columns else grown).ravel()
+
+
+def unlike_pairs(first: np.ndarray, second: np.ndarray, relative_range: float = REFINE_RELATIVE_RANGE) -> np.ndarray:
+    """``(…,)`` bool: pixel means ``first`` and ``second`` (``(…, c)``, non-negative) that differ, in some band, by
+    more than ``relative_range`` of the pair's mean (the contrast test of :func:`pixels_to_refine`, between two
+    pixels)."""
+    return (np.abs(first - second) > relative_range * 0.5 * (first + second)).any(axis=-1)
+
+
+def differs_from_neighbours(means: np.ndarray, height: int, width: int,
+                            relative_range: float = REFINE_RELATIVE_RANGE, wrap_columns: bool = False,
+                            valid: np.ndarray | None = None) -> np.ndarray:
+    """``(P,)`` bool: pixels of a ``height × width`` image whose mean (``means (P, c)``) differs from a 4-neighbour's
+    (:func:`unlike_pairs`).
+
+    An edge that runs along a row or column within a quarter of a pixel of the border between two pixels leaves
+    each pixel's first rays on one side (their own rays agree), but the two pixels' means differ: both are
+    marked.  ``wrap_columns``: the first and last columns are neighbours; ``valid (P,)``: only pairs of valid
+    pixels count (a pixel beside one outside the lens model is not marked for that).
+    """
+    grid = means.reshape(height, width, -1)
+    ok = np.ones((height, width), bool) if valid is None else valid.reshape(height, width)
+    marked = np.zeros((height, width), bool)
+    down = unlike_pairs(grid[1:], grid[:-1], relative_range) & ok[1:] & ok[:-1]
+    marked[1:] |= down
+    marked[:-1] |= down
+    across = unlike_pairs(grid[:, 1:], grid[:, :-1], relative_range) & ok[:, 1:] & ok[:, :-1]
+    marked[:, 1:] |= across
+    marked[:, :-1] |= across
+    if wrap_columns:
+        seam = unlike_pairs(grid[:, 0], grid[:, -1], relative_range) & ok[:, 0] & ok[:, -1]
+        marked[:, 0] |= seam
+        marked[:, -1] |= seam
+    return marked.ravel()
 
 
 def refined_mean(render, positions: np.ndarray, per_side: int) -> np.ndarray:

@@ -46,6 +46,7 @@ from omnispectral.progress import ProgressCallback
 from omnispectral.rig import CameraSpec, Rig, rig_with_camera_settings
 from omnispectral.sim.antialias import (
     REFINE_RAYS_PER_SIDE,
+    differs_from_neighbours,
     pixels_to_refine,
     refined_mean,
     subpixel_offsets,
@@ -374,14 +375,18 @@ class RigRenderer:
     def _refine_edges(self, camera: str, pan_deg: float, tilt_deg: float, matrix: np.ndarray, samples: np.ndarray,
                       img: np.ndarray) -> None:
         """Render again, with :attr:`refine_per_side` ² rays, the valid pixels whose ``samples (H·W, s², 3)``
-        disagree (:func:`~omnispectral.sim.antialias.pixels_to_refine`) and write their means into ``img
-        (H·W, 3)``; a pixel some of whose new rays fall outside the lens model keeps its first mean."""
+        disagree (:func:`~omnispectral.sim.antialias.pixels_to_refine`, with their neighbours) or whose mean in
+        ``img (H·W, 3)`` differs from a valid neighbour's
+        (:func:`~omnispectral.sim.antialias.differs_from_neighbours`), and write their means into ``img``; a pixel
+        some of whose new rays fall outside the lens model keeps its first mean."""
         s = max(1, int(self.supersample))
         if self.refine_per_side <= s:
             return
         m = self.models[camera]
         valid = self.pixel_valid(camera).ravel()
-        idx = np.flatnonzero(with_neighbours(pixels_to_refine(samples) & valid, m.height, m.width) & valid)
+        marked = (with_neighbours(pixels_to_refine(samples) & valid, m.height, m.width)
+                  | differs_from_neighbours(img, m.height, m.width, valid=valid))
+        idx = np.flatnonzero(marked & valid)
         if idx.size == 0:
             return
         v, u = np.divmod(idx, m.width)

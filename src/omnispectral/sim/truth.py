@@ -24,9 +24,11 @@ from omnispectral.io import atomic_path, atomic_write_json, jsonable
 from omnispectral.rig import Rig, camera_model
 from omnispectral.sim.antialias import (
     REFINE_RAYS_PER_SIDE,
+    differs_from_neighbours,
     pixels_to_refine,
     refined_mean,
     subpixel_offsets,
+    unlike_pairs,
     with_neighbours,
 )
 from omnispectral.sim.scenes.base import SunDisk, footprint_kwargs, scene_sun_disk
@@ -259,30 +261,42 @@ def _fill_equirect(arr: np.ndarray, fn, rows_per_chunk: int, supersample: int = 
                 nearest_depth_m[r0:r1] = np.asarray(distance_m, np.float32).reshape(r1 - r0, w, s * s).min(axis=2)
         samples = np.asarray(values, np.float32).reshape((r1 - r0) * w, s * s, -1)
         means = samples.mean(axis=1)
-        _refine_equirect(means, samples, fn, r0 + row_offset, r1 - r0, w, h, s, nearest_depth_m is not None)
+        # the chunk's first row is compared with the row above it, already written (and refined) into ``arr``
+        above = arr[r0 - 1] if r0 > 0 else None
+        _refine_equirect(means, samples, fn, r0 + row_offset, r1 - r0, w, h, s, nearest_depth_m is not None, above)
         arr[r0:r1] = means.reshape(r1 - r0, w, -1)
 
 
 def _refine_equirect(means: np.ndarray, samples: np.ndarray, fn, row0: int, n_rows: int, w: int, h: int, s: int,
-                     with_depth: bool) -> None:
-    """Pixels of rows ``row0 …`` whose ``samples (P, s², c)`` disagree get the mean of
-    :data:`~omnispectral.sim.antialias.REFINE_RAYS_PER_SIDE` ² points instead (:mod:`omnispectral.sim.antialias`),
-    written into ``means (P, c)``."""
+                     with_depth: bool, above: np.ndarray | None = None) -> None:
+    """Pixels of rows ``row0 …`` whose ``samples (P, s², c)`` disagree (and their neighbours), or whose mean differs
+    from a neighbour's, get the mean of :data:`~omnispectral.sim.antialias.REFINE_RAYS_PER_SIDE` ² points instead
+    (:mod:`omnispectral.sim.antialias`), written into ``means (P, c)``.  ``above (w, c)``: the final values of row
+    ``row0 - 1`` (the previous chunk's last row), compared with row ``row0``; where they differ both are rendered
+    again, ``above`` in place."""
     n = REFINE_RAYS_PER_SIDE
     if n <= s:
         return
-    idx = np.flatnonzero(with_neighbours(pixels_to_refine(samples), n_rows, w, wrap_columns=True))
-    if idx.size == 0:
-        return
-    rows, cols = np.divmod(idx, w)
-    rows = rows + row0
+    marked = (with_neighbours(pixels_to_refine(samples), n_rows, w, wrap_columns=True)
+              | differs_from_neighbours(means, n_rows, w, wrap_columns=True))
+    across = None
+    if above is not None:
+        across = unlike_pairs(np.asarray(above, np.float32), means[:w])
+        marked[:w] |= across
 
     def render(points: np.ndarray) -> np.ndarray:
         lon, lat = equirect_pixel_to_lonlat(points[:, 0], points[:, 1], w, h)
         values = fn(lonlat_to_ray(lon, lat), equirect_ray_spread_rad(lat, w, h, n))
         return values[0] if with_depth else values
 
-    means[idx] = refined_mean(render, np.stack([cols, rows], axis=-1).astype(np.float64), n)
+    idx = np.flatnonzero(marked)
+    if idx.size:
+        rows, cols = np.divmod(idx, w)
+        means[idx] = refined_mean(render, np.stack([cols, rows + row0], axis=-1).astype(np.float64), n)
+    if across is not None and across.any():
+        cols = np.flatnonzero(across)
+        above[cols] = refined_mean(render, np.stack([cols, np.full(cols.size, row0 - 1)], axis=-1).astype(np.float64),
+                                   n)
 
 
 def _save_npy(path: Path, array: np.ndarray) -> None:

@@ -5,9 +5,9 @@ import datetime as dt
 import numpy as np
 import pytest
 
+from omnispectral.imaging.geometry import equirect_pixel_to_lonlat, lonlat_to_ray
 from omnispectral.rig import load_preset
 from omnispectral.sim import truth
-from omnispectral.imaging.geometry import equirect_pixel_to_lonlat, lonlat_to_ray
 from omnispectral.sim.antialias import differs_from_neighbours, pixels_to_refine, refined_mean, with_neighbours
 from omnispectral.sim.scenes.base import footprint_kwargs
 from omnispectral.sim.scenes.build import build_scene

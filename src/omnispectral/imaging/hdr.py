@@ -208,7 +208,7 @@ def _fused_kernel(numba):
     :mod:`omnispectral.compiled`: modules that import ``hdr`` without merging do not pay for it)."""
     # the helpers are module globals, not closure cells: Numba keys its disk cache on the pickled closure, which
     # differs in every process, and would compile the kernel that calls them on every run
-    global _code_weight, _five_exposures
+    global _code_weight, _add_five, _five_exposures
 
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False, inline="always")
     def _code_weight(x, on, ts, top, sat, var_a, var_b, triangle):
@@ -220,43 +220,39 @@ def _fused_kernel(numba):
             return max(min(x, top - x), zero) * on  # triangle_weight, inline
         return (ts * on) / (x * var_a + var_b)
 
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False, inline="always")
+    def _add_five(i, f0, f1, f2, f3, f4, on, t_squared, inv_t, top, sat, var_a, var_b, triangle, num, den):
+        """Value ``i`` of five exposures (``on``, ``t_squared``, ``inv_t``: their 5-tuples) added to ``den`` and
+        ``num``, one exposure after the other; returns their codes and weights."""
+        x = (np.float32(f0[i]), np.float32(f1[i]), np.float32(f2[i]), np.float32(f3[i]), np.float32(f4[i]))
+        w = (_code_weight(x[0], on[0], t_squared[0], top, sat, var_a, var_b, triangle),
+             _code_weight(x[1], on[1], t_squared[1], top, sat, var_a, var_b, triangle),
+             _code_weight(x[2], on[2], t_squared[2], top, sat, var_a, var_b, triangle),
+             _code_weight(x[3], on[3], t_squared[3], top, sat, var_a, var_b, triangle),
+             _code_weight(x[4], on[4], t_squared[4], top, sat, var_a, var_b, triangle))
+        den[i] = ((((den[i] + w[0]) + w[1]) + w[2]) + w[3]) + w[4]
+        s = (num[i] + w[0] * (x[0] * inv_t[0])) + w[1] * (x[1] * inv_t[1])
+        num[i] = ((s + w[2] * (x[2] * inv_t[2])) + w[3] * (x[3] * inv_t[3])) + w[4] * (x[4] * inv_t[4])
+        return x, w
+
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
     def _five_exposures(f0, f1, f2, f3, f4, k, on, inv_t, t_squared, top, sat, var_a, var_b, triangle, num, den,
                         vnum):
         """Add exposures ``k … k+4`` (frames ``f0 … f4``) to the sums, each sum in the order of
         :func:`_merge_rows` (one exposure after the other), so the result is the same bit for bit."""
-        i0, i1, i2, i3, i4 = inv_t[k], inv_t[k + 1], inv_t[k + 2], inv_t[k + 3], inv_t[k + 4]
-        o0, o1, o2, o3, o4 = on[k], on[k + 1], on[k + 2], on[k + 3], on[k + 4]
-        q0, q1, q2, q3, q4 = t_squared[k], t_squared[k + 1], t_squared[k + 2], t_squared[k + 3], t_squared[k + 4]
+        it = (inv_t[k], inv_t[k + 1], inv_t[k + 2], inv_t[k + 3], inv_t[k + 4])
+        o = (on[k], on[k + 1], on[k + 2], on[k + 3], on[k + 4])
+        q = (t_squared[k], t_squared[k + 1], t_squared[k + 2], t_squared[k + 3], t_squared[k + 4])
         if not triangle:  # two loops: a test of ``triangle`` inside one keeps LLVM from vectorising it
             for i in range(num.size):
-                x0, x1, x2 = np.float32(f0[i]), np.float32(f1[i]), np.float32(f2[i])
-                x3, x4 = np.float32(f3[i]), np.float32(f4[i])
-                w0 = _code_weight(x0, o0, q0, top, sat, var_a, var_b, False)
-                w1 = _code_weight(x1, o1, q1, top, sat, var_a, var_b, False)
-                w2 = _code_weight(x2, o2, q2, top, sat, var_a, var_b, False)
-                w3 = _code_weight(x3, o3, q3, top, sat, var_a, var_b, False)
-                w4 = _code_weight(x4, o4, q4, top, sat, var_a, var_b, False)
-                den[i] = ((((den[i] + w0) + w1) + w2) + w3) + w4
-                s = (num[i] + w0 * (x0 * i0)) + w1 * (x1 * i1)
-                num[i] = ((s + w2 * (x2 * i2)) + w3 * (x3 * i3)) + w4 * (x4 * i4)
+                _add_five(i, f0, f1, f2, f3, f4, o, q, it, top, sat, var_a, var_b, False, num, den)
             return
         for i in range(num.size):
-            x0, x1, x2 = np.float32(f0[i]), np.float32(f1[i]), np.float32(f2[i])
-            x3, x4 = np.float32(f3[i]), np.float32(f4[i])
-            w0 = _code_weight(x0, o0, q0, top, sat, var_a, var_b, True)
-            w1 = _code_weight(x1, o1, q1, top, sat, var_a, var_b, True)
-            w2 = _code_weight(x2, o2, q2, top, sat, var_a, var_b, True)
-            w3 = _code_weight(x3, o3, q3, top, sat, var_a, var_b, True)
-            w4 = _code_weight(x4, o4, q4, top, sat, var_a, var_b, True)
-            den[i] = ((((den[i] + w0) + w1) + w2) + w3) + w4
-            s = (num[i] + w0 * (x0 * i0)) + w1 * (x1 * i1)
-            num[i] = ((s + w2 * (x2 * i2)) + w3 * (x3 * i3)) + w4 * (x4 * i4)
-            v = vnum[i] + w0 * w0 * (x0 * var_a + var_b) * (i0 * i0)
-            v = v + w1 * w1 * (x1 * var_a + var_b) * (i1 * i1)
-            v = v + w2 * w2 * (x2 * var_a + var_b) * (i2 * i2)
-            v = v + w3 * w3 * (x3 * var_a + var_b) * (i3 * i3)
-            vnum[i] = v + w4 * w4 * (x4 * var_a + var_b) * (i4 * i4)
+            x, w = _add_five(i, f0, f1, f2, f3, f4, o, q, it, top, sat, var_a, var_b, True, num, den)
+            v = vnum[i]
+            for j in range(5):  # a constant trip count: unrolled
+                v = v + w[j] * w[j] * (x[j] * var_a + var_b) * (it[j] * it[j])
+            vnum[i] = v
 
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
     def merge_linear(frames, start, stop, inv_t, t_squared, on, top, sat, var_a, var_b, triangle,

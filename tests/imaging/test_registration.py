@@ -369,3 +369,50 @@ def test_weighted_cross_power_equals_its_definition(power):
     got = weighted_cross_power(g, f, power)
     assert got.dtype == np.complex64 and got.shape == f.shape
     assert np.abs(got - want).max() <= 1e-6 * np.abs(want).max()
+
+
+@pytest.mark.parametrize("shape", [(512, 512), (540, 1020), (33, 47)])
+def test_band_limited_poc_one_image_equals_pocketfft(shape):
+    """The one-image inverse through OpenCV's packed DFT equals the batch path's ``scipy.fft.irfft2`` (even and
+    odd correlation grids)."""
+    from omnispectral.imaging.registration import _band_spectrum, apply_window, band_limited_poc, band_size
+
+    rng = np.random.default_rng(shape[1])
+    a = rng.random(shape).astype(np.float32)
+    b = np.roll(a, (3, -2), axis=(0, 1)) + rng.normal(0, 0.05, shape).astype(np.float32)
+    k = (band_size(shape[0], 0.75), band_size(shape[1], 0.75))
+    fa, fb = (_band_spectrum(apply_window(x, "hann"), k) for x in (a, b))
+    one, _, big_m = band_limited_poc(fa, fb, k, 1.25)
+    batch, _, _ = band_limited_poc(fa[None], fb[None], k, 1.25)
+    assert one.shape == batch.shape[1:] == big_m
+    assert np.abs(one - batch[0]).max() <= 1e-6
+    # the peak where the shift puts it (3 rows down, 2 columns left), on the M grid
+    want = (round(3 * big_m[0] / shape[0]) % big_m[0], round(-2 * big_m[1] / shape[1]) % big_m[1])
+    assert np.unravel_index(np.argmax(one), one.shape) == want
+
+
+def test_window_of_a_crop_read_in_place_equals_the_copied_crop():
+    from omnispectral.imaging.registration import _window_at, _window_separable, apply_window
+
+    image = np.random.default_rng(3).random((300, 280)).astype(np.float32)
+    crop = image[11:11 + 240, 7:7 + 256]
+    assert np.array_equal(_window_separable(image, _window_at(240, "hann", 0.0), _window_at(256, "hann", 0.0),
+                                            (11, 7)), apply_window(np.ascontiguousarray(crop), "hann"))
+    moved = _window_at(240, "tukey", 0.3), _window_at(256, "tukey", -0.2)
+    assert np.array_equal(_window_separable(image, *moved, (11, 7)), _window_separable(crop, *moved))
+
+
+def test_refinement_lengths_are_fast_for_opencv():
+    """Overlaps above 512 px are cut to 7-smooth lengths with 2^4-2^7 in them (or a power of two up to 512),
+    at most 10 % shorter; smaller ones keep the largest 5-smooth even length."""
+    from omnispectral.imaging.registration import _fast_len_below
+
+    for n in range(513, 2200):
+        m = _fast_len_below(n)
+        twos = (m & -m).bit_length() - 1
+        odd = m >> twos
+        for p in (3, 5, 7):
+            while odd % p == 0:
+                odd //= p
+        assert 0.9 * n <= m <= n and odd == 1 and (4 <= twos <= 7 or m == 512), (n, m)
+    assert [_fast_len_below(n) for n in (1024, 1019, 1000, 250, 100, 17)] == [1008, 1008, 960, 250, 100, 16]

@@ -174,3 +174,70 @@ def test_the_ceiling_of_a_too_dark_b_is_the_brightest_b_measured_around_it():
     window[half, half] = 0.0
     np.testing.assert_allclose(ceiling[30, 20], np.nanmax(window.reshape(-1, 3), axis=0), rtol=1e-6)
     assert ceiling[30, 20].max() < 1e6
+
+
+def _sky_with_a_post(shape=(40, 60)):
+    """A smooth 'sky' (A rising left to right, B = 1.2 A), the pixels B cannot see beside a post (x = 30..33,
+    missing) and the post (x = 34..39: A reddish and dark, B = 0.8 A)."""
+    h, w = shape
+    img = np.zeros((h, w, 6), np.float32)
+    ramp = np.linspace(1.0, 3.0, w, dtype=np.float32)[None, :, None]
+    img[..., :3] = ramp * np.array([1.0, 2.0, 1.5], np.float32)
+    img[..., 3:] = 1.2 * img[..., :3]
+    img[:, 34:40, :3] = (0.5, 0.1, 0.1)
+    img[:, 34:40, 3:] = 0.8 * img[:, 34:40, :3]
+    missing = np.zeros((h, w), bool)
+    missing[:, 30:34] = True
+    return img, missing
+
+
+@pytest.mark.parametrize("alpha", [0.4, 1.0])
+def test_b_beside_a_predicted_pixel_that_took_in_the_occluder_is_flagged(alpha):
+    """B's samples of the sky within 2 px of the sky it cannot see took in the post (a fraction ``alpha`` of
+    it): flagged and predicted again within 1 % of the truth; the post's own pixels stay, and so does a
+    darker B far from anything hidden."""
+    from omnispectral.mosaic.predict import BESIDE_MISSING_PX, contaminated_beside
+
+    img, missing = _sky_with_a_post()
+    truth = img.copy()
+    post_b = img[0, 35, 3:].copy()
+    for x in (28, 29):
+        img[:, x, 3:] = (1 - alpha) * img[:, x, 3:] + alpha * post_b
+    img[:20, 10, 3:] *= 0.5  # far from anything hidden
+    prior = BandPredictor(np.eye(3), np.full(3, 0.3))
+    flagged = contaminated_beside(img, missing, prior)
+    assert BESIDE_MISSING_PX == 2
+    assert flagged[:, 28:30].all() and flagged.sum() == 2 * img.shape[0]
+    fill_missing_b(img, missing | flagged, prior)
+    err = np.abs(img[:, 28:30, 3:] / truth[:, 28:30, 3:] - 1.0)
+    assert err.max() < 0.01
+
+
+def test_a_small_patch_of_its_own_colour_keeps_its_measured_b():
+    """A small patch whose colour nothing near it shares (a chart's 3-px patch, here wholly within the 2 px
+    re-examined) beside a predicted pixel keeps what B measured, however far from the prior: its
+    look-alikes in A are not around it."""
+    from omnispectral.mosaic.predict import contaminated_beside
+
+    img, missing = _sky_with_a_post()
+    img[10:13, 28:30, :3] = (6.0, 1.0, 1.0)
+    img[10:13, 28:30, 3:] = 0.5 * img[10:13, 28:30, :3]  # half what the prior says, 7 times its error
+    prior = BandPredictor(np.eye(3), np.full(3, 0.1))
+    assert not contaminated_beside(img, missing, prior).any()
+    assert not contaminated_beside(img, missing, None).any()  # no predictor, no test
+
+
+def test_a_patch_b_sees_unlike_its_look_alikes_in_a_keeps_its_measured_b():
+    """A patch beside the hidden pixels whose look-alikes in A nearby (another surface of the same colour in A)
+    are another colour in B: the prediction from them is 3 times off, but the patch is not the surface that
+    is hidden there, so its measurement stands (a chart's yellow patch beside orange, the chart hiding the
+    background from B)."""
+    from omnispectral.mosaic.predict import contaminated_beside
+
+    img, missing = _sky_with_a_post()
+    img[5:18, 22:27, :3] = (4.0, 2.0, 2.0)
+    img[5:18, 22:27, 3:] = img[5:18, 22:27, :3]
+    img[10:13, 28:30, :3] = (4.0, 2.0, 2.0)
+    img[10:13, 28:30, 3:] = 3.0 * img[10:13, 28:30, :3]
+    prior = BandPredictor(np.eye(3), np.full(3, 0.3))
+    assert not contaminated_beside(img, missing, prior)[10:13, 28:30].any()

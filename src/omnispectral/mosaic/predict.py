@@ -2,8 +2,9 @@
 
 A tile pixel needs B's bands where no direction gives them (B's views of the point disagree and are
 all dropped, :func:`~omnispectral.mosaic.blending.reject_inconsistent`; every view of it shows another
-surface, :func:`omnispectral.imaging.parallax.sees_another_surface`; the point lies beyond B's frame) or
-where what B gave cannot be the surface A sees (:func:`implausible_b`, :func:`too_dark_b`).  Such a pixel takes
+surface, :func:`omnispectral.imaging.parallax.sees_another_surface`; the point lies beyond B's frame),
+where what B gave cannot be the surface A sees (:func:`implausible_b`, :func:`too_dark_b`), or where B's
+sample beside such a pixel took in what hid it (:func:`contaminated_beside`).  Such a pixel takes
 
 .. math:: \\hat\\rho_B = (M\\rho_A) \\odot \\exp\\bar\\ell, \\qquad
           \\bar\\ell = \\frac{\\sum_q w_q \\log\\big(\\rho_B(q) / M\\rho_A(q)\\big)}{\\sum_q w_q},
@@ -29,8 +30,8 @@ import numpy as np
 from omnispectral.imaging.channels import all_channels, any_channel, finite_pixels
 from omnispectral.spectral.conditional import BandPredictor
 
-__all__ = ["IMPLAUSIBLE_RATIO", "UNCLIPPED_FRACTION", "b_outliers", "brightest_measured_b", "fill_missing_b",
-           "implausible_b", "tile_predictor", "too_dark_b"]
+__all__ = ["IMPLAUSIBLE_RATIO", "UNCLIPPED_FRACTION", "b_outliers", "brightest_measured_b", "contaminated_beside",
+           "fill_missing_b", "implausible_b", "tile_predictor", "too_dark_b"]
 
 #: Neighbourhood radii (px) tried in turn: a pixel with no measured neighbour like it within the first
 #: looks within the second (sampled every :data:`WIDE_STEP_PX`).
@@ -49,6 +50,15 @@ IMPLAUSIBLE_RATIO = 8.0
 IMPLAUSIBLE_WINDOW_PX = 31
 #: A B darker than A allows is flagged (:func:`too_dark_b`) only below this share of the tile's brightest B.
 UNCLIPPED_FRACTION = 0.25
+#: :func:`contaminated_beside`: how far (px) from a missing pixel B's measurement is re-examined, by how many
+#: times the prediction's relative error it must be off, and the least joint-bilateral weight of the
+#: prediction's neighbours within the first radius.
+BESIDE_MISSING_PX = 2
+CONTAMINATION_SIGMAS = 3.0
+MIN_NEAR_SUPPORT = 0.5
+#: ... and the pixel must look like a hidden pixel within BESIDE_MISSING_PX in A: this near in the joint
+#: bilateral guide's units (σ of chromaticity and of log brightness; :func:`_looks_like_a_hidden_pixel`).
+SAME_SURFACE_DISTANCE = 3.0
 
 
 def tile_predictor(a: np.ndarray, b: np.ndarray) -> BandPredictor | None:
@@ -204,6 +214,19 @@ def fill_missing_b(values: np.ndarray, missing: np.ndarray, predictor: BandPredi
         if predictor is None:
             b[todo] = np.nan
             return rel_out
+    ys, xs = np.nonzero(todo)
+    pred, rel, _ = _neighbourhood_prediction(values, (ys, xs), measured, predictor)
+    b[ys, xs] = pred.astype(b.dtype)
+    rel_out[ys, xs] = rel.max(axis=1)
+    return rel_out
+
+
+def _neighbourhood_prediction(values: np.ndarray, todo_yx: tuple[np.ndarray, np.ndarray], measured: np.ndarray,
+                              predictor: BandPredictor) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """B's bands predicted at the ``todo`` pixels from A's and the ``measured`` neighbours (module docstring):
+    ``(prediction (n, 3) float64, relative error per band (n, 3), joint-bilateral weight within the first
+    radius (n,))``."""
+    a, b = values[..., :3], values[..., 3:6]
     prior_b, ell = prior_log_ratio(a, b, predictor)
     bright = a.sum(axis=-1, dtype=np.float64)
     usable = measured & finite_pixels(ell) & (bright > 0)
@@ -211,10 +234,11 @@ def fill_missing_b(values: np.ndarray, missing: np.ndarray, predictor: BandPredi
     with np.errstate(all="ignore"):
         chroma = np.where(bright[..., None] > 0, a / bright[..., None], 0.0)
         log_bright = np.log(np.maximum(bright, 1e-30))
-    ys, xs = np.nonzero(todo)
+    ys, xs = todo_yx
     sw, sw2 = np.zeros(ys.size), np.zeros(ys.size)
     sl, sl2 = np.zeros((ys.size, 3)), np.zeros((ys.size, 3))
     pending = np.ones(ys.size, bool)
+    near_support = None
     for radius, step in zip(RADII_PX, (1, WIDE_STEP_PX), strict=True):
         if not pending.any():
             break
@@ -222,12 +246,71 @@ def fill_missing_b(values: np.ndarray, missing: np.ndarray, predictor: BandPredi
         stats = _neighbour_stats((ys[idx], xs[idx]), usable, log_ratio, chroma, log_bright, radius, step)
         for acc, new in zip((sw, sw2, sl, sl2), stats, strict=True):
             acc[idx] = new
+        if near_support is None:
+            near_support = sw.copy()
         pending = sw < MIN_WEIGHT
     seen = sw >= MIN_WEIGHT
     mean = np.where(seen[:, None], sl / np.maximum(sw, 1e-30)[:, None], 0.0)
     var = np.where(seen[:, None], np.clip(sl2 / np.maximum(sw, 1e-30)[:, None] - mean ** 2, 0.0, None), 0.0)
     n_eff = np.where(seen, sw ** 2 / np.maximum(sw2, 1e-30), 0.0)
     rel = np.sqrt(var + np.asarray(predictor.rel_std) ** 2 / (1.0 + n_eff[:, None]))
-    b[ys, xs] = (np.maximum(prior_b[ys, xs], 0.0) * np.exp(mean)).astype(b.dtype)
-    rel_out[ys, xs] = rel.max(axis=1)
-    return rel_out
+    pred = np.maximum(prior_b[ys, xs], 0.0) * np.exp(mean)
+    return pred, rel, near_support if near_support is not None else np.zeros(ys.size)
+
+
+def contaminated_beside(values: np.ndarray, missing: np.ndarray, predictor: BandPredictor | None) -> np.ndarray:
+    """``(h, w)`` bool: measured B pixels of a hidden surface, within :data:`BESIDE_MISSING_PX` of where it is
+    hidden (``missing``), whose bands the surface around them contradicts: B's sample there took in what hid it.
+
+    Beside the pixels B could not see (another surface in front of them, from B's viewpoint), B's own
+    samples of the same surface are interpolated from B pixels within a pixel or two of the occluder's
+    edge (the kernel's reach, and the edge's position known to a pixel): a post against a bright sky leaves
+    a dark seam in B's sky beside the pixels predicted for it.  Each measured pixel within that reach that
+    looks like one of those hidden pixels in A (:func:`_looks_like_a_hidden_pixel`: the same surface, not
+    the occluder) is predicted as if missing, from the measured pixels beyond the reach
+    (:func:`fill_missing_b`); it is contaminated when some band's measured value is more than
+    :data:`CONTAMINATION_SIGMAS` times that prediction's relative error off it (in log) and the prediction
+    rests on neighbours of its own surface within the first radius (joint-bilateral weight at least
+    :data:`MIN_NEAR_SUPPORT`).  The occluder's own pixels are left as measured: where the occluder is a
+    chart, its small patches' look-alikes in A may be other colours in B, and a prediction would replace
+    a right measurement with a wrong one.  Without a predictor nothing is flagged."""
+    h, w = missing.shape
+    out = np.zeros((h, w), bool)
+    if predictor is None or not missing.any():
+        return out
+    a_ok = finite_pixels(values[..., :3])
+    measured = a_ok & finite_pixels(values[..., 3:6]) & ~missing
+    reach = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * BESIDE_MISSING_PX + 1,) * 2)
+    beside = (cv2.dilate(missing.astype(np.uint8), reach) > 0) & measured
+    if not beside.any():
+        return out
+    ys, xs = np.nonzero(beside)
+    pred, rel, support = _neighbourhood_prediction(values, (ys, xs), measured & ~beside, predictor)
+    b = values[ys, xs, 3:6].astype(np.float64)
+    with np.errstate(all="ignore"):
+        off = np.abs(np.log(b / pred))
+    bad = (support >= MIN_NEAR_SUPPORT) & np.any(np.nan_to_num(off, nan=0.0) > CONTAMINATION_SIGMAS * rel, axis=1)
+    bad[bad] = _looks_like_a_hidden_pixel(values, missing, ys[bad], xs[bad])
+    out[ys[bad], xs[bad]] = True
+    return out
+
+
+def _looks_like_a_hidden_pixel(values: np.ndarray, missing: np.ndarray, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
+    """``(n,)`` bool: a ``missing`` pixel within :data:`BESIDE_MISSING_PX` looks like the pixel in A (within
+    :data:`SAME_SURFACE_DISTANCE` in the joint bilateral guide's units): the pixel is of the surface hidden
+    there, not of the one that hides it."""
+    h, w = missing.shape
+    a = values[..., :3].astype(np.float64)
+    bright = np.maximum(a.sum(axis=-1), 1e-30)
+    chroma, log_bright = a / bright[..., None], np.log(bright)
+    found = np.zeros(ys.size, bool)
+    r = BESIDE_MISSING_PX
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            if dy * dy + dx * dx > r * r:
+                continue
+            yy, xx = np.clip(ys + dy, 0, h - 1), np.clip(xs + dx, 0, w - 1)
+            guide = (((chroma[yy, xx] - chroma[ys, xs]) / SIGMA_CHROMA) ** 2).sum(axis=1) \
+                + ((log_bright[yy, xx] - log_bright[ys, xs]) / SIGMA_LOG_BRIGHTNESS) ** 2
+            found |= missing[yy, xx] & (guide <= SAME_SURFACE_DISTANCE ** 2)
+    return found

@@ -44,7 +44,7 @@ from omnispectral.mosaic.interp import SPLINE_PREFILTER_MARGIN_PX, interpolation
 from omnispectral.mosaic.kernels import compiled_kernels
 from omnispectral.mosaic.maps import Canvas, Rect, SourceGeometry, rect_map, source_map, tile_cone
 from omnispectral.mosaic.options import MosaicOptions
-from omnispectral.mosaic.predict import b_outliers, brightest_measured_b, fill_missing_b
+from omnispectral.mosaic.predict import b_outliers, brightest_measured_b, contaminated_beside, fill_missing_b
 from omnispectral.mosaic.sources import MergedDirections, SourceImage
 from omnispectral.mosaic.store import PanoramaStore
 from omnispectral.spectral.conditional import BandPredictor
@@ -420,14 +420,16 @@ def render_tile(job: MosaicJob, rect: Rect) -> tuple[np.ndarray, dict]:
 
 
 def _predict_missing_b(job: MosaicJob, out: np.ndarray, quality: np.ndarray | None) -> np.ndarray:
-    """Fill camera B's bands of a rendered tile where no direction measured them or what B measured cannot
-    be A's surface (:mod:`omnispectral.mosaic.predict`); completes ``quality``'s sun (0) and b_predicted layers.
+    """Fill camera B's bands of a rendered tile where no direction measured them, what B measured cannot
+    be A's surface, or B's sample beside such a pixel took in what hid it (:mod:`omnispectral.mosaic.predict`);
+    completes ``quality``'s sun (0) and b_predicted layers.
     Returns the prediction's relative error per pixel (NaN where B was measured or nothing covers)."""
     if job.n_bands != N_BANDS:
         return np.full(out.shape[:2], np.nan, np.float32)
     implausible, too_dark = b_outliers(out, job.b_predictor)
     measured = out[implausible, 3:6].copy()
     missing = ~finite_pixels(out[..., 3:6]) | implausible | too_dark
+    missing |= contaminated_beside(out, missing, job.b_predictor)
     ceiling = brightest_measured_b(out, missing) if too_dark.any() else None
     predicted = fill_missing_b(out, missing, job.b_predictor)
     out[implausible, 3:6] = np.minimum(out[implausible, 3:6], measured)  # it replaces light, never adds it

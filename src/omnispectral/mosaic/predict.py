@@ -228,12 +228,9 @@ def _neighbourhood_prediction(values: np.ndarray, todo_yx: tuple[np.ndarray, np.
     radius (n,))``."""
     a, b = values[..., :3], values[..., 3:6]
     prior_b, ell = prior_log_ratio(a, b, predictor)
-    bright = a.sum(axis=-1, dtype=np.float64)
-    usable = measured & finite_pixels(ell) & (bright > 0)
+    chroma, log_bright = _guide_features(a)
+    usable = measured & finite_pixels(ell) & (a.sum(axis=-1, dtype=np.float64) > 0)
     log_ratio = np.where(usable[..., None], ell, 0.0)
-    with np.errstate(all="ignore"):
-        chroma = np.where(bright[..., None] > 0, a / bright[..., None], 0.0)
-        log_bright = np.log(np.maximum(bright, 1e-30))
     ys, xs = todo_yx
     sw, sw2 = np.zeros(ys.size), np.zeros(ys.size)
     sl, sl2 = np.zeros((ys.size, 3)), np.zeros((ys.size, 3))
@@ -285,24 +282,35 @@ def contaminated_beside(values: np.ndarray, missing: np.ndarray, predictor: Band
     if not beside.any():
         return out
     ys, xs = np.nonzero(beside)
+    hidden_side = _looks_like_a_hidden_pixel(_guide_features(values[..., :3]), missing, ys, xs)
+    ys, xs = ys[hidden_side], xs[hidden_side]
+    if ys.size == 0:
+        return out
     pred, rel, support = _neighbourhood_prediction(values, (ys, xs), measured & ~beside, predictor)
     b = values[ys, xs, 3:6].astype(np.float64)
     with np.errstate(all="ignore"):
         off = np.abs(np.log(b / pred))
     bad = (support >= MIN_NEAR_SUPPORT) & np.any(np.nan_to_num(off, nan=0.0) > CONTAMINATION_SIGMAS * rel, axis=1)
-    bad[bad] = _looks_like_a_hidden_pixel(values, missing, ys[bad], xs[bad])
     out[ys[bad], xs[bad]] = True
     return out
 
 
-def _looks_like_a_hidden_pixel(values: np.ndarray, missing: np.ndarray, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
+def _guide_features(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The joint bilateral guide of A's bands ``(..., 3)``: chromaticity ``a / Σa`` (0 where ``Σa ≤ 0``) and
+    natural-log brightness ``log max(Σa, 1e-30)``, float64."""
+    bright = a.sum(axis=-1, dtype=np.float64)
+    with np.errstate(all="ignore"):
+        chroma = np.where(bright[..., None] > 0, a / bright[..., None], 0.0)
+    return chroma, np.log(np.maximum(bright, 1e-30))
+
+
+def _looks_like_a_hidden_pixel(guide: tuple[np.ndarray, np.ndarray], missing: np.ndarray, ys: np.ndarray,
+                               xs: np.ndarray) -> np.ndarray:
     """``(n,)`` bool: a ``missing`` pixel within :data:`BESIDE_MISSING_PX` looks like the pixel in A (within
-    :data:`SAME_SURFACE_DISTANCE` in the joint bilateral guide's units): the pixel is of the surface hidden
-    there, not of the one that hides it."""
+    :data:`SAME_SURFACE_DISTANCE` in the units of the joint bilateral ``guide``, :func:`_guide_features`): the
+    pixel is of the surface hidden there, not of the one that hides it."""
     h, w = missing.shape
-    a = values[..., :3].astype(np.float64)
-    bright = np.maximum(a.sum(axis=-1), 1e-30)
-    chroma, log_bright = a / bright[..., None], np.log(bright)
+    chroma, log_bright = guide
     found = np.zeros(ys.size, bool)
     r = BESIDE_MISSING_PX
     for dy in range(-r, r + 1):

@@ -296,7 +296,7 @@ def test_the_product_holds_the_sun_and_its_irradiance(product):
     assert np.all(np.abs(ratio - 1) <= 0.05), ratio  # 0.990-1.005 measured
     assert json.loads((root / "p" / "report" / "report.json").read_text())["irradiance"]["sun_recovered"]
     # the quality layer flags exactly the painted pixels
-    assert store.has_quality() and store.read_quality(slice(0, 1), slice(0, 1)).shape[2] == 4
+    assert store.has_quality() and store.read_quality(slice(0, 1), slice(0, 1)).shape[2] == 5
     assert int(np.nansum(store.read_quality()[..., 2])) == sun["pixels"]["n_pixels"]
     # the RGB export: the painted pixels less their sky background have the truth's sun colour
     out = root / "rgb.exr"
@@ -380,4 +380,14 @@ def test_every_covered_pixel_holds_six_bands_and_says_which_b_bands_were_predict
         channels = f.channels()
         assert channels["mask.valid"].pixels.min() == 1.0
         layer = channels["quality.b_predicted"].pixels
+        unmixed_layer = channels["quality.b_unmixed"].pixels
     np.testing.assert_allclose(layer, quality[region[0]:region[1], region[2]:region[3], 3], rtol=1e-6)
+    np.testing.assert_allclose(unmixed_layer, quality[region[0]:region[1], region[2]:region[3], 4], rtol=1e-6)
+    # at edges between two surfaces B takes its two surfaces in A's share; the error it records covers 90 %
+    # of those pixels at 2 sigma (A's own error divided out, as above)
+    assert store.attrs()["omnispectral"]["quality"]["layers"][4] == "b_unmixed"
+    unmixed = quality[..., 4] > 0
+    assert 0 < unmixed.sum() < 0.05 * unmixed.size and not (unmixed & predicted).any()
+    p, t = bands[unmixed], truth[unmixed]
+    err = np.abs(p[:, 3:] / p[:, :3].sum(1, keepdims=True) / (t[:, 3:] / t[:, :3].sum(1, keepdims=True)) - 1)
+    assert np.mean(err.max(axis=1) <= 2 * quality[..., 4][unmixed]) > 0.9

@@ -286,7 +286,7 @@ def _compressors(name: str) -> tuple:
 #: Name of the registration-quality array (level 0 only).
 QUALITY = "quality"
 #: The quality array's layers, in order (``mosaic.tile.N_QUALITY``; older products hold a prefix).
-QUALITY_LAYERS = ("registration_confidence", "occluded", "sun", "b_predicted")
+QUALITY_LAYERS = ("registration_confidence", "occluded", "sun", "b_predicted", "b_unmixed")
 #: Entries of the metadata also kept in the (small) group attributes, for readers that look only there.
 SUMMARY_KEYS = ("bands", "units", "camera_bands")
 
@@ -355,9 +355,11 @@ class PanoramaStore:
                                           "description": "camera B's registration confidence (0..1, feather-"
                                           "weighted over directions), 1 where B's view of the pixel is "
                                           "hidden by a nearer surface in every direction that sees it, 1 "
-                                          "where the pixel holds the recovered sun, and the relative error of "
+                                          "where the pixel holds the recovered sun, the relative error of "
                                           "B's bands where they are predicted from A's (B saw nothing; 0 "
-                                          "where B measured them)"}}
+                                          "where B measured them), and the relative error of B's bands where "
+                                          "an edge between two surfaces mixes B's two surfaces in A's share "
+                                          "(0 where B's own value stands)"}}
         summary = {"format": FORMAT, "format_version": FORMAT_VERSION, "metadata": METADATA, "tile": tile,
                    "levels": [list(s) for s in shapes], "compression": compression,
                    **{k: attrs[k] for k in SUMMARY_KEYS if k in attrs}}

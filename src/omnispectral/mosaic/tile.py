@@ -47,6 +47,7 @@ from omnispectral.mosaic.options import MosaicOptions
 from omnispectral.mosaic.predict import b_outliers, brightest_measured_b, contaminated_beside, fill_missing_b
 from omnispectral.mosaic.sources import MergedDirections, SourceImage
 from omnispectral.mosaic.store import PanoramaStore
+from omnispectral.mosaic.unmix import unmix_b_at_edges
 from omnispectral.spectral.conditional import BandPredictor
 
 __all__ = ["CONFIDENCE_FLOOR", "N_BANDS", "N_QUALITY", "OCCLUDED_WEIGHT", "PREFILTER_BAD_REACH_PX", "TILE_RENDERERS",
@@ -59,8 +60,9 @@ N_BANDS = 6
 #: confidence (0..1), occluded (1 where every direction that sees the pixel with B has it hidden), sun
 #: (0 from the mosaic; 1 where processing painted the recovered sun, ``omnispectral.product.sun``) and
 #: b_predicted (the relative error of B's bands predicted from A's where B saw nothing,
-#: :mod:`omnispectral.mosaic.predict`; 0 where B measured the pixel).
-N_QUALITY = 4
+#: :mod:`omnispectral.mosaic.predict`; 0 where B measured the pixel) and b_unmixed (the relative error of B's
+#: bands where an edge mixes B's two surfaces in A's share, :mod:`omnispectral.mosaic.unmix`; 0 elsewhere).
+N_QUALITY = 5
 
 
 # ------------------------------------------------------------------------------------------ the job
@@ -388,8 +390,8 @@ def render_tile(job: MosaicJob, rect: Rect) -> tuple[np.ndarray, dict]:
     tile : numpy.ndarray
         ``(h, w, n_bands)`` float32, DN/s.
     stats : dict
-        ``n_sources``, ``holes`` (px), ``map_step_min``, ``map_error_px``, ``predicted_px`` and, when the
-        blending keeps it, the ``quality`` layer ``(h, w, N_QUALITY)``.
+        ``n_sources``, ``holes`` (px), ``map_step_min``, ``map_error_px``, ``predicted_px``, ``unmixed_px``
+        and, when the blending keeps it, the ``quality`` layer ``(h, w, N_QUALITY)``.
 
     Notes
     -----
@@ -410,22 +412,26 @@ def render_tile(job: MosaicJob, rect: Rect) -> tuple[np.ndarray, dict]:
     halo = blend.halo_px(job.multiband_levels)
     work = rect.grow(halo) if halo else rect
     out, quality, steps, errors = TILE_RENDERERS[job.blend](job, rect, work, halo)
-    predicted = _predict_missing_b(job, out, quality)
+    predicted, unmixed = _predict_missing_b(job, out, quality)
     holes = int((~finite_pixels(out)).sum())
     stats = {"n_sources": len(steps), "holes": holes, "map_step_min": min(steps, default=0),
-             "map_error_px": max(errors, default=0.0), "predicted_px": int(np.isfinite(predicted).sum())}
+             "map_error_px": max(errors, default=0.0), "predicted_px": int(np.isfinite(predicted).sum()),
+             "unmixed_px": int(np.isfinite(unmixed).sum())}
     if job.has_quality and blend.quality_layer:
         stats["quality"] = quality
     return out, stats
 
 
-def _predict_missing_b(job: MosaicJob, out: np.ndarray, quality: np.ndarray | None) -> np.ndarray:
+def _predict_missing_b(job: MosaicJob, out: np.ndarray, quality: np.ndarray | None
+                       ) -> tuple[np.ndarray, np.ndarray]:
     """Fill camera B's bands of a rendered tile where no direction measured them, what B measured cannot
-    be A's surface, or B's sample beside such a pixel took in what hid it (:mod:`omnispectral.mosaic.predict`);
-    completes ``quality``'s sun (0) and b_predicted layers.
-    Returns the prediction's relative error per pixel (NaN where B was measured or nothing covers)."""
+    be A's surface, or B's sample beside such a pixel took in what hid it (:mod:`omnispectral.mosaic.predict`),
+    then mix B's two surfaces in A's share at edges between them (:mod:`omnispectral.mosaic.unmix`);
+    completes ``quality``'s sun (0), b_predicted and b_unmixed layers.
+    Returns the relative error of B's bands where they were predicted, and where they were unmixed (each NaN
+    elsewhere)."""
     if job.n_bands != N_BANDS:
-        return np.full(out.shape[:2], np.nan, np.float32)
+        return np.full(out.shape[:2], np.nan, np.float32), np.full(out.shape[:2], np.nan, np.float32)
     implausible, too_dark = b_outliers(out, job.b_predictor)
     measured = out[implausible, 3:6].copy()
     missing = ~finite_pixels(out[..., 3:6]) | implausible | too_dark
@@ -435,12 +441,14 @@ def _predict_missing_b(job: MosaicJob, out: np.ndarray, quality: np.ndarray | No
     out[implausible, 3:6] = np.minimum(out[implausible, 3:6], measured)  # it replaces light, never adds it
     if ceiling is not None:  # nor more than B measured around it
         out[too_dark, 3:6] = np.minimum(out[too_dark, 3:6], ceiling[too_dark])
+    unmixed = unmix_b_at_edges(out, ~missing)
     if quality is not None:
         covered = finite_pixels(out)
         quality[..., 2] = np.where(covered, np.float32(0.0), np.float32(np.nan))
         quality[..., 3] = np.where(np.isfinite(predicted), predicted, quality[..., 2])
+        quality[..., 4] = np.where(np.isfinite(unmixed), unmixed, quality[..., 2])
         quality[~covered, 0:2] = np.nan
-    return predicted
+    return predicted, unmixed
 
 
 def _multiband(job: MosaicJob, warped: list[Warped], work: Rect) -> np.ndarray:

@@ -11,7 +11,7 @@ and renames into place.
   OpenEXR Python package writes corrupt mip-maps), float32 or half.  Values are finite and ≥ 0 (NaN,
   ±inf and negative estimates → 0).  Readable by colour-science's ``read_spectral_image_Fichet2021``.
   Product exports add ``mask.valid`` (1 covered, 0 where the written 0 means nothing was seen) and
-  ``quality.b_predicted`` (:func:`validity_layers`).
+  ``quality.b_predicted`` and ``quality.b_unmixed`` (:func:`validity_layers`).
 - :func:`write_envi`: ENVI via Spectral Python, band names and ``wavelength`` in nm, ``data ignore value``
   where nothing covers a pixel.
 - :func:`write_rgb_exr` / :func:`write_radiance_hdr`: linear Rec.709/sRGB-primaries RGB for
@@ -41,7 +41,13 @@ from omnispectral.io import atomic_path
 from omnispectral.ownership import check_output_outside_inputs
 from omnispectral.product.layout import open_product
 from omnispectral.product.saturation import recovered_sun_mask, saturated_mask, saturation_level_dn_s
-from omnispectral.product.spectra import SunOverlay, bands_to_linear_srgb, estimate_image, predicted_b_rel_std
+from omnispectral.product.spectra import (
+    DERIVED_B_LAYERS,
+    SunOverlay,
+    bands_to_linear_srgb,
+    estimate_image,
+    predicted_b_rel_std,
+)
 from omnispectral.spectral.colour import spectra_to_linear_srgb, srgb_encode
 
 __all__ = ["CLIPPED_ESTIMATE_FRACTION", "ENVI_IGNORE_VALUE", "EXPORT_SUFFIXES", "FICHET_EMISSIVE_UNITS", "FORMATS",
@@ -108,14 +114,16 @@ def write_preview(path: str | Path, rgb_linear: np.ndarray) -> Path:
     return path
 
 
-def validity_layers(bands: np.ndarray, b_rel_std: np.ndarray | None) -> dict[str, np.ndarray]:
+def validity_layers(bands: np.ndarray, b_rel_std: Mapping[str, np.ndarray | None]) -> dict[str, np.ndarray]:
     """The spectral EXR's extra channels: ``mask.valid`` (1 where a direction covers the pixel, 0 where the
-    written 0 means nothing was seen) and, for six-band products, ``quality.b_predicted`` (relative error of
-    camera B's bands predicted from A's where B saw nothing, :mod:`omnispectral.mosaic.predict`; 0 where
-    measured)."""
+    written 0 means nothing was seen) and, for six-band products, ``quality.NAME`` for each derived-B layer
+    ``b_rel_std`` holds (``b_predicted``: relative error of camera B's bands predicted from A's where B saw
+    nothing, :mod:`omnispectral.mosaic.predict`; ``b_unmixed``: where an edge mixes B's two surfaces in A's
+    share, :mod:`omnispectral.mosaic.unmix`; 0 where B's own value stands)."""
     layers = {"mask.valid": np.isfinite(bands).all(axis=2).astype(np.float32)}
-    if b_rel_std is not None:
-        layers["quality.b_predicted"] = np.asarray(b_rel_std, np.float32)
+    for name, rel in b_rel_std.items():
+        if rel is not None:
+            layers[f"quality.{name}"] = np.asarray(rel, np.float32)
     return layers
 
 
@@ -315,7 +323,10 @@ def export_product(product: str | Path, fmt: str, output: str | Path, region: tu
         spectra = estimate_image(bands, estimator, sun=sun, b_rel_std=b_rel)
         if fmt == "spectral-exr":
             path = write_spectral_exr(output, spectra, wl, units=units, attributes=attrs, half=half,
-                                      layers=validity_layers(bands, b_rel))
+                                      layers=validity_layers(bands, {
+                                          name: predicted_b_rel_std(store, level, bands.shape[:2], (r0, c0),
+                                                                    (name,))
+                                          for name in DERIVED_B_LAYERS}))
         else:
             path = write_envi(output, light_values(spectra), wl,
                               description=f"omnispectral {attrs['omnispectral_region']}",

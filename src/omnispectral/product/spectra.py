@@ -25,7 +25,7 @@ from omnispectral.product.layout import open_product
 from omnispectral.product.saturation import recovered_sun_mask, saturated_mask, saturation_level_dn_s
 from omnispectral.spectral.colour import spectra_to_linear_srgb, spectra_to_xyz, xyz_to_linear_srgb
 
-__all__ = ["B_PREDICTED_LAYER", "SunOverlay", "bands_to_linear_srgb", "estimate_image", "linear_srgb_map",
+__all__ = ["DERIVED_B_LAYERS", "SunOverlay", "bands_to_linear_srgb", "estimate_image", "linear_srgb_map",
            "predicted_b_rel_std", "predicted_noise_variance", "region_weights", "spectrum_at", "spectrum_in_store",
            "sun_state"]
 
@@ -106,26 +106,29 @@ class SunOverlay:
         return np.clip((bands - self.background) @ lr / float(lr @ lr), 0.0, None)
 
 
-#: Index of the b_predicted layer in the store's quality array (``mosaic.store.QUALITY_LAYERS``).
-B_PREDICTED_LAYER = 3
+#: The quality layers (``mosaic.store.QUALITY_LAYERS``) that hold the relative error of camera B's bands where
+#: they are derived from A's: predicted where B saw nothing (:mod:`omnispectral.mosaic.predict`), B's two
+#: surfaces mixed in A's share at an edge (:mod:`omnispectral.mosaic.unmix`).
+DERIVED_B_LAYERS = ("b_predicted", "b_unmixed")
 
 
-def predicted_b_rel_std(store, level: int, shape: tuple[int, int],
-                        origin: tuple[int, int] = (0, 0)) -> np.ndarray | None:
-    """The relative error of camera B's predicted bands over a ``shape`` window at ``origin`` of ``level``
-    (the quality layer's b_predicted; a pixel of a coarser level takes the largest of the level-0 pixels it
-    averages), 0 where B measured the pixel; ``None`` when the product has no such layer."""
+def predicted_b_rel_std(store, level: int, shape: tuple[int, int], origin: tuple[int, int] = (0, 0),
+                        layers: tuple[str, ...] = DERIVED_B_LAYERS) -> np.ndarray | None:
+    """The relative error of camera B's derived bands over a ``shape`` window at ``origin`` of ``level`` (the
+    largest of the quality ``layers`` the product has; a pixel of a coarser level takes the largest of the
+    level-0 pixels it averages), 0 where B measured the pixel; ``None`` when the product has none of them."""
     if not store.has_quality():
         return None
-    layers = (store.attrs().get("omnispectral", {}).get("quality") or {}).get("layers", [])
-    if len(layers) <= B_PREDICTED_LAYER:
+    names = (store.attrs().get("omnispectral", {}).get("quality") or {}).get("layers", [])
+    index = [names.index(name) for name in layers if name in names]
+    if not index:
         return None
     f = 2 ** level
     h0, w0 = store.shapes[0]
     r0, c0 = origin[0] * f, origin[1] * f
     rows = slice(r0, min(h0, r0 + shape[0] * f))
     cols = slice(c0, min(w0, c0 + shape[1] * f))
-    layer = np.nan_to_num(store.read_quality(rows, cols)[..., B_PREDICTED_LAYER], nan=0.0)
+    layer = np.nan_to_num(store.read_quality(rows, cols)[..., index], nan=0.0).max(axis=-1)
     out = np.zeros(shape, np.float32)
     hh, ww = -(-layer.shape[0] // f), -(-layer.shape[1] // f)
     padded = np.zeros((hh * f, ww * f), np.float32)
@@ -137,7 +140,7 @@ def predicted_b_rel_std(store, level: int, shape: tuple[int, int],
 
 def predicted_noise_variance(bands: np.ndarray, b_rel_std: np.ndarray) -> np.ndarray:
     """Noise variance ``(k, m)`` of bands ``(k, m)`` whose camera-B bands (3–5) were predicted from A's with
-    relative error ``b_rel_std`` ``(k,)`` (the quality layer's b_predicted, :mod:`omnispectral.mosaic.predict`)."""
+    relative error ``b_rel_std`` ``(k,)`` (:func:`predicted_b_rel_std`)."""
     var = np.zeros(bands.shape, np.float64)
     var[:, 3:6] = (np.asarray(b_rel_std, np.float64)[:, None] * bands[:, 3:6]) ** 2
     return var
@@ -147,8 +150,8 @@ def estimate_image(bands: np.ndarray, estimator, with_std: bool = False, sun: Su
                    b_rel_std: np.ndarray | None = None):
     """Per-pixel mixture estimate of an image ``(H, W, 6)`` → ``(H, W, n)`` (NaN where bands are not finite);
     ``sun`` replaces the prior's guess at the recovered sun's pixels (module docstring).  ``b_rel_std``
-    ``(H, W)`` (the quality layer's b_predicted, NaN or 0 where B measured the pixel) adds the error of B's
-    predicted bands to their noise variance there, so estimate and posterior std weigh them accordingly.
+    ``(H, W)`` (:func:`predicted_b_rel_std`, NaN or 0 where B measured the pixel) adds the error of B's
+    derived bands to their noise variance there, so estimate and posterior std weigh them accordingly.
 
     Parameters
     ----------
@@ -249,7 +252,8 @@ def spectrum_in_store(index: dict, store, estimator, lon_deg: float, lat_deg: fl
         ``lon_deg``, ``lat_deg``, ``level``, ``pixel`` (column, row on the level), the ``bands`` (bilinear in
         the four nearest pixels, DN/s), ``wavelength_nm``, ``spectrum`` and its posterior ``std`` (DN/s per
         unit of the system matrix, ``units``), its CIE ``XYZ`` and ``linear_srgb``, and the sun's state and
-        ``b_predicted_rel_std`` where they apply.
+        ``b_predicted_rel_std`` (the relative error of camera B's bands where they were derived from A's:
+        predicted or unmixed, :data:`DERIVED_B_LAYERS`) where they apply.
 
     Raises
     ------

@@ -21,8 +21,9 @@ Display modes (:data:`MODES`):
 - ``registration``: camera B's registration confidence (viridis, 0 to 1) from the panorama's quality
   layer (``panorama.zarr/quality``, written when B was registered with per-pixel parallax), occluded
   pixels in red (B's bands there come from a view hidden by a nearer surface), pixels whose B bands were
-  predicted from A's (B saw nothing there, :mod:`omnispectral.mosaic.predict`) in orange and the recovered
-  sun in magenta; level 0 sampled at the nearest pixel.
+  predicted from A's (B saw nothing there, :mod:`omnispectral.mosaic.predict`) in orange, pixels where an
+  edge mixes B's two surfaces in A's share (:mod:`omnispectral.mosaic.unmix`) in light blue and the
+  recovered sun in magenta; level 0 sampled at the nearest pixel.
 """
 
 from __future__ import annotations
@@ -53,6 +54,8 @@ OCCLUDED_RGB = (230, 30, 30)
 SUN_RGB = (255, 0, 255)
 #: Pixels whose camera-B bands were predicted from camera A's (B saw nothing there), registration display.
 PREDICTED_RGB = (255, 160, 0)
+#: Pixels whose camera-B bands mix B's two surfaces in A's share at an edge, registration display.
+UNMIXED_RGB = (90, 200, 255)
 #: Automatic exposure puts this percentile of the luminance (or band value) at 1 before the tone curve.
 AUTO_PERCENTILE = 99.0
 #: Subsampling of the window on which the posterior uncertainty is computed.
@@ -161,7 +164,7 @@ class SlotRenderer:
         return bands[..., display.band:display.band + 1] * gain
 
     def _quality_window(self, level: int, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
-        """The quality layer (confidence, occluded, sun, b_predicted) under a window of ``level``, nearest
+        """The quality layer (confidence, occluded, sun, b_predicted, b_unmixed) under a window of ``level``, nearest
         level-0 pixel."""
         if not self.has_quality:
             raise ConfigurationError("this product has no registration-quality layer (camera B was registered "
@@ -179,6 +182,8 @@ class SlotRenderer:
             rgb = self._lut[np.clip(np.nan_to_num(conf, nan=0.0) * 255, 0, 255).astype(np.uint8)]
             rgb[np.nan_to_num(occ) > 0.5] = OCCLUDED_RGB
             rgb[~np.isfinite(conf)] = 0
+            if quantity.shape[-1] > 4:  # B's two surfaces mixed in A's share at an edge (mosaic.unmix)
+                rgb[np.nan_to_num(quantity[..., 4]) > 0] = UNMIXED_RGB
             if quantity.shape[-1] > 3:  # B's bands predicted from A's (mosaic.predict)
                 rgb[np.nan_to_num(quantity[..., 3]) > 0] = PREDICTED_RGB
             if quantity.shape[-1] > 2:  # the recovered sun's pixels (camera B's confidence there is moot)

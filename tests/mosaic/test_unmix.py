@@ -39,7 +39,7 @@ def test_a_step_edge_takes_b_in_a_share_where_b_sampled_another_share():
     truth_b = alpha_a[..., None] * B1 + (1 - alpha_a[..., None]) * B2
     before = np.abs(img[..., 3:] - truth_b).max(axis=-1) / np.linalg.norm(truth_b, axis=-1)
     assert before.max() > 0.5  # B's column 19 took 15 % of surface 2, column 20 none of surface 1
-    rel = unmix_b_at_edges(img, np.ones(shape, bool))
+    rel = unmix_b_at_edges(img)
     np.testing.assert_allclose(img[..., 3:], truth_b, rtol=1e-5, atol=1e-6)
     changed = np.isfinite(rel)
     # columns 19-21 see the edge within 1 px; 19 and 21 are one surface in A, which B's phase had mixed
@@ -61,7 +61,7 @@ def test_a_slanted_edge_with_noise_is_unmixed_within_the_error_it_records():
     truth_b = alpha_a[..., None] * B1 + (1 - alpha_a[..., None]) * B2
     mixed = (alpha_a > 0.02) & (alpha_a < 0.98)
     err_before = np.linalg.norm(img[..., 3:] - truth_b, axis=-1) / np.linalg.norm(truth_b, axis=-1)
-    rel = unmix_b_at_edges(img, np.ones(shape, bool))
+    rel = unmix_b_at_edges(img)
     err_after = np.linalg.norm(img[..., 3:] - truth_b, axis=-1) / np.linalg.norm(truth_b, axis=-1)
     inner = np.zeros(shape, bool)
     inner[4:-4, 4:-4] = True
@@ -91,7 +91,7 @@ def test_a_patchwork_of_unrelated_colours_keeps_every_measured_b():
     img[..., :3] = colours_a[labels]
     img[..., 3:] = rng.uniform(0.1, 1.0, (12, 3))[labels]
     before = img.copy()
-    unmix_b_at_edges(img, np.ones(labels.shape, bool))  # (a border pixel may take its own patch's B)
+    unmix_b_at_edges(img)  # (a border pixel may take its own patch's B)
     np.testing.assert_array_equal(img, before)
 
 
@@ -100,21 +100,23 @@ def test_a_thin_line_darker_than_both_surfaces_keeps_its_measured_b():
     img = _scene(_box_fraction(lambda x, y: x < 20.0, shape), _box_fraction(lambda x, y: x < 20.0, shape))
     img[10, :, :3] = 0.05  # a wire across both surfaces, darker than either in A
     img[10, :, 3:] = (0.9, 0.1, 0.1)
-    unmix_b_at_edges(img, np.ones(shape, bool))
+    unmix_b_at_edges(img)
     np.testing.assert_array_equal(img[10, :, 3:], np.tile(np.float32([0.9, 0.1, 0.1]), (40, 1)))
 
 
-def test_only_measured_b_is_replaced_or_taken_as_a_surface():
+def test_a_predicted_surface_takes_part_and_its_error_enters_the_mix():
     shape = (20, 40)
     left_of_edge = lambda x, y: x < 20.3  # noqa: E731
-    img = _scene(_box_fraction(left_of_edge, shape), _box_fraction(left_of_edge, shape, phase=(0.45, 0.0)))
-    before = img.copy()
-    measured = np.ones(shape, bool)
-    measured[:, 21:] = False  # surface 2's B predicted, not measured: no second surface to mix
-    rel = unmix_b_at_edges(img, measured)
-    assert not np.isfinite(rel).any()
-    np.testing.assert_array_equal(img, before)
-    measured[:] = True
-    measured[:, 20] = False  # the mixed column itself predicted: left as it is
-    unmix_b_at_edges(img, measured)
-    np.testing.assert_array_equal(img[:, 20], before[:, 20])
+    alpha_a = _box_fraction(left_of_edge, shape)
+    img = _scene(alpha_a, _box_fraction(left_of_edge, shape, phase=(0.45, 0.0)))
+    truth_b = alpha_a[..., None] * B1 + (1 - alpha_a[..., None]) * B2
+    predicted_rel = np.full(shape, np.nan, np.float32)
+    predicted_rel[:, 20:] = 0.2  # surface 2's B (and the mixed column) predicted with a 20 % error
+    rel = unmix_b_at_edges(img, predicted_rel)
+    np.testing.assert_allclose(img[..., 3:], truth_b, rtol=1e-5, atol=1e-6)
+    f = alpha_a[0, 20]
+    share = f * np.linalg.norm(B1 - B2) / np.linalg.norm(f * B1 + (1 - f) * B2)
+    expected = np.sqrt((SHARE_ERROR_FACTOR * share) ** 2 + ERROR_FLOOR ** 2 + ((1 - f) * 0.2) ** 2)
+    np.testing.assert_allclose(rel[:, 20], expected, rtol=1e-5)
+    np.testing.assert_allclose(rel[:, 19], ERROR_FLOOR, rtol=1e-5)  # surface 1 alone: measured
+    np.testing.assert_allclose(rel[:, 21], np.hypot(ERROR_FLOOR, 0.2), rtol=1e-5)  # surface 2 alone: predicted

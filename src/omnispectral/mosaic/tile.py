@@ -441,7 +441,8 @@ def _predict_missing_b(job: MosaicJob, out: np.ndarray, quality: np.ndarray | No
     out[implausible, 3:6] = np.minimum(out[implausible, 3:6], measured)  # it replaces light, never adds it
     if ceiling is not None:  # nor more than B measured around it
         out[too_dark, 3:6] = np.minimum(out[too_dark, 3:6], ceiling[too_dark])
-    unmixed = unmix_b_at_edges(out, ~missing)
+    unmixed = unmix_b_at_edges(out, predicted)
+    predicted = np.where(np.isfinite(unmixed), np.float32(np.nan), predicted)  # mixed from its surfaces after all
     if quality is not None:
         covered = finite_pixels(out)
         quality[..., 2] = np.where(covered, np.float32(0.0), np.float32(np.nan))

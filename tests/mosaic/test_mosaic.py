@@ -595,3 +595,24 @@ def test_npy_headers_are_parsed_as_numpy_parses_them_without_its_ast():
         np.lib.format.read_magic(theirs)
         assert (shape, fortran, dtype) == tuple(np.lib.format.read_array_header_1_0(theirs))
         assert ours.tell() == theirs.tell()
+
+
+def _two_surface_sectors(rays):
+    """Sectors 30° wide in longitude, alternately two surfaces with other colours in B than in A."""
+    lon = np.degrees(np.arctan2(-rays[..., 0], rays[..., 2]))
+    first = (np.floor(lon / 30.0) % 2 == 0)[..., None]
+    return np.where(first, np.float32([1.0, 2.0, 1.0, 1.5, 3.0, 0.5]), np.float32([0.3, 0.2, 0.4, 0.1, 0.5, 0.2]))
+
+
+def test_camera_b_at_edges_does_not_depend_on_the_tiling(tmp_path):
+    """B's two surfaces mixed in A's share at the sectors' edges (mosaic.unmix): a tile's border pixels read the
+    neighbouring tile's pixels through the halo, so tiles of 32 px give the panorama one tile of 256 px gives."""
+    merged = write_synthetic_merged(tmp_path / "m", _two_surface_sectors, small_cameras(), grid_directions(),
+                                    offset_b_px=(0.4, -0.3))
+    panoramas, unmixed = [], []
+    for tile in (32, 256):
+        s = mosaic(merged, tmp_path / f"t{tile}.zarr", width=WIDTH, tile=tile, workers=1)
+        panoramas.append(PanoramaStore.open(tmp_path / f"t{tile}.zarr").read(0))
+        unmixed.append(s["unmixed_px"])
+    assert unmixed[0] == unmixed[1] > 0
+    np.testing.assert_allclose(panoramas[0], panoramas[1], rtol=1e-3, atol=1e-5)

@@ -141,7 +141,8 @@ def summarise(store: PanoramaStore, tiles: list[tuple[int, int]], computed: int,
     -------
     dict
         ``output``, ``width``, ``height``, ``bands``, ``levels``, ``tile``, ``interp``, ``blend``,
-        ``n_sources``, ``tiles``, ``tiles_computed``, ``tiles_skipped``, ``holes_px``, sources per tile,
+        ``n_sources``, ``tiles``, ``tiles_computed``, ``tiles_skipped``, ``holes_px``, ``predicted_px`` and
+        ``unmixed_px`` (camera B's bands predicted from A's, mixed in A's share at edges), sources per tile,
         ``max_map_error_px``, ``seconds``, ``megapixels_per_s`` and ``peak_rss_mb``.
     """
     all_markers = store.done_markers(0)
@@ -155,7 +156,9 @@ def summarise(store: PanoramaStore, tiles: list[tuple[int, int]], computed: int,
                                                                                              store.shapes],
             "tile": store.tile, "interp": job.interp, "blend": job.blend, "n_sources": len(job.images),
             "tiles": n_tiles, "tiles_computed": computed, "tiles_skipped": n_tiles - computed,
-            "holes_px": holes, "sources_per_tile_mean": float(np.mean(n_src)) if n_src else 0.0,
+            "holes_px": holes, **{k: sum(int(m.get(k, 0)) for m in markers.values())
+                                  for k in ("predicted_px", "unmixed_px")},
+            "sources_per_tile_mean": float(np.mean(n_src)) if n_src else 0.0,
             "sources_per_tile_max": max(n_src, default=0),
             "max_map_error_px": max((float(m.get("map_error_px", 0.0)) for m in markers.values()), default=0.0),
             "seconds": {k: round(v, 3) for k, v in seconds.items()},

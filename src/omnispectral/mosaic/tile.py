@@ -47,6 +47,7 @@ from omnispectral.mosaic.options import MosaicOptions
 from omnispectral.mosaic.predict import b_outliers, brightest_measured_b, contaminated_beside, fill_missing_b
 from omnispectral.mosaic.sources import MergedDirections, SourceImage
 from omnispectral.mosaic.store import PanoramaStore
+from omnispectral.mosaic.unmix import HALO_PX as UNMIX_HALO_PX
 from omnispectral.mosaic.unmix import unmix_b_at_edges
 from omnispectral.spectral.conditional import BandPredictor
 
@@ -320,15 +321,14 @@ def _touches(bad: np.ndarray, u: np.ndarray, v: np.ndarray, radius: int) -> np.n
     return remap(grown.astype(np.float32), u, v, "linear") > 0
 
 
-def _render_linear(job: MosaicJob, rect: Rect, work: Rect, halo: int
-                   ) -> tuple[np.ndarray, np.ndarray | None, list[int], list[float]]:
+def _render_linear(job: MosaicJob, work: Rect) -> tuple[np.ndarray, np.ndarray | None, list[int], list[float]]:
     """Linear blending (paper Sec. 4.5): each source accumulated as soon as it is resampled, so a tile holds one
     resampled source at a time; camera B registered per pixel is held until all are resampled and voted on
-    (:func:`~omnispectral.mosaic.blending.reject_inconsistent`).  Returns the tile, its quality layer (or None),
-    the map steps and the map errors of the sources."""
+    (:func:`~omnispectral.mosaic.blending.reject_inconsistent`).  Returns the ``work`` area's bands, its quality
+    layer (or None), the map steps and the map errors of the sources."""
     steps, errors = [], []
-    acc = LinearBlend(rect.shape, job.n_bands)
-    quality = LinearBlend(rect.shape, N_QUALITY) if job.has_quality else None
+    acc = LinearBlend(work.shape, job.n_bands)
+    quality = LinearBlend(work.shape, N_QUALITY) if job.has_quality else None
     with_parallax = []
     for i in job.sources_for(work):
         w = warp_source(job, int(i), work)
@@ -339,14 +339,14 @@ def _render_linear(job: MosaicJob, rect: Rect, work: Rect, halo: int
         if w.confidence is not None:
             with_parallax.append(w)  # held until all are resampled: checked against each other
             continue
-        acc.add(job.images[w.index].bands, w.row0 - rect.row0, w.col0 - rect.col0, w.values, w.weight)
+        acc.add(job.images[w.index].bands, w.row0 - work.row0, w.col0 - work.col0, w.values, w.weight)
     # camera B registered per pixel: where the directions disagree, the pixel keeps those that agree
     kept = reject_inconsistent([w.values for w in with_parallax], [w.weight for w in with_parallax],
-                               [(w.row0 - rect.row0, w.col0 - rect.col0) for w in with_parallax], rect.shape)
+                               [(w.row0 - work.row0, w.col0 - work.col0) for w in with_parallax], work.shape)
     for w, weight in zip(with_parallax, kept, strict=True):
-        acc.add(job.images[w.index].bands, w.row0 - rect.row0, w.col0 - rect.col0, w.values, weight)
+        acc.add(job.images[w.index].bands, w.row0 - work.row0, w.col0 - work.col0, w.values, weight)
         if quality is not None:
-            quality.add((0, 1), w.row0 - rect.row0, w.col0 - rect.col0,
+            quality.add((0, 1), w.row0 - work.row0, w.col0 - work.col0,
                         np.stack([w.confidence, w.occluded], axis=-1).astype(np.float32), weight)
     out = acc.result()
     stats_quality = None
@@ -356,19 +356,18 @@ def _render_linear(job: MosaicJob, rect: Rect, work: Rect, halo: int
     return out, stats_quality, steps, errors
 
 
-def _render_multiband(job: MosaicJob, rect: Rect, work: Rect, halo: int
-                      ) -> tuple[np.ndarray, np.ndarray | None, list[int], list[float]]:
-    """Multi-band blending (Burt & Adelson 1983): every source resampled on the tile plus its halo, then blended
-    per camera (:func:`_multiband`) and cropped to the tile.  No quality layer."""
+def _render_multiband(job: MosaicJob, work: Rect) -> tuple[np.ndarray, np.ndarray | None, list[int], list[float]]:
+    """Multi-band blending (Burt & Adelson 1983): every source resampled on the tile plus its halo (``work``), then
+    blended per camera (:func:`_multiband`).  No quality layer."""
     warped = [w for i in job.sources_for(work) if (w := warp_source(job, int(i), work)) is not None]
     steps, errors = [w.step for w in warped], [w.max_error_px for w in warped]
-    out = _multiband(job, warped, work)[halo:halo + rect.shape[0], halo:halo + rect.shape[1]]
-    return out, None, steps, errors
+    return _multiband(job, warped, work), None, steps, errors
 
 
 #: Tile renderers by blending method (the keys of :data:`omnispectral.mosaic.blending.BLENDS`):
-#: ``renderer(job, rect, work, halo) -> (tile, quality or None, map steps, map errors)``.
-TILE_RENDERERS: dict[str, Callable[[MosaicJob, Rect, Rect, int],
+#: ``renderer(job, work) -> (the bands of work, its quality or None, map steps, map errors)``, ``work`` the tile
+#: and its halo.
+TILE_RENDERERS: dict[str, Callable[[MosaicJob, Rect],
                                    tuple[np.ndarray, np.ndarray | None, list[int], list[float]]]] = {
     "linear": _render_linear,
     "multiband": _render_multiband,
@@ -396,7 +395,11 @@ def render_tile(job: MosaicJob, rect: Rect) -> tuple[np.ndarray, dict]:
     Notes
     -----
     Linear blending accumulates each source as soon as it is resampled, so a tile holds one
-    resampled source at a time; multi-band blending needs them all (on the tile plus its halo).
+    resampled source at a time; multi-band blending needs them all (on the tile plus its halo).  A six-band
+    tile is rendered with at least :data:`omnispectral.mosaic.unmix.HALO_PX` pixels around it, so that camera B
+    at its border pixels is unmixed from what the neighbouring tiles hold (the same panorama whatever the
+    tiling).  B's predictions (:mod:`omnispectral.mosaic.predict`), whose neighbourhoods reach farther (16 px,
+    31 px for the outlier tests), see only that halo beyond the tile.
 
     References
     ----------
@@ -409,10 +412,14 @@ def render_tile(job: MosaicJob, rect: Rect) -> tuple[np.ndarray, dict]:
        2(4), 1983 (multi-band blending).
     """
     blend = blend_method(job.blend)
-    halo = blend.halo_px(job.multiband_levels)
+    halo = max(blend.halo_px(job.multiband_levels), UNMIX_HALO_PX if job.n_bands == N_BANDS else 0)
     work = rect.grow(halo) if halo else rect
-    out, quality, steps, errors = TILE_RENDERERS[job.blend](job, rect, work, halo)
+    out, quality, steps, errors = TILE_RENDERERS[job.blend](job, work)
     predicted, unmixed = _predict_missing_b(job, out, quality)
+    if halo:  # the halo served the blending and B's edges; the tile is what is kept
+        inner = (slice(halo, halo + rect.shape[0]), slice(halo, halo + rect.shape[1]))
+        out, predicted, unmixed = (np.ascontiguousarray(x[inner]) for x in (out, predicted, unmixed))
+        quality = None if quality is None else np.ascontiguousarray(quality[inner])
     holes = int((~finite_pixels(out)).sum())
     stats = {"n_sources": len(steps), "holes": holes, "map_step_min": min(steps, default=0),
              "map_error_px": max(errors, default=0.0), "predicted_px": int(np.isfinite(predicted).sum()),

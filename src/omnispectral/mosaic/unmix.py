@@ -55,11 +55,14 @@ import numpy as np
 
 from omnispectral.imaging.channels import finite_pixels
 
-__all__ = ["EDGE_CONTRAST", "ERROR_FLOOR", "FLAT_TOLERANCE", "MAX_RESIDUAL", "MIN_SEPARATION", "SHARE_ERROR_FACTOR",
-           "WINDOW_RADIUS_PX", "unmix_b_at_edges"]
+__all__ = ["EDGE_CONTRAST", "ERROR_FLOOR", "FLAT_TOLERANCE", "HALO_PX", "MAX_RESIDUAL", "MIN_SEPARATION",
+           "SHARE_ERROR_FACTOR", "WINDOW_RADIUS_PX", "unmix_b_at_edges"]
 
 #: Half-side (px) of the window the two surfaces are taken from.
 WINDOW_RADIUS_PX = 3
+#: Pixels beyond a tile that unmixing its border pixels reads (the window and the flat test's 3 × 3): a tile is
+#: rendered with this halo so that its border pixels see what the neighbouring tile holds.
+HALO_PX = WINDOW_RADIUS_PX + 1
 #: A pixel is on an edge when A's brightest 3 × 3 neighbour is this many times its darkest.
 EDGE_CONTRAST = 1.3
 #: A pixel is flat when A's brightness varies over its 3 × 3 neighbourhood by at most this share.  (B's is not

@@ -21,8 +21,8 @@ brightest and the darkest in A, ``1`` and ``2``.  When they differ by more than 
 in the share A measured.  This is the two-colour local model of natural-image matting (every pixel of a small
 window a mix of two colours; Levin, Lischinski & Weiss 2008) with A as the image whose mix is known and B's
 colours taken where A is flat.  A pixel with three surfaces, thin structure or texture around it fails the flat
-test or the segment test and keeps its B; so does every pixel of a surface finer than the flat test (a
-ColorChecker whose patches are 3 px wide).
+test or the segment test and keeps its B; so does every pixel of a surface narrower than the flat test's 3 px
+(the registration matrix's ColorChecker, whose patches are about 3 px wide, kept every figure).
 
 B's values on both sides take part whether B measured or predicted them: beside a near object the background
 B cannot see is predicted (:mod:`omnispectral.mosaic.predict`), and the edge between them is mixed from that

@@ -31,12 +31,17 @@ def _scene(alpha_a, alpha_b):
     return img
 
 
-def test_a_step_edge_takes_b_in_a_share_where_b_sampled_another_share():
-    shape = (20, 40)
+def _step_edge(shape=(20, 40)):
+    """A vertical edge at x = 20.3 seen by A at the grid's phase and by B 0.45 px off: ``(image, A's share,
+    the truth's B)``."""
     left_of_edge = lambda x, y: x < 20.3  # noqa: E731
     alpha_a = _box_fraction(left_of_edge, shape)
-    img = _scene(alpha_a, _box_fraction(left_of_edge, shape, phase=(0.45, 0.0)))
     truth_b = alpha_a[..., None] * B1 + (1 - alpha_a[..., None]) * B2
+    return _scene(alpha_a, _box_fraction(left_of_edge, shape, phase=(0.45, 0.0))), alpha_a, truth_b
+
+
+def test_a_step_edge_takes_b_in_a_share_where_b_sampled_another_share():
+    img, alpha_a, truth_b = _step_edge()
     before = np.abs(img[..., 3:] - truth_b).max(axis=-1) / np.linalg.norm(truth_b, axis=-1)
     assert before.max() > 0.5  # B's column 19 took 15 % of surface 2, column 20 none of surface 1
     rel = unmix_b_at_edges(img)
@@ -105,12 +110,8 @@ def test_a_thin_line_darker_than_both_surfaces_keeps_its_measured_b():
 
 
 def test_a_predicted_surface_takes_part_and_its_error_enters_the_mix():
-    shape = (20, 40)
-    left_of_edge = lambda x, y: x < 20.3  # noqa: E731
-    alpha_a = _box_fraction(left_of_edge, shape)
-    img = _scene(alpha_a, _box_fraction(left_of_edge, shape, phase=(0.45, 0.0)))
-    truth_b = alpha_a[..., None] * B1 + (1 - alpha_a[..., None]) * B2
-    predicted_rel = np.full(shape, np.nan, np.float32)
+    img, alpha_a, truth_b = _step_edge()
+    predicted_rel = np.full(alpha_a.shape, np.nan, np.float32)
     predicted_rel[:, 20:] = 0.2  # surface 2's B (and the mixed column) predicted with a 20 % error
     rel = unmix_b_at_edges(img, predicted_rel)
     np.testing.assert_allclose(img[..., 3:], truth_b, rtol=1e-5, atol=1e-6)

@@ -41,13 +41,7 @@ from omnispectral.io import atomic_path
 from omnispectral.ownership import check_output_outside_inputs
 from omnispectral.product.layout import open_product
 from omnispectral.product.saturation import recovered_sun_mask, saturated_mask, saturation_level_dn_s
-from omnispectral.product.spectra import (
-    DERIVED_B_LAYERS,
-    SunOverlay,
-    bands_to_linear_srgb,
-    estimate_image,
-    predicted_b_rel_std,
-)
+from omnispectral.product.spectra import SunOverlay, bands_to_linear_srgb, derived_b_layers, estimate_image
 from omnispectral.spectral.colour import spectra_to_linear_srgb, srgb_encode
 
 __all__ = ["CLIPPED_ESTIMATE_FRACTION", "ENVI_IGNORE_VALUE", "EXPORT_SUFFIXES", "FICHET_EMISSIVE_UNITS", "FORMATS",
@@ -114,16 +108,16 @@ def write_preview(path: str | Path, rgb_linear: np.ndarray) -> Path:
     return path
 
 
-def validity_layers(bands: np.ndarray, b_rel_std: Mapping[str, np.ndarray | None]) -> dict[str, np.ndarray]:
+def validity_layers(bands: np.ndarray, b_rel_std: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
     """The spectral EXR's extra channels: ``mask.valid`` (1 where a direction covers the pixel, 0 where the
     written 0 means nothing was seen) and, for six-band products, ``quality.NAME`` for each derived-B layer
-    ``b_rel_std`` holds (``b_predicted``: relative error of camera B's bands predicted from A's where B saw
-    nothing, :mod:`omnispectral.mosaic.predict`; ``b_unmixed``: where an edge mixes B's two surfaces in A's
-    share, :mod:`omnispectral.mosaic.unmix`; 0 where B's own value stands)."""
+    ``b_rel_std`` holds (:func:`~omnispectral.product.spectra.derived_b_layers`; ``b_predicted``: relative
+    error of camera B's bands predicted from A's where B saw nothing, :mod:`omnispectral.mosaic.predict`;
+    ``b_unmixed``: where an edge mixes B's two surfaces in A's share, :mod:`omnispectral.mosaic.unmix`; 0
+    where B's own value stands)."""
     layers = {"mask.valid": np.isfinite(bands).all(axis=2).astype(np.float32)}
     for name, rel in b_rel_std.items():
-        if rel is not None:
-            layers[f"quality.{name}"] = np.asarray(rel, np.float32)
+        layers[f"quality.{name}"] = np.asarray(rel, np.float32)
     return layers
 
 
@@ -307,7 +301,8 @@ def export_product(product: str | Path, fmt: str, output: str | Path, region: tu
              "omnispectral_region": f"level {level} rows {r0}-{r1} cols {c0}-{c1}",
              "omnispectral_geometry": "equirectangular; row 0 at latitude +90 of the full panorama, column 0 at -180"}
     sun = SunOverlay.of(store, level, bands.shape[:2], (r0, c0))
-    b_rel = predicted_b_rel_std(store, level, bands.shape[:2], (r0, c0))
+    derived_b = derived_b_layers(store, level, bands.shape[:2], (r0, c0))
+    b_rel = np.maximum.reduce(list(derived_b.values())) if derived_b else None
     if fmt in ("png", "jpg"):
         path = write_preview(output, bands_to_linear_srgb(bands, estimator, sun))
     elif fmt in ("rgb-exr", "hdr"):
@@ -323,10 +318,7 @@ def export_product(product: str | Path, fmt: str, output: str | Path, region: tu
         spectra = estimate_image(bands, estimator, sun=sun, b_rel_std=b_rel)
         if fmt == "spectral-exr":
             path = write_spectral_exr(output, spectra, wl, units=units, attributes=attrs, half=half,
-                                      layers=validity_layers(bands, {
-                                          name: predicted_b_rel_std(store, level, bands.shape[:2], (r0, c0),
-                                                                    (name,))
-                                          for name in DERIVED_B_LAYERS}))
+                                      layers=validity_layers(bands, derived_b))
         else:
             path = write_envi(output, light_values(spectra), wl,
                               description=f"omnispectral {attrs['omnispectral_region']}",

@@ -25,9 +25,9 @@ from omnispectral.product.layout import open_product
 from omnispectral.product.saturation import recovered_sun_mask, saturated_mask, saturation_level_dn_s
 from omnispectral.spectral.colour import spectra_to_linear_srgb, spectra_to_xyz, xyz_to_linear_srgb
 
-__all__ = ["DERIVED_B_LAYERS", "SunOverlay", "bands_to_linear_srgb", "estimate_image", "linear_srgb_map",
-           "predicted_b_rel_std", "predicted_noise_variance", "region_weights", "spectrum_at", "spectrum_in_store",
-           "sun_state"]
+__all__ = ["DERIVED_B_LAYERS", "SunOverlay", "bands_to_linear_srgb", "derived_b_layers", "estimate_image",
+           "linear_srgb_map", "predicted_b_rel_std", "predicted_noise_variance", "region_weights", "spectrum_at",
+           "spectrum_in_store", "sun_state"]
 
 
 def region_weights(bands: np.ndarray, estimator, n_sample: int = 20000, seed: int = 0) -> np.ndarray | None:
@@ -112,23 +112,27 @@ class SunOverlay:
 DERIVED_B_LAYERS = ("b_predicted", "b_unmixed")
 
 
-def predicted_b_rel_std(store, level: int, shape: tuple[int, int], origin: tuple[int, int] = (0, 0),
-                        layers: tuple[str, ...] = DERIVED_B_LAYERS) -> np.ndarray | None:
-    """The relative error of camera B's derived bands over a ``shape`` window at ``origin`` of ``level`` (the
-    largest of the quality ``layers`` the product has; a pixel of a coarser level takes the largest of the
-    level-0 pixels it averages), 0 where B measured the pixel; ``None`` when the product has none of them."""
+def derived_b_layers(store, level: int, shape: tuple[int, int],
+                     origin: tuple[int, int] = (0, 0)) -> dict[str, np.ndarray]:
+    """Each of :data:`DERIVED_B_LAYERS` the product has, over a ``shape`` window at ``origin`` of ``level``, from
+    one read of the quality array: the relative error of camera B's bands derived from A's (a pixel of a coarser
+    level takes the largest of the level-0 pixels it averages), 0 where B measured the pixel."""
     if not store.has_quality():
-        return None
+        return {}
     names = (store.attrs().get("omnispectral", {}).get("quality") or {}).get("layers", [])
-    index = [names.index(name) for name in layers if name in names]
-    if not index:
-        return None
+    present = [name for name in DERIVED_B_LAYERS if name in names]
+    if not present:
+        return {}
     f = 2 ** level
     h0, w0 = store.shapes[0]
     r0, c0 = origin[0] * f, origin[1] * f
-    rows = slice(r0, min(h0, r0 + shape[0] * f))
-    cols = slice(c0, min(w0, c0 + shape[1] * f))
-    layer = np.nan_to_num(store.read_quality(rows, cols)[..., index], nan=0.0).max(axis=-1)
+    quality = store.read_quality(slice(r0, min(h0, r0 + shape[0] * f)), slice(c0, min(w0, c0 + shape[1] * f)))
+    return {name: _largest_per_cell(np.nan_to_num(quality[..., names.index(name)], nan=0.0), f, shape)
+            for name in present}
+
+
+def _largest_per_cell(layer: np.ndarray, f: int, shape: tuple[int, int]) -> np.ndarray:
+    """``shape`` float32: the largest value of each ``f × f`` cell of a level-0 ``layer`` (0 beyond it)."""
     out = np.zeros(shape, np.float32)
     hh, ww = -(-layer.shape[0] // f), -(-layer.shape[1] // f)
     padded = np.zeros((hh * f, ww * f), np.float32)
@@ -136,6 +140,14 @@ def predicted_b_rel_std(store, level: int, shape: tuple[int, int], origin: tuple
     coarse = padded.reshape(hh, f, ww, f).max(axis=(1, 3))
     out[:min(hh, shape[0]), :min(ww, shape[1])] = coarse[:shape[0], :shape[1]]
     return out
+
+
+def predicted_b_rel_std(store, level: int, shape: tuple[int, int],
+                        origin: tuple[int, int] = (0, 0)) -> np.ndarray | None:
+    """The relative error of camera B's derived bands over a window (:func:`derived_b_layers`, the largest of
+    its layers), 0 where B measured the pixel; ``None`` when the product has none of them."""
+    layers = derived_b_layers(store, level, shape, origin)
+    return np.maximum.reduce(list(layers.values())) if layers else None
 
 
 def predicted_noise_variance(bands: np.ndarray, b_rel_std: np.ndarray) -> np.ndarray:

@@ -41,7 +41,8 @@ def cmd_mosaic(args) -> int:
         summary = mosaic(source, args.output, width=args.width, tile=args.tile, interp=args.interp,
                          blend=args.blend, multiband_levels=args.levels, gain_compensation=args.gain_compensation,
                          scheduler=args.scheduler, workers=args.workers, overwrite=args.overwrite,
-                         region=region, b_predictor=predictor, progress=progress)
+                         region=region, b_predictor=predictor, edge_model=args.edge_model,
+                         progress=progress)
     if args.json:
         print_json(summary)
         return 0

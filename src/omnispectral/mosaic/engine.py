@@ -64,7 +64,7 @@ def mosaic(source: str | Path | MergedDirections, output: str | Path, *, options
            multiband_levels: int = DEFAULT_MULTIBAND_LEVELS, gain_compensation: bool = False,
            scheduler=None, workers: int | None = None, overwrite: bool = False, compression: str = "blosc-zstd",
            region: tuple[int, int, int, int] | None = None, b_predictor: BandPredictor | None = None,
-           progress: ProgressCallback | None = None) -> dict:
+           edge_model: bool = True, progress: ProgressCallback | None = None) -> dict:
     """Stitch a six-band panorama into a Zarr store; returns a summary (see
     :func:`omnispectral.mosaic.metadata.summarise`).
 
@@ -100,6 +100,9 @@ def mosaic(source: str | Path | MergedDirections, output: str | Path, *, options
         The spectral prior's predictor of camera B's bands from A's
         (:func:`omnispectral.spectral.conditional.b_from_a_predictor`), used where B saw nothing
         (:mod:`omnispectral.mosaic.predict`); ``None`` fits one per tile to the tile's measured pixels.
+    edge_model
+        Give output pixels at straight edges their footprint's share of each side (:mod:`omnispectral.mosaic.edges`);
+        False: the interpolated value alone.
     progress
         ``progress(stage, done, total)`` (:data:`omnispectral.progress.ProgressCallback`) per finished chunk;
         ``stage`` is ``"tiles"`` or ``"pyramid"``.
@@ -128,7 +131,7 @@ def mosaic(source: str | Path | MergedDirections, output: str | Path, *, options
     options = MosaicOptions.from_keywords(
         options, width=width, tile=tile, interp=interp, blend=blend, multiband_levels=multiband_levels,
         gain_compensation=gain_compensation, scheduler=scheduler, workers=workers, overwrite=overwrite,
-        compression=compression, region=region, b_predictor=b_predictor)
+        compression=compression, region=region, b_predictor=b_predictor, edge_model=edge_model)
     progress = optional_progress(progress)
     t_start = time.perf_counter()
     output = Path(output).absolute()  # tasks may run in Dask worker processes started in other directories

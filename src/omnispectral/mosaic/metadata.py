@@ -63,6 +63,8 @@ def panorama_attributes(merged: MergedDirections, job: MosaicJob, gain_compensat
                     "world +Y up, longitude 0 = +Z, longitude +90 = -X (omnispectral.imaging.geometry)",
         "mosaic": {"width": job.canvas.width, "height": job.canvas.height, "interp": job.interp, "blend": job.blend,
                    "multiband_levels": job.multiband_levels if blend_method(job.blend).uses_levels else None,
+                   "edge_model": "partial areas at straight edges (omnispectral.mosaic.edges)" if job.edge_model
+                   else None,
                    "gain_compensation": gain_compensation,
                    "gains": job.gains.tolist() if gain_compensation else None,
                    "weights": "linear blending: tent (1 - |2(u+1/2)/W - 1|)(1 - |2(v+1/2)/H - 1|) per sensor",
@@ -96,7 +98,8 @@ def fingerprint(merged: MergedDirections, job: MosaicJob) -> dict:
     h.update(job.gains.tobytes())
     predictor = job.b_predictor.to_dict() if job.b_predictor is not None else None
     return {"inputs_sha256": h.hexdigest(), "width": job.canvas.width, "tile": job.tile, "interp": job.interp,
-            "blend": job.blend, "multiband_levels": job.multiband_levels, "b_predictor": predictor}
+            "blend": job.blend, "multiband_levels": job.multiband_levels, "b_predictor": predictor,
+            "edge_model": job.edge_model}
 
 
 def _file_identity(path, checksum: dict | None) -> list:

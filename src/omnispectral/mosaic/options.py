@@ -61,6 +61,9 @@ class MosaicOptions:
     b_predictor
         The prior's predictor of camera B's bands from A's, used where B saw nothing
         (:mod:`omnispectral.mosaic.predict`); ``None`` fits one per tile.
+    edge_model
+        Give output pixels at straight edges their footprint's share of each side (the partial-area edge model,
+        :mod:`omnispectral.mosaic.edges`) instead of the interpolated value alone.
     """
 
     width: int | None = None
@@ -75,6 +78,7 @@ class MosaicOptions:
     compression: str = "blosc-zstd"
     region: tuple[int, int, int, int] | None = None
     b_predictor: BandPredictor | None = None
+    edge_model: bool = True
 
     def __post_init__(self):
         interpolation(self.interp)

@@ -40,6 +40,9 @@ from omnispectral.imaging.geometry import native_width
 from omnispectral.imaging.halffloat import to_float32
 from omnispectral.imaging.parallax import OCCLUSION_HIDDEN, OCCLUSION_OTHER_SURFACE
 from omnispectral.mosaic.blending import LinearBlend, blend_method, feather_weight, multiband_blend, reject_inconsistent
+from omnispectral.mosaic.edges import HALO_PX as EDGE_HALO_PX
+from omnispectral.mosaic.edges import REACH_PX as EDGE_REACH_PX
+from omnispectral.mosaic.edges import resample_edges
 from omnispectral.mosaic.interp import SPLINE_PREFILTER_MARGIN_PX, interpolation, remap, spline_prefilter
 from omnispectral.mosaic.kernels import compiled_kernels
 from omnispectral.mosaic.maps import Canvas, Rect, SourceGeometry, rect_map, source_map, tile_cone
@@ -88,6 +91,8 @@ class MosaicJob:
     n_bands: int = N_BANDS  # three per camera of the merged directions
     #: the prior's predictor of B's bands from A's (None: fitted per tile, mosaic.predict.tile_predictor)
     b_predictor: BandPredictor | None = None
+    #: resample straight edges by their partial areas (:mod:`omnispectral.mosaic.edges`)
+    edge_model: bool = True
     axes: np.ndarray = field(init=False)
     radii: np.ndarray = field(init=False)
     #: for a camera-B source with a parallax map: the index of camera A's source of the same direction
@@ -140,7 +145,8 @@ def build_job(merged: MergedDirections, store_path: Path, options: MosaicOptions
         gains = np.ones((len(images), 3), np.float32)
     return MosaicJob(Canvas(width_px, width_px // 2), options.tile, options.interp, options.blend,
                      options.multiband_levels, images, geometry, np.asarray(gains, np.float32), Path(store_path),
-                     run_id=f"{os.getpid()}-{time.time_ns()}", n_bands=merged.n_bands, b_predictor=options.b_predictor)
+                     run_id=f"{os.getpid()}-{time.time_ns()}", n_bands=merged.n_bands, b_predictor=options.b_predictor,
+                     edge_model=options.edge_model)
 
 
 # ------------------------------------------------------------------------------------------ one tile
@@ -239,6 +245,7 @@ def warp_source(job: MosaicJob, i: int, rect: Rect) -> Warped | None:
     if sm is None:
         return None
     conf = occ = None
+    grid_u, grid_v = sm.u, sm.v  # at infinity: smooth, the footprint's shape for the edge model
     if i in job.partner:
         sm.u, sm.v, conf, occ = parallax_positions(job, i, sm.row0, sm.col0, sm.u, sm.v)
     weight = feather_weight(sm.u, sm.v, m.width, m.height)
@@ -257,7 +264,8 @@ def warp_source(job: MosaicJob, i: int, rect: Rect) -> Warped | None:
     cols_any = np.flatnonzero(weight.any(axis=0))
     r_lo, r_hi, c_lo, c_hi = rows_any[0], rows_any[-1] + 1, cols_any[0], cols_any[-1] + 1
     u, v, weight = sm.u[r_lo:r_hi, c_lo:c_hi], sm.v[r_lo:r_hi, c_lo:c_hi], weight[r_lo:r_hi, c_lo:c_hi]
-    values = sample_crop(img, u, v, weight > 0, job.interp, m.width, m.height)
+    grid = (grid_u[r_lo:r_hi, c_lo:c_hi], grid_v[r_lo:r_hi, c_lo:c_hi]) if job.edge_model else None
+    values = sample_crop(img, u, v, weight > 0, job.interp, m.width, m.height, job.edge_model, grid)
     if not np.isfinite(values).all():  # (a whole-array test first: the per-pixel one is 50× slower)
         bad = ~finite_pixels(values)
         weight = np.where(bad, 0.0, weight).astype(np.float32)
@@ -270,8 +278,11 @@ def warp_source(job: MosaicJob, i: int, rect: Rect) -> Warped | None:
 
 
 def sample_crop(img: SourceImage, u: np.ndarray, v: np.ndarray, used: np.ndarray, interp: str, width: int,
-                height: int) -> np.ndarray:
-    """Read the part of the source the positions need (plus kernel margin) and interpolate it.
+                height: int, edge_model: bool = False, grid_uv: tuple[np.ndarray, np.ndarray] | None = None
+                ) -> np.ndarray:
+    """Read the part of the source the positions need (plus kernel margin) and interpolate it; with
+    ``edge_model``, then give output pixels at straight edges their footprint's share of each side
+    (:func:`omnispectral.mosaic.edges.resample_edges`).
 
     Parameters
     ----------
@@ -285,6 +296,10 @@ def sample_crop(img: SourceImage, u: np.ndarray, v: np.ndarray, used: np.ndarray
         Interpolation, a key of :data:`omnispectral.mosaic.interp.METHODS`.
     width, height
         The sensor's size in px.
+    edge_model
+        Resample straight edges by their partial areas (:mod:`omnispectral.mosaic.edges`).
+    grid_uv
+        The output grid's smooth map for the edge model's footprints (default ``(u, v)``).
 
     Returns
     -------
@@ -292,7 +307,7 @@ def sample_crop(img: SourceImage, u: np.ndarray, v: np.ndarray, used: np.ndarray
         ``(*u.shape, 3)`` float32; NaN where the kernel reaches a non-finite source pixel.
     """
     method = interpolation(interp)
-    radius = method.radius_px + 1
+    radius = max(method.radius_px + 1, EDGE_REACH_PX if edge_model else 0)
     extra = SPLINE_PREFILTER_MARGIN_PX if method.prefilter else 0
     uu, vv = u[used], v[used]
     x0 = int(max(0, np.floor(uu.min()) - radius - extra))
@@ -304,10 +319,12 @@ def sample_crop(img: SourceImage, u: np.ndarray, v: np.ndarray, used: np.ndarray
     bad = None if finite else ~finite_pixels(crop)
     if bad is not None:
         crop = np.where(bad[..., None], 0.0, crop).astype(np.float32)
-    if method.prefilter:
-        crop = spline_prefilter(crop)
+    coefficients = spline_prefilter(crop) if method.prefilter else crop
     uc, vc = u - np.float32(x0), v - np.float32(y0)
-    values = remap(crop, uc, vc, interp, prefiltered=method.prefilter)
+    values = remap(coefficients, uc, vc, interp, prefiltered=method.prefilter)
+    if edge_model:
+        grid = None if grid_uv is None else (grid_uv[0] - np.float32(x0), grid_uv[1] - np.float32(y0))
+        resample_edges(crop, uc, vc, values, used, bad, grid)
     if bad is not None:
         values[_touches(bad, uc, vc, radius + (PREFILTER_BAD_REACH_PX if method.prefilter else 0))] = np.nan
     values[~used] = 0.0
@@ -397,9 +414,11 @@ def render_tile(job: MosaicJob, rect: Rect) -> tuple[np.ndarray, dict]:
     Linear blending accumulates each source as soon as it is resampled, so a tile holds one
     resampled source at a time; multi-band blending needs them all (on the tile plus its halo).  A six-band
     tile is rendered with at least :data:`omnispectral.mosaic.unmix.HALO_PX` pixels around it, so that camera B
-    at its border pixels is unmixed from what the neighbouring tiles hold (the same panorama whatever the
-    tiling).  B's predictions (:mod:`omnispectral.mosaic.predict`), whose neighbourhoods reach farther (16 px,
-    31 px for the outlier tests), see only that halo beyond the tile.
+    at its border pixels is unmixed from what the neighbouring tiles hold, and with the edge model one more
+    (:data:`omnispectral.mosaic.edges.HALO_PX`: a pixel's footprint comes from its neighbours' positions): the
+    same panorama whatever the tiling (any tile gets that one pixel for the edge model).  B's predictions
+    (:mod:`omnispectral.mosaic.predict`), whose neighbourhoods reach farther (16 px, 31 px for the outlier
+    tests), see only that halo beyond the tile.
 
     References
     ----------
@@ -412,7 +431,8 @@ def render_tile(job: MosaicJob, rect: Rect) -> tuple[np.ndarray, dict]:
        2(4), 1983 (multi-band blending).
     """
     blend = blend_method(job.blend)
-    halo = max(blend.halo_px(job.multiband_levels), UNMIX_HALO_PX if job.n_bands == N_BANDS else 0)
+    halo = max(blend.halo_px(job.multiband_levels),
+               (UNMIX_HALO_PX if job.n_bands == N_BANDS else 0) + (EDGE_HALO_PX if job.edge_model else 0))
     work = rect.grow(halo) if halo else rect
     out, quality, steps, errors = TILE_RENDERERS[job.blend](job, work)
     predicted, unmixed = _predict_missing_b(job, out, quality)

@@ -56,7 +56,8 @@ import numpy as np
 from omnispectral.imaging.channels import finite_pixels
 
 __all__ = ["EDGE_CONTRAST", "ERROR_FLOOR", "FLAT_TOLERANCE", "HALO_PX", "MAX_RESIDUAL", "MIN_SEPARATION",
-           "SHARE_ERROR_FACTOR", "WINDOW_RADIUS_PX", "unmix_b_at_edges"]
+           "SHARE_ERROR_FACTOR", "WINDOW_RADIUS_PX", "brightest_and_darkest_flat", "is_flat", "range_3x3",
+           "unmix_b_at_edges"]
 
 #: Half-side (px) of the window the two surfaces are taken from.
 WINDOW_RADIUS_PX = 3
@@ -103,13 +104,13 @@ def unmix_b_at_edges(values: np.ndarray, predicted_rel: np.ndarray | None = None
     a_ok = finite_pixels(a)
     b_ok = a_ok & finite_pixels(b)
     bright_a = np.where(a_ok, a.sum(axis=-1, dtype=np.float64), np.nan).astype(np.float32)
-    top_a, bottom_a = _range_3x3(bright_a)
-    flat = b_ok & _is_flat(bright_a, top_a, bottom_a)
+    top_a, bottom_a = range_3x3(bright_a)
+    flat = b_ok & is_flat(bright_a, top_a, bottom_a)
     edge = b_ok & ~flat & (top_a > EDGE_CONTRAST * np.maximum(bottom_a, 0.0))
     ys, xs = np.nonzero(edge)
     if ys.size == 0:
         return rel_out
-    (y1, x1), (y2, x2), found = _brightest_and_darkest_flat(bright_a, flat, ys, xs, WINDOW_RADIUS_PX)
+    (y1, x1), (y2, x2), found = brightest_and_darkest_flat(bright_a, flat, ys, xs, WINDOW_RADIUS_PX)
     ys, xs, y1, x1, y2, x2 = (k[found] for k in (ys, xs, y1, x1, y2, x2))
     a_p, a_1, a_2 = (a[yy, xx].astype(np.float64) for yy, xx in ((ys, xs), (y1, x1), (y2, x2)))
     span = a_1 - a_2
@@ -134,7 +135,7 @@ def unmix_b_at_edges(values: np.ndarray, predicted_rel: np.ndarray | None = None
     return rel_out
 
 
-def _range_3x3(brightness: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def range_3x3(brightness: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Largest and smallest finite value over each pixel's 3 × 3 neighbourhood (NaN where none is finite; the
     tile's border replicated)."""
     finite = np.isfinite(brightness)
@@ -146,21 +147,21 @@ def _range_3x3(brightness: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.where(none, np.nan, top), np.where(none, np.nan, bottom)
 
 
-def _is_flat(brightness: np.ndarray, top: np.ndarray, bottom: np.ndarray) -> np.ndarray:
+def is_flat(brightness: np.ndarray, top: np.ndarray, bottom: np.ndarray) -> np.ndarray:
     """Pixels whose 3 × 3 neighbourhood varies by at most :data:`FLAT_TOLERANCE` of their own brightness."""
     with np.errstate(invalid="ignore"):
         return (top - bottom) <= FLAT_TOLERANCE * brightness
 
 
-def _brightest_and_darkest_flat(brightness: np.ndarray, flat: np.ndarray, ys: np.ndarray, xs: np.ndarray,
-                                radius: int) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray],
-                                                      np.ndarray]:
+def brightest_and_darkest_flat(brightness: np.ndarray, flat: np.ndarray, ys: np.ndarray, xs: np.ndarray,
+                                radius: int, nearest: bool = False
+                                ) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray], np.ndarray]:
     """For each pixel ``(ys, xs)``: the brightest and the darkest ``flat`` pixel of its ``(2 radius + 1)²`` window
     (cut at the tile's border), as ``((y1, x1), (y2, x2), found)``; ``found`` is False where the window has
     fewer than two flat pixels."""
     h, w = flat.shape
-    offsets = np.array([(dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1)
-                        if dy or dx])
+    offsets = np.array(sorted(((dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1)
+                               if dy or dx), key=lambda o: o[0] ** 2 + o[1] ** 2))
     keyed = np.where(flat, brightness, np.nan)
     padded = np.pad(keyed, radius, mode="constant", constant_values=np.nan)
     window = padded[ys[:, None] + radius + offsets[:, 0], xs[:, None] + radius + offsets[:, 1]]  # (n, K)
@@ -169,6 +170,12 @@ def _brightest_and_darkest_flat(brightness: np.ndarray, flat: np.ndarray, ys: np
     hi = np.argmax(np.where(np.isfinite(window), window, -np.inf), axis=1)
     lo = np.argmin(np.where(np.isfinite(window), window, np.inf), axis=1)
     found &= hi != lo
+    if nearest:
+        rows = np.arange(ys.size)
+        mid = 0.5 * (window[rows, hi] + window[rows, lo])
+        with np.errstate(invalid="ignore"):
+            hi = np.argmax(window > mid[:, None], axis=1)
+            lo = np.argmax(window < mid[:, None], axis=1)
     y1, x1 = np.clip(ys + offsets[hi, 0], 0, h - 1), np.clip(xs + offsets[hi, 1], 0, w - 1)
     y2, x2 = np.clip(ys + offsets[lo, 0], 0, h - 1), np.clip(xs + offsets[lo, 1], 0, w - 1)
     return (y1, x1), (y2, x2), found

@@ -28,6 +28,9 @@ def add_commands(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--blend", choices=BLEND_NAMES, default="linear", help="linear (paper, default) or multiband")
     p.add_argument("--levels", type=int, default=DEFAULT_MULTIBAND_LEVELS,
                    help=f"pyramid levels of multi-band blending (default {DEFAULT_MULTIBAND_LEVELS})")
+    p.add_argument("--no-edge-model", dest="edge_model", action="store_false",
+                   help="interpolate straight edges too, instead of giving each pixel its area on either side "
+                        "(omnispectral.mosaic.edges)")
     p.add_argument("--gain-compensation", action="store_true",
                    help="equalise per-direction gains in the overlaps (Brown & Lowe 2007)")
     p.add_argument("--scheduler", metavar="ADDRESS", default=None,

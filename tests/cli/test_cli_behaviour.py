@@ -195,6 +195,8 @@ def test_output_option_and_interpolation_are_consistent():
     p = parser.parse_args(["process", "S", "-o", "P"]).interp
     m = parser.parse_args(["mosaic", "S", "-o", "M.zarr"]).interp
     assert p == m == DEFAULT_INTERP == "cubic-clamped"
+    assert parser.parse_args(["mosaic", "S", "-o", "M.zarr"]).edge_model is True
+    assert parser.parse_args(["mosaic", "S", "-o", "M.zarr", "--no-edge-model"]).edge_model is False
 
 
 @pytest.fixture(scope="module")

@@ -393,8 +393,9 @@ def test_resume_after_an_interrupted_run(known, tmp_path):
 def test_resume_refuses_other_parameters(known, tmp_path):
     merged, _ = known
     mosaic(merged, tmp_path / "x.zarr", width=WIDTH, tile=64, region=(0, 64, 0, 64))
-    with pytest.raises(InputFileError, match="other inputs or parameters"):
-        mosaic(merged, tmp_path / "x.zarr", width=WIDTH, tile=64, interp="linear")
+    for other in ({"interp": "linear"}, {"edge_model": False}):
+        with pytest.raises(InputFileError, match="other inputs or parameters"):
+            mosaic(merged, tmp_path / "x.zarr", width=WIDTH, tile=64, **other)
     s = mosaic(merged, tmp_path / "x.zarr", width=WIDTH, tile=64, interp="linear", overwrite=True)
     assert s["tiles_computed"] == s["tiles"]
 

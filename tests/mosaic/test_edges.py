@@ -122,3 +122,35 @@ def test_unused_and_invalid_pixels_are_left_alone():
     bad[:, 11:14] = True  # the edge's pixels themselves are not valid: no edge to model
     assert resample_edges(src, u, v, values, ~used, bad) == 0
     np.testing.assert_array_equal(values, before)
+
+
+def test_the_compiled_kernel_finds_the_numpy_definitions_edges():
+    """``kernels.edge_models`` against the NumPy path (:func:`omnispectral.mosaic.edges._edge_models` with
+    ``compiled=False``) on noisy slanted steps, a square and texture: the same pixels get a model, and its
+    normal, offset and surfaces agree to rounding."""
+    from omnispectral.mosaic import edges
+    from omnispectral.mosaic.kernels import compiled_kernels
+
+    if compiled_kernels() is None:
+        pytest.skip("Numba is not installed")
+    rng = np.random.default_rng(3)
+    scenes = [_colour(_box_samples(lambda x, y, a=a: np.cos(a) * x + np.sin(a) * y < 30.0, (48, 48), (0.0, 0.0)))
+              for a in (0.1, 0.7, 1.9, 3.5)]
+    scenes.append(_colour(_box_samples(lambda x, y: (np.abs(x - 20.3) < 9.1) & (np.abs(y - 23.8) < 7.4), (48, 48),
+                                       (0.0, 0.0))))
+    scenes.append(rng.lognormal(6.0, 0.4, (48, 48, 3)).astype(np.float32))
+    n_models = 0
+    for scene in scenes:
+        noisy = (scene * rng.normal(1.0, 0.004, scene.shape)).astype(np.float32)
+        compiled, reference = edges._edge_models(noisy, None), edges._edge_models(noisy, None, compiled=False)
+        assert (compiled is None) == (reference is None)
+        if compiled is None:
+            continue
+        np.testing.assert_array_equal(compiled[0], reference[0])
+        np.testing.assert_array_equal(compiled[1], reference[1])
+        finite = np.isfinite(reference[3])
+        np.testing.assert_array_equal(compiled[3][~finite], reference[3][~finite])
+        for got, want in zip(compiled[2:], reference[2:], strict=True):
+            np.testing.assert_allclose(got[finite], want[finite], rtol=1e-9, atol=1e-9)
+        n_models += len(reference[1])
+    assert n_models > 300

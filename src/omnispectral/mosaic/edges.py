@@ -43,6 +43,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from omnispectral.mosaic.kernels import compiled_kernels
 from omnispectral.mosaic.unmix import (
     EDGE_CONTRAST,
     MAX_RESIDUAL,
@@ -51,6 +52,7 @@ from omnispectral.mosaic.unmix import (
     brightest_and_darkest_flat,
     is_flat,
     range_3x3,
+    window_offsets,
 )
 
 __all__ = ["ANGLE_STEPS_RAD", "HALO_PX", "MAX_FIT_ERROR", "REACH_PX", "area_share",
@@ -64,12 +66,17 @@ HALO_PX = 1
 #: kept (the plane fit is biased between the axes and the diagonals).
 ANGLE_STEPS_RAD = tuple(np.linspace(-0.4, 0.4, 9))
 
+#: Relative margin by which a turn's fit must beat the best so far (below it: a tie, the first turn kept, so
+#: that the compiled kernel and the NumPy definition choose alike whatever their rounding).
+TIE = 1e-9
+
 #: Source pixels around an output position that its edge model reads: the nearest pixel (½), its 3 × 3 window
 #: (1), the surfaces' window (:data:`~omnispectral.mosaic.unmix.WINDOW_RADIUS_PX`) and their flat test (1).
 REACH_PX = 3 + WINDOW_RADIUS_PX
 
 _OFFSETS = np.array([(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
 _SQUARE = np.ones((3, 3), np.uint8)
+_BAND_SUM = np.ones((1, 3), np.float32)
 
 
 def area_share(s: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -127,18 +134,14 @@ def resample_edges(src: np.ndarray, u: np.ndarray, v: np.ndarray, values: np.nda
     model = _edge_models(src, bad)
     if model is None:
         return 0
-    index, normal, offset, bright, dark = model
-    height, width = index.shape
-    finite = np.isfinite(u) & np.isfinite(v)
-    col = np.rint(np.where(finite, u, -1.0)).astype(np.intp)
-    row = np.rint(np.where(finite, v, -1.0)).astype(np.intp)
-    inside = used & finite & (col >= 0) & (col < width) & (row >= 0) & (row < height)
-    k = np.full(u.shape, -1, np.intp)
-    k[inside] = index[row[inside], col[inside]]
-    oy, ox = np.nonzero(k >= 0)
+    index, centre, normal, offset, bright, dark = model
+    # each output pixel's nearest source pixel's model, in one OpenCV pass (positions outside: none)
+    k = cv2.remap(index, np.ascontiguousarray(u, np.float32), np.ascontiguousarray(v, np.float32),
+                  cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
+    oy, ox = np.nonzero((k >= 0) & used & np.isfinite(u) & np.isfinite(v))
     if oy.size == 0:
         return 0
-    kk = k[oy, ox]
+    kk = k[oy, ox].astype(np.intp)
     jac, known = _footprint_jacobian(*(grid_uv if grid_uv is not None else (u, v)), oy, ox)
     oy, ox, kk, jac = oy[known], ox[known], kk[known], jac[known]
     if oy.size == 0:
@@ -147,7 +150,7 @@ def resample_edges(src: np.ndarray, u: np.ndarray, v: np.ndarray, values: np.nda
     # the output square's edges in sensor px: columns of J; the half-plane's normal on that square is Jᵀ m
     na = mx * jac[:, 0, 0] + my * jac[:, 1, 0]
     nb = mx * jac[:, 0, 1] + my * jac[:, 1, 1]
-    shift = offset[kk] - mx * (u[oy, ox] - col[oy, ox]) - my * (v[oy, ox] - row[oy, ox])
+    shift = offset[kk] - mx * (u[oy, ox] - centre[kk, 1]) - my * (v[oy, ox] - centre[kk, 0])
     share = area_share(shift, na, nb)
     span = bright[kk] - dark[kk]
     here = values[oy, ox].astype(np.float64)
@@ -156,32 +159,48 @@ def resample_edges(src: np.ndarray, u: np.ndarray, v: np.ndarray, values: np.nda
     return int(oy.size)
 
 
-def _edge_models(src: np.ndarray, bad: np.ndarray | None):
+def _edge_models(src: np.ndarray, bad: np.ndarray | None, compiled: bool = True):
     """The straight edge around every source pixel whose 3 × 3 neighbourhood holds one (module docstring):
-    ``(index, normal, offset, bright, dark)``, ``index`` ``(H, W)`` the row of the pixel's model in the other
-    arrays (−1 where none), or None where no pixel has one."""
-    finite = np.isfinite(src).all(axis=-1)
+    ``(index, centre, normal, offset, bright, dark)``, ``index`` ``(H, W)`` float32 the row of the pixel's model
+    in the other arrays (−1 where none), ``centre`` its ``(row, column)``; or None where no pixel has one.
+    ``compiled``: the compiled kernel where Numba is installed (else, and with False, the NumPy definition)."""
+    # the bands' sum in one OpenCV pass (NumPy's reduction over a last axis of 3 is ~50x slower); it is finite
+    # exactly where every band is
+    brightness = cv2.transform(np.ascontiguousarray(src, np.float32), _BAND_SUM).reshape(src.shape[:2])
+    finite = np.isfinite(brightness)
     if bad is not None:
         finite &= ~bad
-    shares = _two_surface_shares(src, finite)
-    if shares is None:
+    if not finite.all():
+        brightness = np.where(finite, brightness, np.float32(np.nan))
+    zone = _beside_edges(brightness, finite)
+    if zone is None:
         return None
-    ys, xs, alpha, bright, dark = shares
-    normal, offset, fit_error = _straight_edge(alpha)
-    ok = fit_error <= MAX_FIT_ERROR
+    ys, xs, flat = zone
+    kernels = compiled_kernels() if compiled else None
+    if kernels is not None:
+        valid, params = np.empty(ys.size, bool), np.empty((ys.size, 9))
+        kernels.edge_models(np.ascontiguousarray(src, np.float32), brightness, flat, finite, ys, xs,
+                            window_offsets(WINDOW_RADIUS_PX), np.asarray(ANGLE_STEPS_RAD, np.float64), TIE,
+                            MIN_SEPARATION, MAX_RESIDUAL, MAX_FIT_ERROR, valid, params)
+        ok, normal, offset, bright, dark = valid, params[:, :2], params[:, 2], params[:, 3:6], params[:, 6:9]
+    else:
+        shares = _two_surface_shares(src, brightness, finite, flat, ys, xs)
+        if shares is None:
+            return None
+        ys, xs, alpha, bright, dark = shares
+        normal, offset, fit_error = _straight_edge(alpha)
+        ok = fit_error <= MAX_FIT_ERROR
     if not ok.any():
         return None
-    index = np.full(src.shape[:2], -1, np.intp)
-    index[ys[ok], xs[ok]] = np.arange(int(ok.sum()))
-    return index, normal[ok], offset[ok], bright[ok], dark[ok]
+    index = np.full(src.shape[:2], -1.0, np.float32)  # float32 for OpenCV's lookup: exact below 2²⁴ models
+    index[ys[ok], xs[ok]] = np.arange(int(ok.sum()), dtype=np.float32)
+    return index, np.stack([ys[ok], xs[ok]], axis=1), normal[ok], offset[ok], bright[ok], dark[ok]
 
 
-def _two_surface_shares(src: np.ndarray, finite: np.ndarray):
-    """Source pixels whose 3 × 3 window lies between two flat surfaces, beside an edge: ``(ys, xs, alpha,
-    bright, dark)`` with ``alpha`` ``(n, 9)`` the nine pixels' shares of the bright surface and ``bright``,
-    ``dark`` ``(n, 3)`` the surfaces' values (the nearest flat pixels on each side, within
-    :data:`~omnispectral.mosaic.unmix.WINDOW_RADIUS_PX`); None where there is none."""
-    brightness = np.where(finite, src.sum(axis=-1, dtype=np.float64), np.nan).astype(np.float32)
+def _beside_edges(brightness: np.ndarray, finite: np.ndarray):
+    """The source pixels beside an edge (within 1 px of a pixel whose 3 × 3 brightness range exceeds
+    :data:`~omnispectral.mosaic.unmix.EDGE_CONTRAST`, not on the border) and the flat pixels: ``(ys, xs, flat)``,
+    or None where there is no edge."""
     top, bottom = range_3x3(brightness)
     flat = finite & is_flat(brightness, top, bottom)
     with np.errstate(invalid="ignore"):
@@ -190,8 +209,16 @@ def _two_surface_shares(src: np.ndarray, finite: np.ndarray):
     near[[0, -1], :] = False
     near[:, [0, -1]] = False
     ys, xs = np.nonzero(near)
-    if ys.size == 0:
-        return None
+    return None if ys.size == 0 else (ys, xs, flat)
+
+
+def _two_surface_shares(src: np.ndarray, brightness: np.ndarray, finite: np.ndarray, flat: np.ndarray,
+                        ys: np.ndarray, xs: np.ndarray):
+    """Of the pixels ``(ys, xs)``, those whose 3 × 3 window lies between two flat surfaces: ``(ys, xs, alpha,
+    bright, dark)`` with ``alpha`` ``(n, 9)`` the nine pixels' shares of the bright surface and ``bright``,
+    ``dark`` ``(n, 3)`` the surfaces' values (the nearest flat pixels on each side, within
+    :data:`~omnispectral.mosaic.unmix.WINDOW_RADIUS_PX`); None where there is none (the NumPy definition of the
+    compiled ``edge_models``)."""
     (y1, x1), (y2, x2), found = brightest_and_darkest_flat(brightness, flat, ys, xs, WINDOW_RADIUS_PX,
                                                            nearest=True)
     ys, xs, y1, x1, y2, x2 = (k[found] for k in (ys, xs, y1, x1, y2, x2))
@@ -224,7 +251,7 @@ def _straight_edge(alpha: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarra
     angle = base.copy()
     for turn in ANGLE_STEPS_RAD:
         err = ((_window_shares(total, base + turn) - alpha) ** 2).sum(axis=1)
-        better = err < best
+        better = err < best * (1.0 - TIE) - TIE  # a turn must beat the one before by more than rounding
         best = np.where(better, err, best)
         angle = np.where(better, base + turn, angle)
     mx, my = np.cos(angle), np.sin(angle)

@@ -29,6 +29,10 @@ are the same, to float32 rounding where they are not):
     the nearest sensor pixel of each position (NaN as -1, clipped to the sensor; NumPy's ``rint``) with the
     bounds of those pixels, then the records (camera B's parallax map) at them
     (:func:`omnispectral.mosaic.tile.parallax_positions`; the same pixels and values);
+``edge_models(src, brightness, flat, finite, ys, xs, around, turns, tie, …, valid, params)``
+    the straight edge around each source pixel ``(ys, xs)`` (:mod:`omnispectral.mosaic.edges`: its surfaces, the
+    nine shares and their tests, the normal's turns and the fit in one pass per pixel; the same float64
+    arithmetic as the NumPy path, to its rounding);
 ``box_average(src, out)``
     the pyramid's 2 × 2 means ignoring NaN (:func:`omnispectral.mosaic.store.box_average_2x2`; float64
     sums of float32 values, exact for all but extreme dynamic ranges, so the same result).
@@ -55,7 +59,7 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
     """The kernels (module docstring), or ``None`` if Numba is not installed."""
     # the inlined helpers are module globals, not closure cells: Numba keys its disk cache on the pickled
     # closure, which differs in every process, and would compile the kernels that call them on every run
-    global cubic_weights, spline_taps, tap_grid, keys_weights, keys_rows
+    global cubic_weights, spline_taps, tap_grid, keys_weights, keys_rows, half_plane_share, half_plane_offset
 
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False, inline="always")
     def cubic_weights(t):  # pragma: no cover - compiled
@@ -280,6 +284,132 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
                 for k in range(records.shape[2]):
                     out[i, j, k] = records[r, c, k]
 
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False, inline="always")
+    def half_plane_share(s, a, b):  # pragma: no cover - compiled
+        hi, lo = 0.5 * max(abs(a), abs(b)), 0.5 * min(abs(a), abs(b))
+        hi = max(hi, 1e-12)
+        lo = max(lo, 1e-12 * hi)
+        if s < lo - hi:
+            r = max(s + hi + lo, 0.0) ** 2 / (8.0 * hi * lo)
+        elif s < hi - lo:
+            r = (s + hi) / (2.0 * hi)
+        else:
+            r = 1.0 - max(hi + lo - s, 0.0) ** 2 / (8.0 * hi * lo)
+        return min(max(r, 0.0), 1.0)
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False, inline="always")
+    def half_plane_offset(share, a, b):  # pragma: no cover - compiled
+        hi, lo = 0.5 * max(abs(a), abs(b)), 0.5 * min(abs(a), abs(b))
+        hi = max(hi, 1e-12)
+        lo = max(lo, 1e-12 * hi)
+        corner = lo / (2.0 * hi)
+        share = min(max(share, 0.0), 1.0)
+        if share < corner:
+            return np.sqrt(8.0 * hi * lo * share) - hi - lo
+        if share <= 1.0 - corner:
+            return 2.0 * hi * share - hi
+        return hi + lo - np.sqrt(8.0 * hi * lo * (1.0 - share))
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
+    def edge_models(src, brightness, flat, finite, ys, xs, around, turns, tie, min_separation, max_residual,
+                    max_fit, valid, params):  # pragma: no cover - compiled (tested against edges' NumPy path)
+        h, w = flat.shape
+        alpha = np.empty(9)
+        for i in range(ys.shape[0]):
+            y, x = ys[i], xs[i]
+            valid[i] = False
+            # the surfaces: the nearest flat pixels above and below the middle of the brightest and darkest
+            khi, klo, n_flat = -1, -1, 0
+            top, bottom = np.float32(-np.inf), np.float32(np.inf)
+            for k in range(around.shape[0]):
+                yy, xx = y + around[k, 0], x + around[k, 1]
+                if yy < 0 or yy >= h or xx < 0 or xx >= w or not flat[yy, xx]:
+                    continue
+                n_flat += 1
+                b = brightness[yy, xx]
+                if b > top:
+                    top, khi = b, k
+                if b < bottom:
+                    bottom, klo = b, k
+            if n_flat < 2 or khi == klo:
+                continue
+            mid = np.float32(0.5) * (top + bottom)
+            khi, klo = -1, -1
+            for k in range(around.shape[0]):
+                yy, xx = y + around[k, 0], x + around[k, 1]
+                if yy < 0 or yy >= h or xx < 0 or xx >= w or not flat[yy, xx]:
+                    continue
+                b = brightness[yy, xx]
+                if khi < 0 and b > mid:
+                    khi = k
+                if klo < 0 and b < mid:
+                    klo = k
+            y1, x1, y2, x2 = y + around[khi, 0], x + around[khi, 1], y + around[klo, 0], x + around[klo, 1]
+            span_sq, bright_sq = 0.0, 0.0
+            for c in range(3):
+                span_sq += (np.float64(src[y1, x1, c]) - src[y2, x2, c]) ** 2
+                bright_sq += np.float64(src[y1, x1, c]) ** 2
+            if not np.sqrt(span_sq) > min_separation * np.sqrt(bright_sq):
+                continue
+            ok = True
+            total, gx, gy = 0.0, 0.0, 0.0
+            for q in range(9):
+                yy, xx = y + q // 3 - 1, x + q % 3 - 1
+                if not finite[yy, xx]:
+                    ok = False
+                    break
+                dot, norm_sq = 0.0, 0.0
+                for c in range(3):
+                    dark = np.float64(src[y2, x2, c])
+                    dot += (src[yy, xx, c] - dark) * (src[y1, x1, c] - dark)
+                    norm_sq += np.float64(src[yy, xx, c]) ** 2
+                a = min(max(dot / max(span_sq, 1e-300), 0.0), 1.0)
+                res_sq = 0.0
+                for c in range(3):
+                    dark = np.float64(src[y2, x2, c])
+                    res_sq += (src[yy, xx, c] - dark - a * (src[y1, x1, c] - dark)) ** 2
+                if not np.sqrt(res_sq) <= max_residual * np.sqrt(norm_sq):
+                    ok = False
+                    break
+                alpha[q] = a
+                total += a
+                gx += a * (q % 3 - 1)
+                gy += a * (q // 3 - 1)
+            if not ok:
+                continue
+            total /= 9.0
+            uniform = True
+            for q in range(1, 9):
+                uniform &= alpha[q] == alpha[0]
+            if uniform and (total == 0.0 or total == 1.0):  # one surface: every footprint on that side
+                mx, my, offset = 1.0, 0.0, np.inf if total == 1.0 else -np.inf
+            else:
+                if np.sqrt(gx * gx + gy * gy) <= 1e-6:
+                    continue
+                base = np.arctan2(-gy, -gx)
+                best, angle = np.inf, base
+                for t in range(turns.shape[0]):
+                    cx, cy = np.cos(base + turns[t]), np.sin(base + turns[t])
+                    off = 3.0 * half_plane_offset(total, cx, cy)
+                    err = 0.0
+                    for q in range(9):
+                        err += (half_plane_share(off - cx * (q % 3 - 1) - cy * (q // 3 - 1), cx, cy) - alpha[q]) ** 2
+                    if err < best * (1.0 - tie) - tie:
+                        best, angle = err, base + turns[t]
+                mx, my = np.cos(angle), np.sin(angle)
+                offset = 3.0 * half_plane_offset(total, mx, my)
+                fit = 0.0
+                for q in range(9):
+                    fit = max(fit, abs(half_plane_share(offset - mx * (q % 3 - 1) - my * (q // 3 - 1), mx, my)
+                                       - alpha[q]))
+                if not fit <= max_fit:
+                    continue
+            valid[i] = True
+            params[i, 0], params[i, 1], params[i, 2] = mx, my, offset
+            for c in range(3):
+                params[i, 3 + c] = src[y1, x1, c]
+                params[i, 6 + c] = src[y2, x2, c]
+
     return SimpleNamespace(spline=spline, keys=keys, disagreeing=disagreeing, accumulate=accumulate,
                            divide=divide, catmull_rom=catmull_rom, box_average=box_average, feather=feather,
-                           nearest_pixels=nearest_pixels, gather_records=gather_records)
+                           nearest_pixels=nearest_pixels, gather_records=gather_records, edge_models=edge_models)

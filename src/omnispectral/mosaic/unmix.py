@@ -57,7 +57,7 @@ from omnispectral.imaging.channels import finite_pixels
 
 __all__ = ["EDGE_CONTRAST", "ERROR_FLOOR", "FLAT_TOLERANCE", "HALO_PX", "MAX_RESIDUAL", "MIN_SEPARATION",
            "SHARE_ERROR_FACTOR", "WINDOW_RADIUS_PX", "brightest_and_darkest_flat", "is_flat", "range_3x3",
-           "unmix_b_at_edges"]
+           "unmix_b_at_edges", "window_offsets"]
 
 #: Half-side (px) of the window the two surfaces are taken from.
 WINDOW_RADIUS_PX = 3
@@ -153,6 +153,13 @@ def is_flat(brightness: np.ndarray, top: np.ndarray, bottom: np.ndarray) -> np.n
         return (top - bottom) <= FLAT_TOLERANCE * brightness
 
 
+def window_offsets(radius: int) -> np.ndarray:
+    """``(K, 2)`` int: the ``(dy, dx)`` of a ``(2 radius + 1)²`` window but its centre, nearest first (rows, then
+    columns, among equally near ones): the order in which :func:`brightest_and_darkest_flat` meets them."""
+    return np.array(sorted(((dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1)
+                            if dy or dx), key=lambda o: o[0] ** 2 + o[1] ** 2), dtype=np.int64)
+
+
 def brightest_and_darkest_flat(brightness: np.ndarray, flat: np.ndarray, ys: np.ndarray, xs: np.ndarray,
                                 radius: int, nearest: bool = False
                                 ) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray], np.ndarray]:
@@ -160,8 +167,7 @@ def brightest_and_darkest_flat(brightness: np.ndarray, flat: np.ndarray, ys: np.
     (cut at the tile's border), as ``((y1, x1), (y2, x2), found)``; ``found`` is False where the window has
     fewer than two flat pixels."""
     h, w = flat.shape
-    offsets = np.array(sorted(((dy, dx) for dy in range(-radius, radius + 1) for dx in range(-radius, radius + 1)
-                               if dy or dx), key=lambda o: o[0] ** 2 + o[1] ** 2))
+    offsets = window_offsets(radius)
     keyed = np.where(flat, brightness, np.nan)
     padded = np.pad(keyed, radius, mode="constant", constant_values=np.nan)
     window = padded[ys[:, None] + radius + offsets[:, 0], xs[:, None] + radius + offsets[:, 1]]  # (n, K)

@@ -82,6 +82,18 @@ def _resize_to(image: np.ndarray, height: int, width: int) -> np.ndarray:
     return np.stack(chans, axis=-1)
 
 
+def _truth_grid_note(truth_width: int, width: int) -> dict:
+    """The truth's grid against the panorama's: a truth rendered on another grid is area-resampled onto the
+    panorama's, which spreads each of its edge pixels' mix over its whole area, so that at sharp edges the truth
+    compared is up to one of its pixels blurrier than the scene (simulate with ``--gt-width`` equal to the
+    product's width for exact edges)."""
+    if truth_width == width:
+        return {"width": int(truth_width), "resampled": False}
+    return {"width": int(truth_width), "resampled": True,
+            "note": f"the truth ({truth_width} px wide) is area-resampled onto the panorama's {width} px: at sharp "
+                    "edges it is up to one of its pixels blurrier than the scene, which favours blurred edges"}
+
+
 def _saturated_mask(saturated: np.ndarray, height: int, width: int, margin_px: int = 3) -> np.ndarray:
     """Pixels of a ``height × width`` grid touched by the ground truth's ``saturated`` pixels (with a margin
     for the interpolation kernel): the sun saturates every exposure and is flagged, not measured."""
@@ -144,7 +156,9 @@ def accuracy(bands: np.ndarray, estimator, truth, shortest_s: float, max_dn: int
     -------
     dict
         ``band_psnr_db`` (dB), ``n_bands`` (and ``six_band_psnr_db`` for six bands), ``pixels_compared_fraction``,
-        ``uncovered_fraction``, ``pixel_errors``, ``spectral_nrmse`` and ``spectral_pixels``, and ``colorchecker``
+        ``uncovered_fraction``, ``truth_grid`` (the truth's width and, where it is not the panorama's, why the
+        figures at edges are then biased), ``pixel_errors``, ``spectral_nrmse`` and ``spectral_pixels``, and
+        ``colorchecker``
         (per-patch and mean NRMSE and ΔE*ab, estimated and true spectra; ``None`` with a note when the chart
         is not covered).
 
@@ -177,13 +191,15 @@ def accuracy_and_pixel_errors(bands: np.ndarray, estimator, truth, shortest_s: f
             raise ConfigurationError(f"{truth.directory}: the ground truth has bands {gt_names}, the panorama "
                                      f"{band_names or bands.shape[2]}")
         gt_bands = gt_bands[..., [gt_names.index(n) for n in band_names]]
+    truth_grid = _truth_grid_note(gt_bands.shape[1], w)
     on_grid = _resize_to(gt_bands, h, w)
     del gt_bands
     unsaturated = ~_saturated_mask(saturated, h, w)
     covered = np.isfinite(bands).all(axis=2)
     valid = covered & unsaturated
     out: dict = {"band_psnr_db": psnr_db(bands, on_grid, valid), "n_bands": int(bands.shape[2]),
-                 "pixels_compared_fraction": float(valid.mean()), "uncovered_fraction": float(1 - covered.mean())}
+                 "pixels_compared_fraction": float(valid.mean()), "uncovered_fraction": float(1 - covered.mean()),
+                 "truth_grid": truth_grid}
     if bands.shape[2] == 6:
         out["six_band_psnr_db"] = out["band_psnr_db"]
     edge, edge_note = truth_edge_band(truth, h, w)

@@ -86,9 +86,7 @@ _BAND_SUM = np.ones((1, 3), np.float32)
 def area_share(s: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Share of the square ``[-½, ½]²`` with ``a x + b y < s`` (the distribution function of ``a X + b Y`` with
     ``X, Y`` uniform on ``[-½, ½]``: a trapezoid's integral)."""
-    hi, lo = 0.5 * np.maximum(np.abs(a), np.abs(b)), 0.5 * np.minimum(np.abs(a), np.abs(b))
-    hi = np.maximum(hi, 1e-12)
-    lo = np.maximum(lo, 1e-12 * hi)
+    hi, lo = _half_ranges(a, b)
     rise = np.clip(s + hi + lo, 0.0, None) ** 2 / (8.0 * hi * lo)
     fall = 1.0 - np.clip(hi + lo - s, 0.0, None) ** 2 / (8.0 * hi * lo)
     middle = (s + hi) / (2.0 * hi)
@@ -98,14 +96,19 @@ def area_share(s: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def area_share_offset(share: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The inverse of :func:`area_share` in ``s``: the offset at which the half-plane holds ``share`` (0–1) of
     the square."""
-    hi, lo = 0.5 * np.maximum(np.abs(a), np.abs(b)), 0.5 * np.minimum(np.abs(a), np.abs(b))
-    hi = np.maximum(hi, 1e-12)
-    lo = np.maximum(lo, 1e-12 * hi)
+    hi, lo = _half_ranges(a, b)
     corner = lo / (2.0 * hi)
     share = np.clip(share, 0.0, 1.0)
     return np.where(share < corner, np.sqrt(8.0 * hi * lo * share) - hi - lo,
                     np.where(share <= 1.0 - corner, 2.0 * hi * share - hi,
                              hi + lo - np.sqrt(8.0 * hi * lo * (1.0 - share))))
+
+
+def _half_ranges(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Half-ranges of ``a X`` and ``b Y`` over the unit square, larger first, kept away from 0 (a trapezoid's
+    half-width and half-slope)."""
+    hi = np.maximum(0.5 * np.maximum(np.abs(a), np.abs(b)), 1e-12)
+    return hi, np.maximum(0.5 * np.minimum(np.abs(a), np.abs(b)), 1e-12 * hi)
 
 
 def resample_edges(src: np.ndarray, u: np.ndarray, v: np.ndarray, values: np.ndarray, used: np.ndarray,
@@ -170,7 +173,8 @@ def _edge_models(src: np.ndarray, bad: np.ndarray | None, compiled: bool = True)
     ``compiled``: the compiled kernel where Numba is installed (else, and with False, the NumPy definition)."""
     # the bands' sum in one OpenCV pass (NumPy's reduction over a last axis of 3 is ~50x slower); it is finite
     # exactly where every band is
-    brightness = cv2.transform(np.ascontiguousarray(src, np.float32), _BAND_SUM).reshape(src.shape[:2])
+    src = np.ascontiguousarray(src, np.float32)
+    brightness = cv2.transform(src, _BAND_SUM).reshape(src.shape[:2])
     finite = np.isfinite(brightness)
     if bad is not None:
         finite &= ~bad
@@ -183,7 +187,7 @@ def _edge_models(src: np.ndarray, bad: np.ndarray | None, compiled: bool = True)
     kernels = compiled_kernels() if compiled else None
     if kernels is not None:
         valid, params = np.empty(ys.size, bool), np.empty((ys.size, 9))
-        kernels.edge_models(np.ascontiguousarray(src, np.float32), brightness, flat, finite, ys, xs,
+        kernels.edge_models(src, brightness, flat, finite, ys, xs,
                             window_offsets(WINDOW_RADIUS_PX), np.asarray(ANGLE_STEPS_RAD, np.float64), TIE,
                             MIN_SEPARATION, MAX_RESIDUAL, MAX_FIT_ERROR, valid, params)
         ok, normal, offset, bright, dark = valid, params[:, :2], params[:, 2], params[:, 3:6], params[:, 6:9]

@@ -241,3 +241,41 @@ def test_a_patch_b_sees_unlike_its_look_alikes_in_a_keeps_its_measured_b():
     img[10:13, 28:30, 3:] = 3.0 * img[10:13, 28:30, :3]
     prior = BandPredictor(np.eye(3), np.full(3, 0.3))
     assert not contaminated_beside(img, missing, prior)[10:13, 28:30].any()
+
+
+@pytest.mark.parametrize("detail", [False, True])
+def test_split_views_take_their_mean_only_where_the_prediction_is_the_worse_bet(detail):
+    """A pixel whose camera-B views split evenly (mosaic.blending.split_votes). Beside an occluder (B / A the same
+    all around: the prediction's error is ~1 %, the views' spread 0.67) it is left to the prediction, which is
+    within 2 % of the truth where the mean is 3× off. On fine detail (B / A varies from pixel to pixel with the
+    same A, σ = 0.5 in log, like a chart's patches: the prediction's error is ~0.5, the spread 0.15) it takes
+    the views' mean, within 15 % of the truth, nearer than the prediction."""
+    from omnispectral.mosaic.predict import settle_split_votes
+
+    rng = np.random.default_rng(5)
+    h, w = 40, 60
+    a = np.array([1.0, 2.0, 1.0]) * rng.uniform(0.9, 1.1, (h, w, 1)) * 1000.0
+    ell = rng.normal(0.0, 0.5, (h, w, 1)) if detail else np.full((h, w, 1), np.log(1.5))
+    truth = a * np.exp(ell)
+    values = np.concatenate([a, truth], axis=-1).astype(np.float32)
+    mask = np.zeros((h, w), bool)
+    mask[20, 30] = True
+    values[20, 30, 3:] = np.nan
+    halves = (0.85, 1.15) if detail else (0.2, 1.0)  # the two halves' values, as fractions of the truth
+    mean = np.full((h, w, 3), np.nan, np.float32)
+    mean[20, 30] = truth[20, 30] * np.mean(halves)
+    spread = np.full((h, w), np.nan, np.float32)
+    spread[20, 30] = (halves[1] - halves[0]) / (halves[1] + halves[0])
+    predictor = BandPredictor(np.eye(3), np.full(3, 0.1))
+    predicted = values.copy()
+    fill_missing_b(predicted, mask, predictor)
+    error = {"prediction": np.abs(predicted[20, 30, 3:] / truth[20, 30] - 1).max(),
+             "mean": np.abs(mean[20, 30] / truth[20, 30] - 1).max()}
+    taken = settle_split_votes(values, mask, mean, spread, predictor)
+    if detail:
+        assert taken[20, 30] and taken.sum() == 1
+        np.testing.assert_array_equal(values[20, 30, 3:], mean[20, 30])
+        assert error["mean"] < 0.15 < error["prediction"]
+    else:
+        assert not taken.any() and np.isnan(values[20, 30, 3:]).all()
+        assert error["prediction"] < 0.02 and error["mean"] > 0.3

@@ -258,8 +258,9 @@ class BlockParallax:
     confidence: np.ndarray
     perpendicular_px: np.ndarray
     #: the shift no depth explains (px, J-norm), on reliable blocks with structure across the epipolar lines
-    #: (``pᵀJp / |e|² ≥ 0.3``, ``p ⟂ e``), whatever its size; NaN elsewhere.  Edges parallel to the lines
-    #: count with their whole measured shift (no depth moves them).  Says whether the rig model fits
+    #: (``pᵀJp / |e|² ≥ 0.3``, ``p ⟂ e``), whatever its size; NaN elsewhere.  Edges (nearly) parallel to the
+    #: lines count with their whole measured shift unless a parallax within the sweep's reach (up to
+    #: ``SWEEP_MAX_LEVELS · SWEEP_STEP_PX``) explains it.  Says whether the rig model fits
     #: this direction at all
     across_px: np.ndarray | None = None
 
@@ -312,11 +313,14 @@ def block_parallax(gray_a: np.ndarray, warped_b: np.ndarray, seen: np.ndarray, f
     usable = bs.reliable & inside & (e_len > 1e-6)
     measured = usable & (along_weight >= MIN_ALONG_WEIGHT) & (perp <= max_perpendicular_px)
     across_weight = (ey * (jxx * ey - jxy * ex) - ex * (jxy * ey - jyy * ex)) / np.maximum(e_len**2, 1e-12)
-    # an edge (nearly) parallel to the line: a depth would have to be absurd to explain its shift, so all of it
-    # is across (the J-projection above would "explain" it with w → ∞)
+    # an edge (nearly) parallel to the line: all of its shift is across unless a depth the sweep could reach
+    # explains it (a near post 20° off the line, 6 px of parallax, moves its edge 2 px across); beyond that
+    # the J-projection above would "explain" any shift with w → ∞
     whole = np.sqrt(np.maximum(dx * (jxx * dx + jxy * dy) + dy * (jxy * dx + jyy * dy), 0.0))
+    parallax_px = w * e_len
+    reachable = (parallax_px >= -SWEEP_STEP_PX) & (parallax_px <= SWEEP_MAX_LEVELS * SWEEP_STEP_PX)
     across = np.where(usable & (across_weight >= MIN_ALONG_WEIGHT),
-                      np.where(along_weight >= MIN_ALONG_WEIGHT, perp, whole), np.nan)
+                      np.where((along_weight >= MIN_ALONG_WEIGHT) | reachable, perp, whole), np.nan)
     w = np.where(measured, w, 0.0)
     return BlockParallax(y_px, x_px, w.astype(np.float32), measured, bs.confidence.astype(np.float32),
                          perp.astype(np.float32), across.astype(np.float32))

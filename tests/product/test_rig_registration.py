@@ -397,25 +397,6 @@ def test_reject_inconsistent_keeps_the_majority_and_leaves_pairs_alone():
     assert out3[1][0, 0] == 0.0 and out3[0].sum() == 4
 
 
-def test_split_votes_finds_the_pixels_an_even_split_leaves_without_a_view():
-    """Four views split two against two at one pixel (the median of the two middle votes agrees with neither
-    half: all four are dropped) and three against one at the other (the odd view alone is dropped): only the
-    first is a split, with the views' weighted mean and the spread (1.5 − 1) / (1.5 + 1) of their band sums."""
-    from omnispectral.mosaic.blending import reject_inconsistent, split_votes
-
-    shape = (1, 2)
-    sums = [(1.0, 1.0), (1.0, 1.0), (1.5, 1.0), (1.5, 1.5)]
-    views = [np.repeat(np.array(x, np.float32)[None, :, None] / 3, 3, axis=2) for x in sums]
-    weights = [np.full(shape, w, np.float32) for w in (1.0, 3.0, 2.0, 2.0)]
-    kept = reject_inconsistent(views, weights, [(0, 0)] * 4, shape)
-    assert [float(k[0, 0]) for k in kept] == [0.0] * 4 and [float(k[0, 1]) for k in kept] == [1.0, 3.0, 2.0, 0.0]
-    split = split_votes(views, weights, [(0, 0)] * 4, shape, kept)
-    assert split.mask.tolist() == [[True, False]]
-    assert split.mean[0, 0].sum() == pytest.approx((1.0 + 3.0 + 2 * 1.5 + 2 * 1.5) / 8.0, rel=1e-6)
-    assert split.spread[0, 0] == pytest.approx(0.2, rel=1e-6) and np.isnan(split.spread[0, 1])
-    assert split_votes(views, weights, [(0, 0)] * 4, shape, weights) is None
-
-
 def test_multiband_blending_drops_the_inconsistent_view_too():
     """The same per-pixel vote in multi-band blending: three camera-B views of a 32 × 32 patch, the most
     trusted one registered on the background over a 6 × 6 spot; the blended spot keeps the patch's value
@@ -433,12 +414,12 @@ def test_multiband_blending_drops_the_inconsistent_view_too():
     views = [Warped(i, 0, 0, v, np.full((h, w), wt, np.float32), 1, 0.0, conf, np.zeros((h, w), np.float32))
              for i, (v, wt) in enumerate([(good, 0.3), (wrong, 1.0), (good * 1.02, 0.3)])]
     job = SimpleNamespace(images=[SimpleNamespace(bands=(3, 4, 5))] * 3, multiband_levels=3, n_bands=6)
-    out, _ = _multiband(job, views, Rect(0, h, 0, w))
+    out = _multiband(job, views, Rect(0, h, 0, w))
     spot = out[15:17, 15:17, 3:]
     assert np.all(np.abs(spot - 1.01) < 0.03), spot
     # without the vote (plain views, no per-pixel registration) the wrong view pulls the spot down
     plain = [Warped(v.index, 0, 0, v.values, v.weight, 1, 0.0) for v in views]
-    assert float(_multiband(job, plain, Rect(0, h, 0, w))[0][16, 16, 3]) < 0.3
+    assert float(_multiband(job, plain, Rect(0, h, 0, w))[16, 16, 3]) < 0.3
 
 
 def test_offset_at_infinity_is_capped_by_an_angle():

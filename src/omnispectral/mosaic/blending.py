@@ -31,12 +31,11 @@ import cv2
 import numpy as np
 
 from omnispectral.choices import BLEND_NAMES, DEFAULT_MULTIBAND_LEVELS, method_from
-from omnispectral.imaging.channels import finite_pixels
 from omnispectral.mosaic.kernels import compiled_kernels
 
-__all__ = ["BLENDS", "CONSISTENCY_TOL", "DEFAULT_MULTIBAND_LEVELS", "Blend", "LinearBlend", "SplitVotes",
-           "blend_method", "collapse", "feather_weight", "gaussian_pyramid", "laplacian_pyramid", "multiband_blend",
-           "multiband_halo_px", "reject_inconsistent", "seam_masks", "split_votes"]
+__all__ = ["BLENDS", "CONSISTENCY_TOL", "DEFAULT_MULTIBAND_LEVELS", "Blend", "LinearBlend", "blend_method",
+           "collapse", "feather_weight", "gaussian_pyramid", "laplacian_pyramid", "multiband_blend",
+           "multiband_halo_px", "reject_inconsistent", "seam_masks"]
 
 
 def feather_weight(u: np.ndarray, v: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -138,10 +137,7 @@ def reject_inconsistent(values: list[np.ndarray], weights: list[np.ndarray], off
     putting the background where the others see a chart patch).  The median is not weighted: the wrong
     view can be the most confident one (a chart's corner matched on its background with NCC 0.92 while
     two of three right views sit at their image's edge).  Two disagreeing sources are left as they are:
-    nothing says which is right.  An even number of votes split in two halves (neither middle vote within
-    ``tol`` of their mean) drops them all: the pixel is then settled by :func:`split_votes` and
-    :func:`omnispectral.mosaic.predict.settle_split_votes`.  Returns new weight arrays, same shapes as
-    ``weights``.
+    nothing says which is right.  Returns new weight arrays, same shapes as ``weights``.
     """
     n = len(values)
     if n < 3:
@@ -175,61 +171,6 @@ def reject_inconsistent(values: list[np.ndarray], weights: list[np.ndarray], off
         d = disagree[i, r:r + wi.shape[0], c:c + wi.shape[1]]
         out.append(np.where(d, 0.0, wi).astype(np.float32))
     return out
-
-
-@dataclass
-class SplitVotes:
-    """Pixels of a tile whose views :func:`reject_inconsistent` all dropped (an even split), with what they saw.
-
-    ``mask (h, w)`` bool; ``mean (h, w, c)`` float32: the views' weighted mean there (NaN elsewhere);
-    ``spread (h, w)`` float32: ``(max − min) / (max + min)`` of the voting views' band sums there, the relative
-    error of that mean if the truth is either extreme (NaN elsewhere)."""
-
-    mask: np.ndarray
-    mean: np.ndarray
-    spread: np.ndarray
-
-
-def split_votes(values: list[np.ndarray], weights: list[np.ndarray], offsets: list[tuple[int, int]],
-                shape: tuple[int, int], kept: list[np.ndarray]) -> SplitVotes | None:
-    """The pixels that some source covered (weight > 0, finite bands) and whose ``kept`` weights
-    (:func:`reject_inconsistent`'s) are all 0, or None when there are none; the arguments as there."""
-    h, w = shape
-    c = values[0].shape[-1] if values else 0
-    before, after = np.zeros((h, w), bool), np.zeros((h, w), bool)
-    for v, wi, ki, (r, q) in zip(values, weights, kept, offsets, strict=True):
-        sl = (slice(r, r + wi.shape[0]), slice(q, q + wi.shape[1]))
-        before[sl] |= (wi > 0) & finite_pixels(v)
-        after[sl] |= ki > 0
-    mask = before & ~after
-    if not mask.any():
-        return None
-    ys, xs = np.nonzero(mask)
-    num, den = np.zeros((ys.size, c)), np.zeros(ys.size)
-    lo, hi, top = np.full(ys.size, np.inf), np.full(ys.size, -np.inf), np.zeros(ys.size)
-    samples = []
-    for v, wi, (r, q) in zip(values, weights, offsets, strict=True):
-        yy, xx = ys - r, xs - q
-        inside = (yy >= 0) & (yy < wi.shape[0]) & (xx >= 0) & (xx < wi.shape[1])
-        wt, val = np.zeros(ys.size), np.zeros((ys.size, c))
-        wt[inside] = wi[yy[inside], xx[inside]]
-        val[inside] = v[yy[inside], xx[inside]]
-        ok = (wt > 0) & np.isfinite(val).all(axis=1)
-        wt[~ok], val[~ok] = 0.0, 0.0
-        num += wt[:, None] * val
-        den += wt
-        top = np.maximum(top, wt)
-        samples.append((wt, val.sum(axis=1)))
-    for wt, total in samples:  # the voters: as in reject_inconsistent, at least 1e-3 of the largest weight
-        votes = wt > 1e-3 * top
-        lo = np.where(votes, np.minimum(lo, total), lo)
-        hi = np.where(votes, np.maximum(hi, total), hi)
-    mean = np.full((h, w, c), np.nan, np.float32)
-    spread = np.full((h, w), np.nan, np.float32)
-    mean[ys, xs] = num / den[:, None]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        spread[ys, xs] = np.abs(hi - lo) / np.abs(hi + lo)
-    return SplitVotes(mask, mean, spread)
 
 
 # ------------------------------------------------------------------------------------------ multi-band

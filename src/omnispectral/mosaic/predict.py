@@ -31,7 +31,7 @@ from omnispectral.imaging.channels import all_channels, any_channel, finite_pixe
 from omnispectral.spectral.conditional import BandPredictor
 
 __all__ = ["IMPLAUSIBLE_RATIO", "UNCLIPPED_FRACTION", "b_outliers", "brightest_measured_b", "contaminated_beside",
-           "fill_missing_b", "implausible_b", "settle_split_votes", "tile_predictor", "too_dark_b"]
+           "fill_missing_b", "implausible_b", "tile_predictor", "too_dark_b"]
 
 #: Neighbourhood radii (px) tried in turn: a pixel with no measured neighbour like it within the first
 #: looks within the second (sampled every :data:`WIDE_STEP_PX`).
@@ -219,29 +219,6 @@ def fill_missing_b(values: np.ndarray, missing: np.ndarray, predictor: BandPredi
     b[ys, xs] = pred.astype(b.dtype)
     rel_out[ys, xs] = rel.max(axis=1)
     return rel_out
-
-
-def settle_split_votes(values: np.ndarray, mask: np.ndarray, mean: np.ndarray, spread: np.ndarray,
-                       predictor: BandPredictor | None = None) -> np.ndarray:
-    """Camera B's bands at pixels whose views split evenly (:func:`omnispectral.mosaic.blending.split_votes`):
-    the views' ``mean (h, w, 3)`` where it is the better bet, written into ``values (h, w, 6)``; the others stay
-    missing (NaN) for :func:`fill_missing_b`.
-
-    Half the views see one value and half another.  At a depth edge one half sees the occluder and the
-    other the surface; B's prediction from A and the surface around it then has the smaller error, and it
-    is what :func:`fill_missing_b` gives.  On fine detail (a 3-px chart patch seen at different sub-pixel
-    phases) every view is right about its own sample and the prediction may be far off (a yellow patch's B
-    predicted 2.6 times too bright); the mean of the views is then nearer.  So the mean is taken where the
-    prediction's own relative error (:func:`fill_missing_b`, its largest band) exceeds ``spread`` (the
-    mean's relative error if the truth were either half), or where nothing can be predicted.  Returns the
-    ``(h, w)`` pixels given the mean (only those whose B bands are missing are considered)."""
-    todo = mask & ~finite_pixels(values[..., 3:6])  # (another view may have covered it after all)
-    if not todo.any():
-        return todo
-    rel = fill_missing_b(values.copy(), todo, predictor)
-    take_mean = todo & ~(rel <= spread) & finite_pixels(mean) & finite_pixels(values[..., :3])
-    values[take_mean, 3:6] = mean[take_mean]
-    return take_mean
 
 
 def _neighbourhood_prediction(values: np.ndarray, todo_yx: tuple[np.ndarray, np.ndarray], measured: np.ndarray,

@@ -39,15 +39,7 @@ from omnispectral.imaging.channels import finite_pixels
 from omnispectral.imaging.geometry import native_width
 from omnispectral.imaging.halffloat import to_float32
 from omnispectral.imaging.parallax import OCCLUSION_HIDDEN, OCCLUSION_OTHER_SURFACE
-from omnispectral.mosaic.blending import (
-    LinearBlend,
-    SplitVotes,
-    blend_method,
-    feather_weight,
-    multiband_blend,
-    reject_inconsistent,
-    split_votes,
-)
+from omnispectral.mosaic.blending import LinearBlend, blend_method, feather_weight, multiband_blend, reject_inconsistent
 from omnispectral.mosaic.edges import HALO_PX as EDGE_HALO_PX
 from omnispectral.mosaic.edges import REACH_PX as EDGE_REACH_PX
 from omnispectral.mosaic.edges import resample_edges
@@ -55,13 +47,7 @@ from omnispectral.mosaic.interp import SPLINE_PREFILTER_MARGIN_PX, interpolation
 from omnispectral.mosaic.kernels import compiled_kernels
 from omnispectral.mosaic.maps import Canvas, Rect, SourceGeometry, rect_map, source_map, tile_cone
 from omnispectral.mosaic.options import MosaicOptions
-from omnispectral.mosaic.predict import (
-    b_outliers,
-    brightest_measured_b,
-    contaminated_beside,
-    fill_missing_b,
-    settle_split_votes,
-)
+from omnispectral.mosaic.predict import b_outliers, brightest_measured_b, contaminated_beside, fill_missing_b
 from omnispectral.mosaic.sources import MergedDirections, SourceImage
 from omnispectral.mosaic.store import PanoramaStore
 from omnispectral.mosaic.unmix import HALO_PX as UNMIX_HALO_PX
@@ -352,16 +338,11 @@ def _touches(bad: np.ndarray, u: np.ndarray, v: np.ndarray, radius: int) -> np.n
     return remap(grown.astype(np.float32), u, v, "linear") > 0
 
 
-#: What a tile renderer returns: the bands of the tile and its halo, its quality layer (or None), the sources' map
-#: steps and map errors, and camera B's split votes (or None).
-RenderedTile = tuple[np.ndarray, "np.ndarray | None", list[int], list[float], "SplitVotes | None"]
-
-
-def _render_linear(job: MosaicJob, work: Rect) -> RenderedTile:
+def _render_linear(job: MosaicJob, work: Rect) -> tuple[np.ndarray, np.ndarray | None, list[int], list[float]]:
     """Linear blending (paper Sec. 4.5): each source accumulated as soon as it is resampled, so a tile holds one
     resampled source at a time; camera B registered per pixel is held until all are resampled and voted on
     (:func:`~omnispectral.mosaic.blending.reject_inconsistent`).  Returns the ``work`` area's bands, its quality
-    layer (or None), the map steps and the map errors of the sources, and B's split votes (or None)."""
+    layer (or None), the map steps and the map errors of the sources."""
     steps, errors = [], []
     acc = LinearBlend(work.shape, job.n_bands)
     quality = LinearBlend(work.shape, N_QUALITY) if job.has_quality else None
@@ -377,11 +358,8 @@ def _render_linear(job: MosaicJob, work: Rect) -> RenderedTile:
             continue
         acc.add(job.images[w.index].bands, w.row0 - work.row0, w.col0 - work.col0, w.values, w.weight)
     # camera B registered per pixel: where the directions disagree, the pixel keeps those that agree
-    offsets = [(w.row0 - work.row0, w.col0 - work.col0) for w in with_parallax]
-    kept = reject_inconsistent([w.values for w in with_parallax], [w.weight for w in with_parallax], offsets,
-                               work.shape)
-    split = split_votes([w.values for w in with_parallax], [w.weight for w in with_parallax], offsets, work.shape,
-                        kept)
+    kept = reject_inconsistent([w.values for w in with_parallax], [w.weight for w in with_parallax],
+                               [(w.row0 - work.row0, w.col0 - work.col0) for w in with_parallax], work.shape)
     for w, weight in zip(with_parallax, kept, strict=True):
         acc.add(job.images[w.index].bands, w.row0 - work.row0, w.col0 - work.col0, w.values, weight)
         if quality is not None:
@@ -392,21 +370,22 @@ def _render_linear(job: MosaicJob, work: Rect) -> RenderedTile:
     if quality is not None:
         stats_quality = quality.result()
         stats_quality[..., 1] = (stats_quality[..., 1] > 0.5).astype(np.float32)
-    return out, stats_quality, steps, errors, split
+    return out, stats_quality, steps, errors
 
 
-def _render_multiband(job: MosaicJob, work: Rect) -> RenderedTile:
+def _render_multiband(job: MosaicJob, work: Rect) -> tuple[np.ndarray, np.ndarray | None, list[int], list[float]]:
     """Multi-band blending (Burt & Adelson 1983): every source resampled on the tile plus its halo (``work``), then
     blended per camera (:func:`_multiband`).  No quality layer."""
     warped = [w for i in job.sources_for(work) if (w := warp_source(job, int(i), work)) is not None]
     steps, errors = [w.step for w in warped], [w.max_error_px for w in warped]
-    out, split = _multiband(job, warped, work)
-    return out, None, steps, errors, split
+    return _multiband(job, warped, work), None, steps, errors
 
 
 #: Tile renderers by blending method (the keys of :data:`omnispectral.mosaic.blending.BLENDS`):
-#: ``renderer(job, work) -> RenderedTile``, ``work`` the tile and its halo.
-TILE_RENDERERS: dict[str, Callable[[MosaicJob, Rect], RenderedTile]] = {
+#: ``renderer(job, work) -> (the bands of work, its quality or None, map steps, map errors)``, ``work`` the tile
+#: and its halo.
+TILE_RENDERERS: dict[str, Callable[[MosaicJob, Rect],
+                                   tuple[np.ndarray, np.ndarray | None, list[int], list[float]]]] = {
     "linear": _render_linear,
     "multiband": _render_multiband,
 }
@@ -455,8 +434,8 @@ def render_tile(job: MosaicJob, rect: Rect) -> tuple[np.ndarray, dict]:
     halo = max(blend.halo_px(job.multiband_levels),
                (UNMIX_HALO_PX if job.n_bands == N_BANDS else 0) + (EDGE_HALO_PX if job.edge_model else 0))
     work = rect.grow(halo) if halo else rect
-    out, quality, steps, errors, split = TILE_RENDERERS[job.blend](job, work)
-    predicted, unmixed = _predict_missing_b(job, out, quality, split)
+    out, quality, steps, errors = TILE_RENDERERS[job.blend](job, work)
+    predicted, unmixed = _predict_missing_b(job, out, quality)
     if halo:  # the halo served the blending and B's edges; the tile is what is kept
         inner = (slice(halo, halo + rect.shape[0]), slice(halo, halo + rect.shape[1]))
         out, predicted, unmixed = (np.ascontiguousarray(x[inner]) for x in (out, predicted, unmixed))
@@ -470,19 +449,16 @@ def render_tile(job: MosaicJob, rect: Rect) -> tuple[np.ndarray, dict]:
     return out, stats
 
 
-def _predict_missing_b(job: MosaicJob, out: np.ndarray, quality: np.ndarray | None,
-                       split: SplitVotes | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Fill camera B's bands of a rendered tile where its views split evenly and their mean is the better bet
-    (:func:`~omnispectral.mosaic.predict.settle_split_votes`); then predict them where no direction measured
-    them, what B measured cannot be A's surface, or B's sample beside such a pixel took in what hid it
-    (:mod:`omnispectral.mosaic.predict`); then mix B's two surfaces in A's share at edges between them
-    (:mod:`omnispectral.mosaic.unmix`); completes ``quality``'s sun (0), b_predicted and b_unmixed layers.
+def _predict_missing_b(job: MosaicJob, out: np.ndarray, quality: np.ndarray | None
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Fill camera B's bands of a rendered tile where no direction measured them, what B measured cannot
+    be A's surface, or B's sample beside such a pixel took in what hid it (:mod:`omnispectral.mosaic.predict`),
+    then mix B's two surfaces in A's share at edges between them (:mod:`omnispectral.mosaic.unmix`);
+    completes ``quality``'s sun (0), b_predicted and b_unmixed layers.
     Returns the relative error of B's bands where they were predicted, and where they were unmixed (each NaN
     elsewhere)."""
     if job.n_bands != N_BANDS:
         return np.full(out.shape[:2], np.nan, np.float32), np.full(out.shape[:2], np.nan, np.float32)
-    if split is not None:
-        settle_split_votes(out, split.mask, split.mean, split.spread, job.b_predictor)
     implausible, too_dark = b_outliers(out, job.b_predictor)
     measured = out[implausible, 3:6].copy()
     missing = ~finite_pixels(out[..., 3:6]) | implausible | too_dark
@@ -503,11 +479,9 @@ def _predict_missing_b(job: MosaicJob, out: np.ndarray, quality: np.ndarray | No
     return predicted, unmixed
 
 
-def _multiband(job: MosaicJob, warped: list[Warped], work: Rect) -> tuple[np.ndarray, SplitVotes | None]:
-    """The ``work`` area's bands blended per camera, and camera B's split votes (or None)."""
+def _multiband(job: MosaicJob, warped: list[Warped], work: Rect) -> np.ndarray:
     h, w = work.shape
     out = np.full((h, w, job.n_bands), np.nan, np.float32)
-    split = None
     for camera_bands in ((0, 1, 2), (3, 4, 5))[:job.n_bands // 3]:
         group = [x for x in warped if job.images[x.index].bands == camera_bands]
         if not group:
@@ -526,13 +500,12 @@ def _multiband(job: MosaicJob, warped: list[Warped], work: Rect) -> tuple[np.nda
         # linear blending (the seams then avoid them)
         checked = [i for i, p in enumerate(per_pixel) if p]
         if len(checked) >= 3:
-            voted = [values[i] for i in checked], [weights[i] for i in checked], [(0, 0)] * len(checked), (h, w)
-            kept = reject_inconsistent(*voted)
-            split = split_votes(*voted, kept)
+            kept = reject_inconsistent([values[i] for i in checked], [weights[i] for i in checked],
+                                       [(0, 0)] * len(checked), (h, w))
             for i, k in zip(checked, kept, strict=True):
                 weights[i] = k
         out[..., camera_bands[0]:camera_bands[-1] + 1] = multiband_blend(values, weights, job.multiband_levels)
-    return out, split
+    return out
 
 
 def tile_task(job: MosaicJob, ty: int, tx: int) -> dict:

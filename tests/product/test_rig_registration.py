@@ -413,7 +413,8 @@ def test_multiband_blending_drops_the_inconsistent_view_too():
     conf = np.ones((h, w), np.float32)
     views = [Warped(i, 0, 0, v, np.full((h, w), wt, np.float32), 1, 0.0, conf, np.zeros((h, w), np.float32))
              for i, (v, wt) in enumerate([(good, 0.3), (wrong, 1.0), (good * 1.02, 0.3)])]
-    job = SimpleNamespace(images=[SimpleNamespace(bands=(3, 4, 5))] * 3, multiband_levels=3, n_bands=6)
+    job = SimpleNamespace(images=[SimpleNamespace(bands=(3, 4, 5))] * 3, multiband_levels=3, n_bands=6,
+                          b_predictor=None)
     out = _multiband(job, views, Rect(0, h, 0, w))
     spot = out[15:17, 15:17, 3:]
     assert np.all(np.abs(spot - 1.01) < 0.03), spot
@@ -680,3 +681,31 @@ def test_upsampled_depth_follows_a_silhouette_at_full_resolution():
     # away from the step every pixel keeps its own cell
     far = np.abs(yy - (40 + 0.37 * xx)) > 3 * f
     assert np.array_equal(cell_row[far], (yy // f)[far]) and np.array_equal(cell_col[far], (xx // f)[far])
+
+
+def test_settle_pairs_lets_camera_a_choose_between_two_views_of_two_surfaces():
+    """Two camera-B views of a pixel that see two surfaces (band sums 140× apart: the sky, and a post that hides
+    it from one direction's B): the one far from what A's bands predict is dropped, where their blend read the
+    sky 26 % dark before. Left as they are: two views of one surface (1.5× apart: two sampling phases of a
+    3-px chart patch), an expectation that is not decisive (twice off, between the two), an unknown one, and
+    pixels with three voters (reject_inconsistent's median decides those)."""
+    from omnispectral.mosaic.blending import settle_pairs
+
+    shape = (1, 5)
+    sky = np.full((1, 5, 3), 1.0e6, np.float32)
+    other = sky.copy()
+    other[0, 0] = 7.0e3              # the post
+    other[0, 1] = 1.5e6              # the same surface at another phase
+    other[0, 2] = 7.0e3              # the post again, but A's expectation sits between the two
+    other[0, 3] = 7.0e3              # the post, with A unknown there
+    weights = [np.full(shape, 0.005, np.float32), np.full(shape, 0.002, np.float32)]
+    expected = np.array([[3.0e6, 3.0e6, np.sqrt(3.0e6 * 2.1e4), np.nan, 3.0e6]], np.float32)
+    out = settle_pairs([sky, other], weights, [(0, 0)] * 2, shape, expected)
+    np.testing.assert_array_equal(out[0], weights[0])
+    assert out[1][0, 0] == 0.0 and out[1][0, 1:].tolist() == weights[1][0, 1:].tolist()
+    blended = float((weights[0][0, 0] * 3e6 + weights[1][0, 0] * 2.1e4) / (weights[0][0, 0] + weights[1][0, 0]))
+    assert blended < 0.75 * 3e6  # what the blend of the two read
+    # a third voter: left to reject_inconsistent
+    third = [sky, other, sky * 1.02]
+    out3 = settle_pairs(third, [*weights, np.full(shape, 0.003, np.float32)], [(0, 0)] * 3, shape, expected)
+    assert out3[1][0, 0] == weights[1][0, 0]

@@ -33,9 +33,9 @@ import numpy as np
 from omnispectral.choices import BLEND_NAMES, DEFAULT_MULTIBAND_LEVELS, method_from
 from omnispectral.mosaic.kernels import compiled_kernels
 
-__all__ = ["BLENDS", "CONSISTENCY_TOL", "DEFAULT_MULTIBAND_LEVELS", "Blend", "LinearBlend", "blend_method",
-           "collapse", "feather_weight", "gaussian_pyramid", "laplacian_pyramid", "multiband_blend",
-           "multiband_halo_px", "reject_inconsistent", "seam_masks"]
+__all__ = ["BLENDS", "CONSISTENCY_TOL", "DEFAULT_MULTIBAND_LEVELS", "PAIR_RATIO", "Blend", "LinearBlend",
+           "blend_method", "collapse", "feather_weight", "gaussian_pyramid", "laplacian_pyramid", "multiband_blend",
+           "multiband_halo_px", "reject_inconsistent", "seam_masks", "settle_pairs"]
 
 
 def feather_weight(u: np.ndarray, v: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -137,22 +137,14 @@ def reject_inconsistent(values: list[np.ndarray], weights: list[np.ndarray], off
     putting the background where the others see a chart patch).  The median is not weighted: the wrong
     view can be the most confident one (a chart's corner matched on its background with NCC 0.92 while
     two of three right views sit at their image's edge).  Two disagreeing sources are left as they are:
-    nothing says which is right.  Returns new weight arrays, same shapes as ``weights``.
+    nothing among them says which is right (camera A can: :func:`settle_pairs`).  Returns new weight arrays,
+    same shapes as ``weights``.
     """
     n = len(values)
     if n < 3:
         return [np.asarray(w) for w in weights]
     h, w = shape
-    s = np.full((n, h, w), np.nan, np.float32)
-    wt = np.zeros((n, h, w), np.float32)
-    for i, (v, wi, (r, c)) in enumerate(zip(values, weights, offsets, strict=True)):
-        # the band sum as element-wise additions (NumPy's reduction over a 3-long last axis is ~5x slower; the
-        # same float32 additions in the same order); it is finite exactly where every band is
-        total = v[..., 0].copy()
-        for k in range(1, v.shape[-1]):
-            total += v[..., k]
-        s[i, r:r + wi.shape[0], c:c + wi.shape[1]] = np.where(wi > 0, total, np.nan)
-        wt[i, r:r + wi.shape[0], c:c + wi.shape[1]] = np.where(np.isfinite(total), wi, 0.0)
+    s, wt = _vote_arrays(values, weights, offsets, shape)
     disagree = np.zeros((n, h, w), bool)
     kernels = compiled_kernels()
     if kernels is not None:  # the same median and comparisons in one pass
@@ -166,9 +158,75 @@ def reject_inconsistent(values: list[np.ndarray], weights: list[np.ndarray], off
         with np.errstate(all="ignore"):
             ref = np.nanmedian(np.where(voting, s, np.nan)[:, several], axis=0)
         disagree[:, several] = np.abs(s[:, several] - ref) > np.float32(tol) * np.abs(ref)
+    return _without(weights, offsets, disagree)
+
+
+#: Two views of a pixel whose band sums differ by more than this factor see two surfaces, not one surface at two
+#: sampling phases (:func:`settle_pairs`).
+PAIR_RATIO = 2.0
+
+
+def settle_pairs(values: list[np.ndarray], weights: list[np.ndarray], offsets: list[tuple[int, int]],
+                 shape: tuple[int, int], expected: np.ndarray) -> list[np.ndarray]:
+    """Weights with, where exactly two sources vote at a pixel and see two surfaces, the one farther from
+    ``expected`` set to 0.
+
+    :func:`reject_inconsistent` leaves two disagreeing sources as they are, since neither outvotes the other.
+    When their band sums differ by more than :data:`PAIR_RATIO` they do not sample one surface at two phases
+    but two surfaces: one direction's camera B sees the surface camera A sees, the other sees a near object
+    in front of it (a post beside the low sun hides the sky from B's viewpoint in one direction; that
+    view's B was 1/140 of the other's, and their blend read the sky 26 % dark).  ``expected (h, w)`` is the
+    band sum A's bands predict for these sources (the prior's linear predictor), NaN where unknown; the source
+    whose ``|log(sum / expected)|`` is larger by more than ``log PAIR_RATIO`` is dropped (the prediction can
+    be twice off for a saturated colour: a blue post's two views, itself and the ground behind it, are then
+    left to their blend).  Voters as in :func:`reject_inconsistent`; a pixel
+    with another count of voters, or an unknown expectation, is left as it is.  Returns new weight arrays,
+    same shapes as ``weights``."""
+    n = len(values)
+    if n < 2:
+        return [np.asarray(w) for w in weights]
+    s, wt = _vote_arrays(values, weights, offsets, shape)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        voting = (wt > np.float32(1e-3) * wt.max(axis=0, keepdims=True)) & (s > 0)
+        pair = (voting.sum(axis=0) == 2) & (np.asarray(expected) > 0)
+        if not pair.any():
+            return [np.asarray(x) for x in weights]
+        votes = np.where(voting, s, np.nan)
+        apart = pair & (np.nanmax(np.where(pair, votes, 1.0), axis=0)
+                        > np.float32(PAIR_RATIO) * np.nanmin(np.where(pair, votes, 1.0), axis=0))
+        if not apart.any():
+            return [np.asarray(x) for x in weights]
+        distance = np.where(voting & apart, np.abs(np.log(votes / np.asarray(expected, np.float32))), -np.inf)
+    nearer = np.where(np.isfinite(distance), distance, np.inf).min(axis=0, keepdims=True)
+    # dropped only when A's expectation is decisive: the farther source at least PAIR_RATIO farther (a saturated
+    # colour's expectation can be twice off, and a blend of the two is then the safer value)
+    farther = np.isfinite(distance) & (distance > nearer + np.float32(np.log(PAIR_RATIO)))
+    return _without(weights, offsets, farther)
+
+
+def _vote_arrays(values: list[np.ndarray], weights: list[np.ndarray], offsets: list[tuple[int, int]],
+                 shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """``(n, h, w)`` band sums (NaN where a source has no weight) and weights (0 where its sum is not finite)
+    of the sources on the ``shape`` tile."""
+    n, (h, w) = len(values), shape
+    s = np.full((n, h, w), np.nan, np.float32)
+    wt = np.zeros((n, h, w), np.float32)
+    for i, (v, wi, (r, c)) in enumerate(zip(values, weights, offsets, strict=True)):
+        # the band sum as element-wise additions (NumPy's reduction over a 3-long last axis is ~5x slower; the
+        # same float32 additions in the same order); it is finite exactly where every band is
+        total = v[..., 0].copy()
+        for k in range(1, v.shape[-1]):
+            total += v[..., k]
+        s[i, r:r + wi.shape[0], c:c + wi.shape[1]] = np.where(wi > 0, total, np.nan)
+        wt[i, r:r + wi.shape[0], c:c + wi.shape[1]] = np.where(np.isfinite(total), wi, 0.0)
+    return s, wt
+
+
+def _without(weights: list[np.ndarray], offsets: list[tuple[int, int]], dropped: np.ndarray) -> list[np.ndarray]:
+    """The ``weights`` with 0 where ``dropped (n, h, w)`` (tile coordinates) says so."""
     out = []
     for i, (wi, (r, c)) in enumerate(zip(weights, offsets, strict=True)):
-        d = disagree[i, r:r + wi.shape[0], c:c + wi.shape[1]]
+        d = dropped[i, r:r + wi.shape[0], c:c + wi.shape[1]]
         out.append(np.where(d, 0.0, wi).astype(np.float32))
     return out
 

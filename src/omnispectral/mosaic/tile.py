@@ -39,7 +39,14 @@ from omnispectral.imaging.channels import finite_pixels
 from omnispectral.imaging.geometry import native_width
 from omnispectral.imaging.halffloat import to_float32
 from omnispectral.imaging.parallax import OCCLUSION_HIDDEN, OCCLUSION_OTHER_SURFACE
-from omnispectral.mosaic.blending import LinearBlend, blend_method, feather_weight, multiband_blend, reject_inconsistent
+from omnispectral.mosaic.blending import (
+    LinearBlend,
+    blend_method,
+    feather_weight,
+    multiband_blend,
+    reject_inconsistent,
+    settle_pairs,
+)
 from omnispectral.mosaic.edges import HALO_PX as EDGE_HALO_PX
 from omnispectral.mosaic.edges import REACH_PX as EDGE_REACH_PX
 from omnispectral.mosaic.edges import resample_edges
@@ -358,8 +365,12 @@ def _render_linear(job: MosaicJob, work: Rect) -> tuple[np.ndarray, np.ndarray |
             continue
         acc.add(job.images[w.index].bands, w.row0 - work.row0, w.col0 - work.col0, w.values, w.weight)
     # camera B registered per pixel: where the directions disagree, the pixel keeps those that agree
-    kept = reject_inconsistent([w.values for w in with_parallax], [w.weight for w in with_parallax],
-                               [(w.row0 - work.row0, w.col0 - work.col0) for w in with_parallax], work.shape)
+    offsets = [(w.row0 - work.row0, w.col0 - work.col0) for w in with_parallax]
+    kept = reject_inconsistent([w.values for w in with_parallax], [w.weight for w in with_parallax], offsets,
+                               work.shape)
+    expected = _expected_b_sum(job, acc.result()[..., :3]) if len(with_parallax) >= 2 else None
+    if expected is not None:
+        kept = settle_pairs([w.values for w in with_parallax], kept, offsets, work.shape, expected)
     for w, weight in zip(with_parallax, kept, strict=True):
         acc.add(job.images[w.index].bands, w.row0 - work.row0, w.col0 - work.col0, w.values, weight)
         if quality is not None:
@@ -479,6 +490,15 @@ def _predict_missing_b(job: MosaicJob, out: np.ndarray, quality: np.ndarray | No
     return predicted, unmixed
 
 
+def _expected_b_sum(job: MosaicJob, a: np.ndarray) -> np.ndarray | None:
+    """``(h, w)`` float32: the band sum of camera B that A's bands ``a (h, w, 3)`` predict (the prior's linear
+    predictor), NaN where A is not finite; None for a one-camera job or without a predictor."""
+    if job.n_bands != N_BANDS or job.b_predictor is None:
+        return None
+    weights = np.asarray(job.b_predictor.matrix, np.float64).sum(axis=0)  # Σ_k M_kj: the sum of M a in one product
+    return (np.asarray(a, np.float64) @ weights).astype(np.float32)
+
+
 def _multiband(job: MosaicJob, warped: list[Warped], work: Rect) -> np.ndarray:
     h, w = work.shape
     out = np.full((h, w, job.n_bands), np.nan, np.float32)
@@ -502,6 +522,12 @@ def _multiband(job: MosaicJob, warped: list[Warped], work: Rect) -> np.ndarray:
         if len(checked) >= 3:
             kept = reject_inconsistent([values[i] for i in checked], [weights[i] for i in checked],
                                        [(0, 0)] * len(checked), (h, w))
+            for i, k in zip(checked, kept, strict=True):
+                weights[i] = k
+        expected = _expected_b_sum(job, out[..., :3]) if camera_bands[0] == 3 and len(checked) >= 2 else None
+        if expected is not None:  # A is blended first: its bands say which of two disagreeing B views is right
+            kept = settle_pairs([values[i] for i in checked], [weights[i] for i in checked],
+                                [(0, 0)] * len(checked), (h, w), expected)
             for i, k in zip(checked, kept, strict=True):
                 weights[i] = k
         out[..., camera_bands[0]:camera_bands[-1] + 1] = multiband_blend(values, weights, job.multiband_levels)

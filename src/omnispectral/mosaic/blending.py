@@ -126,7 +126,8 @@ CONSISTENCY_TOL = 0.1
 
 
 def reject_inconsistent(values: list[np.ndarray], weights: list[np.ndarray], offsets: list[tuple[int, int]],
-                        shape: tuple[int, int], tol: float = CONSISTENCY_TOL) -> list[np.ndarray]:
+                        shape: tuple[int, int], tol: float = CONSISTENCY_TOL,
+                        expected: np.ndarray | None = None) -> list[np.ndarray]:
     """Weights with the sources that disagree with the majority set to 0, pixel by pixel.
 
     ``values[i]`` ``(h_i, w_i, c)`` and ``weights[i]`` ``(h_i, w_i)`` lie at ``offsets[i]`` (row, col) of
@@ -137,28 +138,37 @@ def reject_inconsistent(values: list[np.ndarray], weights: list[np.ndarray], off
     putting the background where the others see a chart patch).  The median is not weighted: the wrong
     view can be the most confident one (a chart's corner matched on its background with NCC 0.92 while
     two of three right views sit at their image's edge).  Two disagreeing sources are left as they are:
-    nothing among them says which is right (camera A can: :func:`settle_pairs`).  Returns new weight arrays,
-    same shapes as ``weights``.
+    nothing among them says which is right, unless camera A's ``expected (h, w)`` band sum for these sources is
+    given: then two that see two surfaces are settled by it (:func:`settle_pairs`, on what the median vote
+    left).  Returns new weight arrays, same shapes as ``weights``.
     """
     n = len(values)
-    if n < 3:
+    if n < (3 if expected is None else 2):
         return [np.asarray(w) for w in weights]
-    h, w = shape
     s, wt = _vote_arrays(values, weights, offsets, shape)
-    disagree = np.zeros((n, h, w), bool)
+    disagree = _median_disagreement(s, wt, tol) if n >= 3 else None
+    if expected is not None:
+        kept = wt if disagree is None else np.where(disagree, np.float32(0.0), wt)
+        pairs = _pair_disagreement(s, kept, expected)
+        disagree = pairs if disagree is None else (disagree if pairs is None else disagree | pairs)
+    return [np.asarray(x) for x in weights] if disagree is None else _without(weights, offsets, disagree)
+
+
+def _median_disagreement(s: np.ndarray, wt: np.ndarray, tol: float) -> np.ndarray | None:
+    """``(n, h, w)`` the votes more than ``tol`` from the median where three or more vote
+    (:func:`reject_inconsistent`), None where none is."""
+    disagree = np.zeros(s.shape, bool)
     kernels = compiled_kernels()
     if kernels is not None:  # the same median and comparisons in one pass
-        if not kernels.disagreeing(s, wt, np.float32(tol), disagree):
-            return [np.asarray(x) for x in weights]
-    else:
-        voting = (wt > np.float32(1e-3) * wt.max(axis=0, keepdims=True)) & np.isfinite(s)
-        several = voting.sum(axis=0) >= 3
-        if not several.any():
-            return [np.asarray(x) for x in weights]
-        with np.errstate(all="ignore"):
-            ref = np.nanmedian(np.where(voting, s, np.nan)[:, several], axis=0)
-        disagree[:, several] = np.abs(s[:, several] - ref) > np.float32(tol) * np.abs(ref)
-    return _without(weights, offsets, disagree)
+        return disagree if kernels.disagreeing(s, wt, np.float32(tol), disagree) else None
+    voting = (wt > np.float32(1e-3) * wt.max(axis=0, keepdims=True)) & np.isfinite(s)
+    several = voting.sum(axis=0) >= 3
+    if not several.any():
+        return None
+    with np.errstate(all="ignore"):
+        ref = np.nanmedian(np.where(voting, s, np.nan)[:, several], axis=0)
+    disagree[:, several] = np.abs(s[:, several] - ref) > np.float32(tol) * np.abs(ref)
+    return disagree
 
 
 #: Two views of a pixel whose band sums differ by more than this factor see two surfaces, not one surface at two
@@ -171,37 +181,40 @@ def settle_pairs(values: list[np.ndarray], weights: list[np.ndarray], offsets: l
     """Weights with, where exactly two sources vote at a pixel and see two surfaces, the one farther from
     ``expected`` set to 0.
 
-    :func:`reject_inconsistent` leaves two disagreeing sources as they are, since neither outvotes the other.
-    When their band sums differ by more than :data:`PAIR_RATIO` they do not sample one surface at two phases
-    but two surfaces: one direction's camera B sees the surface camera A sees, the other sees a near object
-    in front of it (a post beside the low sun hides the sky from B's viewpoint in one direction; that
-    view's B was 1/140 of the other's, and their blend read the sky 26 % dark).  ``expected (h, w)`` is the
-    band sum A's bands predict for these sources (the prior's linear predictor), NaN where unknown; the source
-    whose ``|log(sum / expected)|`` is larger by more than ``log PAIR_RATIO`` is dropped (the prediction can
-    be twice off for a saturated colour: a blue post's two views, itself and the ground behind it, are then
-    left to their blend).  Voters as in :func:`reject_inconsistent`; a pixel
-    with another count of voters, or an unknown expectation, is left as it is.  Returns new weight arrays,
-    same shapes as ``weights``."""
-    n = len(values)
-    if n < 2:
+    Two disagreeing sources do not outvote each other in the median vote.  When their band sums differ by more
+    than :data:`PAIR_RATIO` they do not sample one surface at two phases but two surfaces: one direction's
+    camera B sees the surface camera A sees, the other sees a near object in front of it (a post beside the low
+    sun hides the sky from B's viewpoint in one direction; that view's B was 1/140 of the other's, and their
+    blend read the sky 26 % dark).  ``expected (h, w)`` is the band sum A's bands predict for these sources
+    (the prior's linear predictor), NaN where unknown; the source whose ``|log(sum / expected)|`` is larger by
+    more than ``log PAIR_RATIO`` is dropped (the prediction can be twice off for a saturated colour: a blue
+    post's two views, itself and the ground behind it, are then left to their blend).  Voters as in
+    :func:`reject_inconsistent`; a pixel with another count of voters, or an unknown expectation, is left as
+    it is.  Returns new weight arrays, same shapes as ``weights``; :func:`reject_inconsistent` applies it with
+    its ``expected``."""
+    if len(values) < 2:
         return [np.asarray(w) for w in weights]
-    s, wt = _vote_arrays(values, weights, offsets, shape)
+    dropped = _pair_disagreement(*_vote_arrays(values, weights, offsets, shape), expected)
+    return [np.asarray(x) for x in weights] if dropped is None else _without(weights, offsets, dropped)
+
+
+def _pair_disagreement(s: np.ndarray, wt: np.ndarray, expected: np.ndarray) -> np.ndarray | None:
+    """``(n, h, w)`` the sources :func:`settle_pairs` drops, None where none is."""
     with np.errstate(invalid="ignore", divide="ignore"):
         voting = (wt > np.float32(1e-3) * wt.max(axis=0, keepdims=True)) & (s > 0)
         pair = (voting.sum(axis=0) == 2) & (np.asarray(expected) > 0)
         if not pair.any():
-            return [np.asarray(x) for x in weights]
+            return None
         votes = np.where(voting, s, np.nan)
         apart = pair & (np.nanmax(np.where(pair, votes, 1.0), axis=0)
                         > np.float32(PAIR_RATIO) * np.nanmin(np.where(pair, votes, 1.0), axis=0))
         if not apart.any():
-            return [np.asarray(x) for x in weights]
+            return None
         distance = np.where(voting & apart, np.abs(np.log(votes / np.asarray(expected, np.float32))), -np.inf)
     nearer = np.where(np.isfinite(distance), distance, np.inf).min(axis=0, keepdims=True)
     # dropped only when A's expectation is decisive: the farther source at least PAIR_RATIO farther (a saturated
     # colour's expectation can be twice off, and a blend of the two is then the safer value)
-    farther = np.isfinite(distance) & (distance > nearer + np.float32(np.log(PAIR_RATIO)))
-    return _without(weights, offsets, farther)
+    return np.isfinite(distance) & (distance > nearer + np.float32(np.log(PAIR_RATIO)))
 
 
 def _vote_arrays(values: list[np.ndarray], weights: list[np.ndarray], offsets: list[tuple[int, int]],

@@ -45,7 +45,6 @@ from omnispectral.mosaic.blending import (
     feather_weight,
     multiband_blend,
     reject_inconsistent,
-    settle_pairs,
 )
 from omnispectral.mosaic.edges import HALO_PX as EDGE_HALO_PX
 from omnispectral.mosaic.edges import REACH_PX as EDGE_REACH_PX
@@ -365,12 +364,10 @@ def _render_linear(job: MosaicJob, work: Rect) -> tuple[np.ndarray, np.ndarray |
             continue
         acc.add(job.images[w.index].bands, w.row0 - work.row0, w.col0 - work.col0, w.values, w.weight)
     # camera B registered per pixel: where the directions disagree, the pixel keeps those that agree
-    offsets = [(w.row0 - work.row0, w.col0 - work.col0) for w in with_parallax]
-    kept = reject_inconsistent([w.values for w in with_parallax], [w.weight for w in with_parallax], offsets,
-                               work.shape)
-    expected = _expected_b_sum(job, acc.result()[..., :3]) if len(with_parallax) >= 2 else None
-    if expected is not None:
-        kept = settle_pairs([w.values for w in with_parallax], kept, offsets, work.shape, expected)
+    # (and of two that see two surfaces, the one A's bands predict)
+    kept = reject_inconsistent([w.values for w in with_parallax], [w.weight for w in with_parallax],
+                               [(w.row0 - work.row0, w.col0 - work.col0) for w in with_parallax], work.shape,
+                               expected=_expected_b_sum(job, len(with_parallax), lambda: acc.result()[..., :3]))
     for w, weight in zip(with_parallax, kept, strict=True):
         acc.add(job.images[w.index].bands, w.row0 - work.row0, w.col0 - work.col0, w.values, weight)
         if quality is not None:
@@ -490,13 +487,14 @@ def _predict_missing_b(job: MosaicJob, out: np.ndarray, quality: np.ndarray | No
     return predicted, unmixed
 
 
-def _expected_b_sum(job: MosaicJob, a: np.ndarray) -> np.ndarray | None:
-    """``(h, w)`` float32: the band sum of camera B that A's bands ``a (h, w, 3)`` predict (the prior's linear
-    predictor), NaN where A is not finite; None for a one-camera job or without a predictor."""
-    if job.n_bands != N_BANDS or job.b_predictor is None:
+def _expected_b_sum(job: MosaicJob, n_views: int, a_bands: Callable[[], np.ndarray]) -> np.ndarray | None:
+    """``(h, w)`` float32: the band sum of camera B that A's bands (``a_bands()``, ``(h, w, 3)``) predict (the
+    prior's linear predictor), NaN where A is not finite; None where it cannot settle anything: fewer than two
+    B views, a one-camera job or no predictor."""
+    if n_views < 2 or job.n_bands != N_BANDS or job.b_predictor is None:
         return None
     weights = np.asarray(job.b_predictor.matrix, np.float64).sum(axis=0)  # Σ_k M_kj: the sum of M a in one product
-    return (np.asarray(a, np.float64) @ weights).astype(np.float32)
+    return (np.asarray(a_bands(), np.float64) @ weights).astype(np.float32)
 
 
 def _multiband(job: MosaicJob, warped: list[Warped], work: Rect) -> np.ndarray:
@@ -517,19 +515,13 @@ def _multiband(job: MosaicJob, warped: list[Warped], work: Rect) -> np.ndarray:
             weights.append(wt)
             per_pixel.append(x.confidence is not None)
         # camera B registered per pixel: views that disagree with the majority are dropped there, as in
-        # linear blending (the seams then avoid them)
+        # linear blending (the seams then avoid them); A is blended first, so its bands settle two B views
         checked = [i for i, p in enumerate(per_pixel) if p]
-        if len(checked) >= 3:
-            kept = reject_inconsistent([values[i] for i in checked], [weights[i] for i in checked],
-                                       [(0, 0)] * len(checked), (h, w))
-            for i, k in zip(checked, kept, strict=True):
-                weights[i] = k
-        expected = _expected_b_sum(job, out[..., :3]) if camera_bands[0] == 3 and len(checked) >= 2 else None
-        if expected is not None:  # A is blended first: its bands say which of two disagreeing B views is right
-            kept = settle_pairs([values[i] for i in checked], [weights[i] for i in checked],
-                                [(0, 0)] * len(checked), (h, w), expected)
-            for i, k in zip(checked, kept, strict=True):
-                weights[i] = k
+        kept = reject_inconsistent([values[i] for i in checked], [weights[i] for i in checked],
+                                   [(0, 0)] * len(checked), (h, w),
+                                   expected=_expected_b_sum(job, len(checked), lambda: out[..., :3]))
+        for i, k in zip(checked, kept, strict=True):
+            weights[i] = k
         out[..., camera_bands[0]:camera_bands[-1] + 1] = multiband_blend(values, weights, job.multiband_levels)
     return out
 

@@ -26,9 +26,17 @@ infinity, whose differences do not jump at depth edges as its parallax-corrected
 .. math:: c = P\\big((J^\\top m) \\cdot w < s - m \\cdot (p - n)\\big), \\quad w \\sim U([-\\tfrac12, \\tfrac12]^2),
 
 and its interpolated value ``v`` moves along the segment to that share: ``v + (c − α_v)(v_1 − v_2)``.  ``P``
-is the distribution of a sum of two uniform variables (a trapezoid), in closed form.  Texture, three surfaces
-and structure narrower than the flat test's 3 px fail a test and keep the interpolated value; at a corner a
-window may still fit a straight edge (the tests bound the corner's error to 1.25× the interpolation's).
+is the distribution of a sum of two uniform variables (a trapezoid), in closed form.
+
+Corners. Where the nine shares lie between two surfaces but no straight edge reproduces them (or one does only
+loosely, :data:`CORNER_TRY_FIT`), the window is tried as a corner: the bright side is a wedge, ``m_1 · x < s_1`` and
+(a convex bright corner; or, a concave one) ``m_2 · x < s_2``, whose sides are two of the straight edges fitted
+within :data:`CORNER_RADIUS_PX` (each moved into this window's frame; near-duplicates once, sides 35°–145° apart),
+the pair and the join that best reproduce the nine shares, kept when they do within :data:`MAX_FIT_ERROR` (and
+within :data:`CORNER_GAIN` of a loose straight edge's error). A footprint's share of a wedge is its parallelogram
+clipped by both half-planes (Sutherland & Hodgman 1974), exact. Texture, three surfaces and structure narrower than
+the flat test's 3 px fail a test and keep the interpolated value (the square in ``tests/mosaic/test_edges.py``: its
+corners' error 0.13–0.50× the interpolation's, 0.81–1.18× with straight edges alone).
 
 Measured.  On that session camera A's edge error fell to 0.033 and B's to 0.073 (smooth surfaces 0.0043 and
 0.0058).  Against a truth rendered on another grid and area-resampled onto the panorama's, which blurs its
@@ -36,10 +44,11 @@ edges by up to one of its pixels, the model reads worse than interpolation (docs
 
 References
 ----------
-A. Trujillo-Pino, K. Krissian, M. Alemán-Flores, D. Santana-Cedrés, "Accurate subpixel edge location based on
-partial area effect", Image and Vision Computing 31(1), 2013 (the edge's position from the area its pixels
-hold).  T. Porter, T. Duff, "Compositing digital images", SIGGRAPH 1984 (a pixel as the area-weighted mix of
-what covers it).
+I. E. Sutherland, G. W. Hodgman, "Reentrant polygon clipping", Communications of the ACM 17(1), 1974 (a convex
+polygon cut by a half-plane). A. Trujillo-Pino, K. Krissian, M. Alemán-Flores, D. Santana-Cedrés, "Accurate subpixel
+edge location based on partial area effect", Image and Vision Computing 31(1), 2013 (the edge's position from the
+area its pixels hold). T. Porter, T. Duff, "Compositing digital images", SIGGRAPH 1984 (a pixel as the area-weighted
+mix of what covers it).
 """
 
 from __future__ import annotations
@@ -74,9 +83,27 @@ ANGLE_STEPS_RAD = tuple(np.linspace(-0.4, 0.4, 9))
 #: that the compiled kernel and the NumPy definition choose alike whatever their rounding).
 TIE = 1e-9
 
+#: A window between two surfaces that no straight edge fits is tried as a corner: two of the straight edges
+#: fitted within this many px of it (in the source), as the sides of a wedge.
+CORNER_RADIUS_PX = 3
+#: At most this many distinct straight edges are tried per corner (the nearest first, rows then columns).
+CORNER_MAX_LINES = 16
+#: Two straight edges whose normals are within 3° and whose offsets (px) are within this are one.
+SAME_LINE_COS = float(np.cos(np.deg2rad(3.0)))
+SAME_LINE_PX = 0.1
+#: A wedge's sides meet at 35°–145° (the sine of the angle between their normals at least this): the normals of
+#: one straight edge's windows differ by up to the fit's turns (±23°), and two of them made a false corner.
+CORNER_MIN_SIN = float(np.sin(np.deg2rad(35.0)))
+#: A window that a straight edge fits only to more than this (its largest share error) is tried as a corner
+#: too, and the wedge kept where its largest error is at most :data:`CORNER_GAIN` of the straight edge's: a window
+#: holding a corner's tip can fit a straight edge within :data:`MAX_FIT_ERROR` and misplace the tip.
+CORNER_TRY_FIT = 0.05
+CORNER_GAIN = 0.5
+
 #: Source pixels around an output position that its edge model reads: the nearest pixel (½), its 3 × 3 window
-#: (1), the surfaces' window (:data:`~omnispectral.mosaic.unmix.WINDOW_RADIUS_PX`) and their flat test (1).
-REACH_PX = 3 + WINDOW_RADIUS_PX
+#: (1), the surfaces' window (:data:`~omnispectral.mosaic.unmix.WINDOW_RADIUS_PX`), their flat test (1), and a
+#: corner's straight edges (:data:`CORNER_RADIUS_PX`).
+REACH_PX = 3 + WINDOW_RADIUS_PX + CORNER_RADIUS_PX
 
 _OFFSETS = np.array([(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
 _SQUARE = np.ones((3, 3), np.uint8)
@@ -114,7 +141,7 @@ def _half_ranges(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def resample_edges(src: np.ndarray, u: np.ndarray, v: np.ndarray, values: np.ndarray, used: np.ndarray,
                    bad: np.ndarray | None = None, grid_uv: tuple[np.ndarray, np.ndarray] | None = None) -> int:
     """Move ``values`` (``src`` interpolated at ``(u, v)``) in place to their footprint's share of each side of
-    the straight edges of ``src`` (module docstring).
+    the straight edges and corners of ``src`` (module docstring).
 
     Parameters
     ----------
@@ -141,7 +168,7 @@ def resample_edges(src: np.ndarray, u: np.ndarray, v: np.ndarray, values: np.nda
     model = _edge_models(src, bad)
     if model is None:
         return 0
-    index, centre, normal, offset, bright, dark = model
+    index, centre, wedge, bright, dark = model
     # each output pixel's nearest source pixel's model, in one OpenCV pass (positions outside: none)
     k = cv2.remap(index, np.ascontiguousarray(u, np.float32), np.ascontiguousarray(v, np.float32),
                   cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
@@ -153,12 +180,8 @@ def resample_edges(src: np.ndarray, u: np.ndarray, v: np.ndarray, values: np.nda
     oy, ox, kk, jac = oy[known], ox[known], kk[known], jac[known]
     if oy.size == 0:
         return 0
-    mx, my = normal[kk, 0], normal[kk, 1]
-    # the output square's edges in sensor px: columns of J; the half-plane's normal on that square is Jᵀ m
-    na = mx * jac[:, 0, 0] + my * jac[:, 1, 0]
-    nb = mx * jac[:, 0, 1] + my * jac[:, 1, 1]
-    shift = offset[kk] - mx * (u[oy, ox] - centre[kk, 1]) - my * (v[oy, ox] - centre[kk, 0])
-    share = area_share(shift, na, nb)
+    px, py = u[oy, ox] - centre[kk, 1], v[oy, ox] - centre[kk, 0]
+    share = _footprint_shares(px, py, jac, wedge[kk])
     span = bright[kk] - dark[kk]
     here = values[oy, ox].astype(np.float64)
     alpha = ((here - dark[kk]) * span).sum(axis=1) / np.maximum((span ** 2).sum(axis=1), 1e-300)
@@ -166,11 +189,39 @@ def resample_edges(src: np.ndarray, u: np.ndarray, v: np.ndarray, values: np.nda
     return int(oy.size)
 
 
+def _footprint_shares(px: np.ndarray, py: np.ndarray, jac: np.ndarray, wedge: np.ndarray,
+                      compiled: bool = True) -> np.ndarray:
+    """``(n,)``: the share on the bright side of each output footprint (the square mapped by ``jac``, centred
+    at ``(px, py)`` from its model's source pixel) of its model ``wedge`` ``(n, 7)``: a straight edge in closed
+    form (the footprint's half-plane is ``(Jᵀ m) · w < s − m · p``), a corner by clipping the parallelogram."""
+    mx, my = wedge[:, 0], wedge[:, 1]
+    # the output square's edges in sensor px: columns of J; the half-plane's normal on that square is Jᵀ m
+    na = mx * jac[:, 0, 0] + my * jac[:, 1, 0]
+    nb = mx * jac[:, 0, 1] + my * jac[:, 1, 1]
+    share = area_share(wedge[:, 2] - mx * px - my * py, na, nb)
+    corner = np.isfinite(wedge[:, 5])
+    if corner.any():
+        args = (px[corner].astype(np.float64), py[corner].astype(np.float64), np.ascontiguousarray(jac[corner]),
+                np.ascontiguousarray(wedge[corner]))
+        kernels = compiled_kernels() if compiled else None
+        if kernels is not None:
+            out = np.empty(args[0].size)
+            kernels.footprint_wedge_shares(*args, out)
+        else:
+            out = np.array([_wedge_share(x, y, (j[0, 0], j[1, 0]), (j[0, 1], j[1, 1]), w)
+                            for x, y, j, w in zip(*args, strict=True)])
+        share[corner] = out
+    return share
+
+
 def _edge_models(src: np.ndarray, bad: np.ndarray | None, compiled: bool = True):
-    """The straight edge around every source pixel whose 3 × 3 neighbourhood holds one (module docstring):
-    ``(index, centre, normal, offset, bright, dark)``, ``index`` ``(H, W)`` float32 the row of the pixel's model
-    in the other arrays (−1 where none), ``centre`` its ``(row, column)``; or None where no pixel has one.
-    ``compiled``: the compiled kernel where Numba is installed (else, and with False, the NumPy definition)."""
+    """The straight edge or corner around every source pixel whose 3 × 3 neighbourhood holds one (module
+    docstring): ``(index, centre, wedge, bright, dark)``, ``index`` ``(H, W)`` float32 the row of the pixel's
+    model in the other arrays (−1 where none), ``centre`` its ``(row, column)``, ``wedge`` ``(n, 7)`` its sides
+    ``(m1x, m1y, s1, m2x, m2y, s2, union)`` (bright where ``m1 · x < s1`` and (or, with ``union``)
+    ``m2 · x < s2``, ``x`` in px from the centre; a straight edge has ``s2 = +inf``); or None where no pixel has
+    one.  ``compiled``: the compiled kernels where Numba is installed (else, and with False, the NumPy
+    definitions)."""
     # the bands' sum in one OpenCV pass (NumPy's reduction over a last axis of 3 is ~50x slower); it is finite
     # exactly where every band is
     src = np.ascontiguousarray(src, np.float32)
@@ -186,23 +237,129 @@ def _edge_models(src: np.ndarray, bad: np.ndarray | None, compiled: bool = True)
     ys, xs, flat = zone
     kernels = compiled_kernels() if compiled else None
     if kernels is not None:
-        valid, params = np.empty(ys.size, bool), np.empty((ys.size, 9))
+        status, params = np.empty(ys.size, np.int8), np.empty((ys.size, 19))
         kernels.edge_models(src, brightness, flat, finite, ys, xs,
                             window_offsets(WINDOW_RADIUS_PX), np.asarray(ANGLE_STEPS_RAD, np.float64), TIE,
-                            MIN_SEPARATION, MAX_RESIDUAL, MAX_FIT_ERROR, valid, params)
-        ok, normal, offset, bright, dark = valid, params[:, :2], params[:, 2], params[:, 3:6], params[:, 6:9]
+                            MIN_SEPARATION, MAX_RESIDUAL, MAX_FIT_ERROR, status, params)
+        keep = status > 0
+        ys, xs, status, params = ys[keep], xs[keep], status[keep], params[keep]
+        normal, offset, bright, dark = params[:, :2], params[:, 2], params[:, 3:6], params[:, 6:9]
+        alpha = params[:, 9:18]
+        straight = status == 1
+        fit_error = np.where(straight, params[:, 18], np.inf)
     else:
         shares = _two_surface_shares(src, brightness, finite, flat, ys, xs)
         if shares is None:
             return None
         ys, xs, alpha, bright, dark = shares
         normal, offset, fit_error = _straight_edge(alpha)
-        ok = fit_error <= MAX_FIT_ERROR
+        straight = fit_error <= MAX_FIT_ERROR
+    wedge = np.column_stack([normal, offset, np.ones(ys.size), np.zeros(ys.size), np.full(ys.size, np.inf),
+                             np.zeros(ys.size)])
+    ok = straight.copy()
+    # corners: where no straight edge fits, and where one fits loosely and a wedge better
+    limit = np.where(straight, CORNER_GAIN * fit_error, MAX_FIT_ERROR)
+    ci = np.flatnonzero(~straight | (fit_error > CORNER_TRY_FIT))
+    if straight.any() and ci.size:
+        model_index = np.full(src.shape[:2], -1, np.int64)
+        model_index[ys[straight], xs[straight]] = np.arange(int(straight.sum()))
+        lines = np.ascontiguousarray(wedge[straight, :3])
+        found, sides = _corner_models(model_index, lines, ys[ci], xs[ci], np.ascontiguousarray(alpha[ci]),
+                                      np.ascontiguousarray(limit[ci]), kernels)
+        wedge[ci[found]] = sides[found]
+        ok[ci[found]] = True
     if not ok.any():
         return None
     index = np.full(src.shape[:2], -1.0, np.float32)  # float32 for OpenCV's lookup: exact below 2²⁴ models
     index[ys[ok], xs[ok]] = np.arange(int(ok.sum()), dtype=np.float32)
-    return index, np.stack([ys[ok], xs[ok]], axis=1), normal[ok], offset[ok], bright[ok], dark[ok]
+    return index, np.stack([ys[ok], xs[ok]], axis=1), wedge[ok], bright[ok], dark[ok]
+
+
+def _corner_models(model_index: np.ndarray, lines: np.ndarray, ys: np.ndarray, xs: np.ndarray, alpha: np.ndarray,
+                   limits: np.ndarray, kernels) -> tuple[np.ndarray, np.ndarray]:
+    """For the windows ``(ys, xs)`` between two surfaces whose shares ``alpha`` ``(n, 9)`` no straight edge fits:
+    the wedge of two straight edges fitted within :data:`CORNER_RADIUS_PX` (``model_index`` their rows in
+    ``lines`` ``(m, 3)``) that best reproduces the shares, and whether it does within :data:`MAX_FIT_ERROR`:
+    ``(found (n,), wedge (n, 7))`` (the compiled kernel, or with ``kernels`` None the NumPy definition)."""
+    found, sides = np.zeros(ys.size, bool), np.zeros((ys.size, 7))
+    settings = (CORNER_RADIUS_PX, CORNER_MAX_LINES, SAME_LINE_COS, SAME_LINE_PX, CORNER_MIN_SIN, TIE, limits)
+    if kernels is not None:
+        kernels.corner_models(model_index, lines, ys, xs, alpha, *settings, found, sides)
+        return found, sides
+    for i in range(ys.size):
+        sides[i], found[i] = _corner_model(model_index, lines, int(ys[i]), int(xs[i]), alpha[i], limits[i])
+    return found, sides
+
+
+def _corner_model(model_index: np.ndarray, lines: np.ndarray, y: int, x: int, alpha: np.ndarray, limit: float
+                  ) -> tuple[np.ndarray, bool]:
+    """One window of :func:`_corner_models` (the NumPy definition of the compiled ``corner_models``)."""
+    h, w = model_index.shape
+    r = CORNER_RADIUS_PX
+    cand: list[tuple[float, float, float]] = []
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            yy, xx = y + dy, x + dx
+            if not (0 <= yy < h and 0 <= xx < w) or model_index[yy, xx] < 0:
+                continue
+            mx, my, s = lines[model_index[yy, xx]]
+            if not np.isfinite(s):
+                continue
+            c = s + mx * dx + my * dy
+            if not any(mx * a + my * b > SAME_LINE_COS and abs(c - o) < SAME_LINE_PX for a, b, o in cand) \
+                    and len(cand) < CORNER_MAX_LINES:
+                cand.append((mx, my, c))
+    best, pick = np.inf, None
+    for a in range(len(cand)):
+        for b in range(a + 1, len(cand)):
+            if abs(cand[a][0] * cand[b][1] - cand[a][1] * cand[b][0]) < CORNER_MIN_SIN:
+                continue
+            for union in (False, True):
+                wedge = (*cand[a], *cand[b], float(union))
+                err = sum((_wedge_share(q % 3 - 1.0, q // 3 - 1.0, (1.0, 0.0), (0.0, 1.0), wedge) - alpha[q]) ** 2
+                          for q in range(9))
+                if err < best * (1.0 - TIE) - TIE:
+                    best, pick = err, wedge
+    if pick is None:
+        return np.zeros(7), False
+    fit = max(abs(_wedge_share(q % 3 - 1.0, q // 3 - 1.0, (1.0, 0.0), (0.0, 1.0), pick) - alpha[q]) for q in range(9))
+    return np.array(pick), bool(fit <= limit)
+
+
+def _wedge_share(cx: float, cy: float, e1: tuple[float, float], e2: tuple[float, float], wedge) -> float:
+    """Share of the parallelogram ``c + [-½, ½] e1 + [-½, ½] e2`` on the bright side of ``wedge`` (the sides
+    ``m1 · x < s1`` and, or with ``union`` or, ``m2 · x < s2``): the polygon clipped by both half-planes (with
+    ``union``, 1 − the share of the dark wedge)."""
+    m1x, m1y, s1, m2x, m2y, s2, union = (float(k) for k in wedge)
+    sign = -1.0 if union > 0.5 else 1.0
+    poly = [(cx - 0.5 * e1[0] - 0.5 * e2[0], cy - 0.5 * e1[1] - 0.5 * e2[1]),
+            (cx + 0.5 * e1[0] - 0.5 * e2[0], cy + 0.5 * e1[1] - 0.5 * e2[1]),
+            (cx + 0.5 * e1[0] + 0.5 * e2[0], cy + 0.5 * e1[1] + 0.5 * e2[1]),
+            (cx - 0.5 * e1[0] + 0.5 * e2[0], cy - 0.5 * e1[1] + 0.5 * e2[1])]
+    for a, b, s in ((m1x, m1y, s1), (m2x, m2y, s2)):
+        poly = _clip_half_plane(poly, sign * a, sign * b, sign * s)
+    n = len(poly)
+    area = 0.0
+    for k in range(n):
+        area += poly[k][0] * poly[(k + 1) % n][1] - poly[(k + 1) % n][0] * poly[k][1]
+    whole = abs(e1[0] * e2[1] - e1[1] * e2[0])
+    share = min(max(0.5 * abs(area) / max(whole, 1e-300), 0.0), 1.0)
+    return 1.0 - share if union > 0.5 else share
+
+
+def _clip_half_plane(poly: list[tuple[float, float]], a: float, b: float, s: float) -> list[tuple[float, float]]:
+    """The convex polygon ``poly`` cut to ``a x + b y < s`` (Sutherland & Hodgman 1974, one clipping edge)."""
+    out = []
+    n = len(poly)
+    for k in range(n):
+        (x0, y0), (x1, y1) = poly[k], poly[(k + 1) % n]
+        d0, d1 = a * x0 + b * y0 - s, a * x1 + b * y1 - s
+        if d0 < 0.0:
+            out.append((x0, y0))
+        if (d0 < 0.0) != (d1 < 0.0):
+            t = d0 / (d0 - d1)
+            out.append((x0 + t * (x1 - x0), y0 + t * (y1 - y0)))
+    return out
 
 
 def _beside_edges(brightness: np.ndarray, finite: np.ndarray):
@@ -269,6 +426,7 @@ def _straight_edge(alpha: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarra
     # window took some of the other); no plane through the shares: no straight edge
     one_side = (alpha == alpha[:, :1]).all(axis=1) & ((total == 0.0) | (total == 1.0))
     offset = np.where(one_side, np.where(total == 1.0, np.inf, -np.inf), offset)
+    mx, my = np.where(one_side, 1.0, mx), np.where(one_side, 0.0, my)  # any normal: the compiled kernel's
     no_plane = ~one_side & (np.hypot(gx, gy) <= 1e-6)
     return np.stack([mx, my], axis=1), offset, np.where(one_side, 0.0, np.where(no_plane, np.inf, fit_error))
 

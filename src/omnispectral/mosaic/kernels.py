@@ -32,7 +32,13 @@ are the same, to float32 rounding where they are not):
 ``edge_models(src, brightness, flat, finite, ys, xs, around, turns, tie, …, valid, params)``
     the straight edge around each source pixel ``(ys, xs)`` (:mod:`omnispectral.mosaic.edges`: its surfaces, the
     nine shares and their tests, the normal's turns and the fit in one pass per pixel; the same float64
-    arithmetic as the NumPy path, to its rounding);
+    arithmetic as the NumPy path, to its rounding); the windows between two surfaces that no straight edge fits
+    are marked with their nine shares;
+``corner_models(model_index, lines, ys, xs, alpha, …, ok, params)`` /
+``footprint_wedge_shares(px, py, jac, wedges, out)``
+    the wedge of two nearby straight edges that best reproduces such a window's shares, and a footprint's share
+    of a wedge by clipping its parallelogram (:mod:`omnispectral.mosaic.edges`; the same float64 arithmetic as
+    the NumPy definitions, to their rounding);
 ``box_average(src, out)``
     the pyramid's 2 × 2 means ignoring NaN (:func:`omnispectral.mosaic.store.box_average_2x2`; float64
     sums of float32 values, exact for all but extreme dynamic ranges, so the same result).
@@ -60,6 +66,7 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
     # the inlined helpers are module globals, not closure cells: Numba keys its disk cache on the pickled
     # closure, which differs in every process, and would compile the kernels that call them on every run
     global cubic_weights, spline_taps, tap_grid, keys_weights, keys_rows, half_plane_share, half_plane_offset
+    global clip_half_plane, wedge_share
 
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False, inline="always")
     def cubic_weights(t):  # pragma: no cover - compiled
@@ -310,14 +317,113 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
             return 2.0 * hi * share - hi
         return hi + lo - np.sqrt(8.0 * hi * lo * (1.0 - share))
 
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False, inline="always")
+    def clip_half_plane(px, py, n, a, b, s, qx, qy):  # pragma: no cover - compiled
+        """The convex polygon ``(px, py)[:n]`` cut to ``a x + b y < s``, into ``(qx, qy)``; its vertex count."""
+        m = 0
+        for k in range(n):
+            x0, y0, x1, y1 = px[k], py[k], px[(k + 1) % n], py[(k + 1) % n]
+            d0, d1 = a * x0 + b * y0 - s, a * x1 + b * y1 - s
+            if d0 < 0.0:
+                qx[m], qy[m] = x0, y0
+                m += 1
+            if (d0 < 0.0) != (d1 < 0.0):
+                t = d0 / (d0 - d1)
+                qx[m], qy[m] = x0 + t * (x1 - x0), y0 + t * (y1 - y0)
+                m += 1
+        return m
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False, inline="always")
+    def wedge_share(cx, cy, e1x, e1y, e2x, e2y, m1x, m1y, s1, m2x, m2y, s2, union, buf):  # pragma: no cover
+        """Share of the parallelogram ``c + [-1/2, 1/2] e1 + [-1/2, 1/2] e2`` in the wedge ``m1 x < s1`` and
+        ``m2 x < s2`` (with ``union``: or); ``buf`` ``(4, 8)`` scratch."""
+        sign = -1.0 if union else 1.0
+        px, py, qx, qy = buf[0], buf[1], buf[2], buf[3]
+        px[0], py[0] = cx - 0.5 * e1x - 0.5 * e2x, cy - 0.5 * e1y - 0.5 * e2y
+        px[1], py[1] = cx + 0.5 * e1x - 0.5 * e2x, cy + 0.5 * e1y - 0.5 * e2y
+        px[2], py[2] = cx + 0.5 * e1x + 0.5 * e2x, cy + 0.5 * e1y + 0.5 * e2y
+        px[3], py[3] = cx - 0.5 * e1x + 0.5 * e2x, cy - 0.5 * e1y + 0.5 * e2y
+        n = clip_half_plane(px, py, 4, sign * m1x, sign * m1y, sign * s1, qx, qy)
+        n = clip_half_plane(qx, qy, n, sign * m2x, sign * m2y, sign * s2, px, py)
+        area = 0.0
+        for k in range(n):
+            area += px[k] * py[(k + 1) % n] - px[(k + 1) % n] * py[k]
+        whole = abs(e1x * e2y - e1y * e2x)
+        share = min(max(0.5 * abs(area) / max(whole, 1e-300), 0.0), 1.0)
+        return 1.0 - share if union else share
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
+    def corner_models(model_index, lines, ys, xs, alpha, radius, max_lines, same_cos, same_px, min_sin, tie, limits,
+                      ok, params):  # pragma: no cover - compiled (tested against edges' NumPy path)
+        h, w = model_index.shape
+        cand = np.empty((max_lines, 3))
+        buf = np.empty((4, 8))
+        for i in range(ys.shape[0]):
+            y, x = ys[i], xs[i]
+            ok[i] = False
+            # the straight edges around, each as a line in this window's frame, near-duplicates once
+            n = 0
+            for dy in range(-radius, radius + 1):
+                for dx in range(-radius, radius + 1):
+                    yy, xx = y + dy, x + dx
+                    if yy < 0 or yy >= h or xx < 0 or xx >= w or model_index[yy, xx] < 0:
+                        continue
+                    k = model_index[yy, xx]
+                    if not np.isfinite(lines[k, 2]):
+                        continue
+                    mx, my = lines[k, 0], lines[k, 1]
+                    c = lines[k, 2] + mx * dx + my * dy
+                    seen = False
+                    for j in range(n):
+                        if mx * cand[j, 0] + my * cand[j, 1] > same_cos and abs(c - cand[j, 2]) < same_px:
+                            seen = True
+                            break
+                    if not seen and n < max_lines:
+                        cand[n, 0], cand[n, 1], cand[n, 2] = mx, my, c
+                        n += 1
+            best, bi, bj, bu = np.inf, -1, -1, False
+            for a in range(n):
+                for b in range(a + 1, n):
+                    if abs(cand[a, 0] * cand[b, 1] - cand[a, 1] * cand[b, 0]) < min_sin:
+                        continue
+                    for u in range(2):
+                        err = 0.0
+                        for q in range(9):
+                            share = wedge_share(q % 3 - 1.0, q // 3 - 1.0, 1.0, 0.0, 0.0, 1.0, cand[a, 0], cand[a, 1],
+                                                cand[a, 2], cand[b, 0], cand[b, 1], cand[b, 2], u == 1, buf)
+                            err += (share - alpha[i, q]) ** 2
+                        if err < best * (1.0 - tie) - tie:
+                            best, bi, bj, bu = err, a, b, u == 1
+            if bi < 0:
+                continue
+            fit = 0.0
+            for q in range(9):
+                share = wedge_share(q % 3 - 1.0, q // 3 - 1.0, 1.0, 0.0, 0.0, 1.0, cand[bi, 0], cand[bi, 1],
+                                    cand[bi, 2], cand[bj, 0], cand[bj, 1], cand[bj, 2], bu, buf)
+                fit = max(fit, abs(share - alpha[i, q]))
+            if not fit <= limits[i]:
+                continue
+            ok[i] = True
+            params[i, 0], params[i, 1], params[i, 2] = cand[bi, 0], cand[bi, 1], cand[bi, 2]
+            params[i, 3], params[i, 4], params[i, 5] = cand[bj, 0], cand[bj, 1], cand[bj, 2]
+            params[i, 6] = 1.0 if bu else 0.0
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
+    def footprint_wedge_shares(px, py, jac, wedges, out):  # pragma: no cover - compiled (tested through edges)
+        buf = np.empty((4, 8))
+        for i in range(px.shape[0]):
+            out[i] = wedge_share(px[i], py[i], jac[i, 0, 0], jac[i, 1, 0], jac[i, 0, 1], jac[i, 1, 1], wedges[i, 0],
+                                 wedges[i, 1], wedges[i, 2], wedges[i, 3], wedges[i, 4], wedges[i, 5],
+                                 wedges[i, 6] > 0.5, buf)
+
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
     def edge_models(src, brightness, flat, finite, ys, xs, around, turns, tie, min_separation, max_residual,
-                    max_fit, valid, params):  # pragma: no cover - compiled (tested against edges' NumPy path)
+                    max_fit, status, params):  # pragma: no cover - compiled (tested against edges' NumPy path)
         h, w = flat.shape
         alpha = np.empty(9)
         for i in range(ys.shape[0]):
             y, x = ys[i], xs[i]
-            valid[i] = False
+            status[i] = 0
             # the surfaces: the nearest flat pixels above and below the middle of the brightest and darkest
             khi, klo, n_flat = -1, -1, 0
             top, bottom = np.float32(-np.inf), np.float32(np.inf)
@@ -377,14 +483,21 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
                 gy += a * (q // 3 - 1)
             if not ok:
                 continue
+            # two surfaces: their values and the nine shares, whether or not a straight edge fits them
+            status[i] = 2
+            for c in range(3):
+                params[i, 3 + c] = src[y1, x1, c]
+                params[i, 6 + c] = src[y2, x2, c]
+            for q in range(9):
+                params[i, 9 + q] = alpha[q]
             total /= 9.0
             uniform = True
             for q in range(1, 9):
                 uniform &= alpha[q] == alpha[0]
             if uniform and (total == 0.0 or total == 1.0):  # one surface: every footprint on that side
-                mx, my, offset = 1.0, 0.0, np.inf if total == 1.0 else -np.inf
+                mx, my, offset, fit = 1.0, 0.0, np.inf if total == 1.0 else -np.inf, 0.0
             else:
-                if np.sqrt(gx * gx + gy * gy) <= 1e-6:
+                if np.sqrt(gx * gx + gy * gy) <= 1e-6:  # no plane through the shares
                     continue
                 base = np.arctan2(-gy, -gx)
                 best, angle = np.inf, base
@@ -404,12 +517,10 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
                                        - alpha[q]))
                 if not fit <= max_fit:
                     continue
-            valid[i] = True
-            params[i, 0], params[i, 1], params[i, 2] = mx, my, offset
-            for c in range(3):
-                params[i, 3 + c] = src[y1, x1, c]
-                params[i, 6 + c] = src[y2, x2, c]
+            status[i] = 1
+            params[i, 0], params[i, 1], params[i, 2], params[i, 18] = mx, my, offset, fit
 
     return SimpleNamespace(spline=spline, keys=keys, disagreeing=disagreeing, accumulate=accumulate,
                            divide=divide, catmull_rom=catmull_rom, box_average=box_average, feather=feather,
-                           nearest_pixels=nearest_pixels, gather_records=gather_records, edge_models=edge_models)
+                           nearest_pixels=nearest_pixels, gather_records=gather_records, edge_models=edge_models,
+                           corner_models=corner_models, footprint_wedge_shares=footprint_wedge_shares)

@@ -38,9 +38,12 @@ clipped by both half-planes (Sutherland & Hodgman 1974), exact. Texture, three s
 the flat test's 3 px fail a test and keep the interpolated value (the square in ``tests/mosaic/test_edges.py``: its
 corners' error 0.13–0.50× the interpolation's, 0.81–1.18× with straight edges alone).
 
-Measured.  On that session camera A's edge error fell to 0.033 and B's to 0.073 (smooth surfaces 0.0043 and
-0.0058).  Against a truth rendered on another grid and area-resampled onto the panorama's, which blurs its
-edges by up to one of its pixels, the model reads worse than interpolation (docs/benchmarks.md, "Processing").
+Measured. On that session camera A's edge error fell to 0.033 and B's to 0.073 (smooth surfaces 0.0043 and 0.0058);
+with corners A's reads 0.0328 (the scene has few). On the ``small`` preset's 09:30 scene, whose plate lies on its
+shadow, corners took A's edge error from 0.030 to 0.023 and B's from 0.043 to 0.036 (against a 32 × 32-ray truth;
+docs/benchmarks.md, "Registration across conditions"). Against a truth rendered on another grid and area-resampled
+onto the panorama's, which blurs its edges by up to one of its pixels, the model reads worse than interpolation
+(docs/benchmarks.md, "Processing").
 
 References
 ----------

@@ -89,7 +89,7 @@ TIE = 1e-9
 #: A window between two surfaces that no straight edge fits is tried as a corner: two of the straight edges
 #: fitted within this many px of it (in the source), as the sides of a wedge.
 CORNER_RADIUS_PX = 3
-#: At most this many distinct straight edges are tried per corner (the nearest first, rows then columns).
+#: At most this many distinct straight edges are tried per corner (met in the window's row order).
 CORNER_MAX_LINES = 16
 #: Two straight edges whose normals are within 3° and whose offsets (px) are within this are one.
 SAME_LINE_COS = float(np.cos(np.deg2rad(3.0)))

@@ -280,10 +280,11 @@ def _edge_models(src: np.ndarray, bad: np.ndarray | None, compiled: bool = True)
 
 def _corner_models(model_index: np.ndarray, lines: np.ndarray, ys: np.ndarray, xs: np.ndarray, alpha: np.ndarray,
                    limits: np.ndarray, kernels) -> tuple[np.ndarray, np.ndarray]:
-    """For the windows ``(ys, xs)`` between two surfaces whose shares ``alpha`` ``(n, 9)`` no straight edge fits:
-    the wedge of two straight edges fitted within :data:`CORNER_RADIUS_PX` (``model_index`` their rows in
-    ``lines`` ``(m, 3)``) that best reproduces the shares, and whether it does within :data:`MAX_FIT_ERROR`:
-    ``(found (n,), wedge (n, 7))`` (the compiled kernel, or with ``kernels`` None the NumPy definition)."""
+    """For the windows ``(ys, xs)`` between two surfaces whose shares ``alpha`` ``(n, 9)`` no straight edge fits,
+    or one fits loosely: the wedge of two straight edges fitted within :data:`CORNER_RADIUS_PX` (``model_index``
+    their rows in ``lines`` ``(m, 3)``) that best reproduces the shares, and whether its largest error is within
+    the window's ``limits`` ``(n,)``: ``(found (n,), wedge (n, 7))`` (the compiled kernel, or with ``kernels``
+    None the NumPy definition)."""
     found, sides = np.zeros(ys.size, bool), np.zeros((ys.size, 7))
     settings = (CORNER_RADIUS_PX, CORNER_MAX_LINES, SAME_LINE_COS, SAME_LINE_PX, CORNER_MIN_SIN, TIE, limits)
     if kernels is not None:

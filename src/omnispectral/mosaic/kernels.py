@@ -29,7 +29,7 @@ are the same, to float32 rounding where they are not):
     the nearest sensor pixel of each position (NaN as -1, clipped to the sensor; NumPy's ``rint``) with the
     bounds of those pixels, then the records (camera B's parallax map) at them
     (:func:`omnispectral.mosaic.tile.parallax_positions`; the same pixels and values);
-``edge_models(src, brightness, flat, finite, ys, xs, around, turns, tie, …, valid, params)``
+``edge_models(src, brightness, flat, finite, ys, xs, around, turns, tie, …, status, params)``
     the straight edge around each source pixel ``(ys, xs)`` (:mod:`omnispectral.mosaic.edges`: its surfaces, the
     nine shares and their tests, the normal's turns and the fit in one pass per pixel; the same float64
     arithmetic as the NumPy path, to its rounding); the windows between two surfaces that no straight edge fits

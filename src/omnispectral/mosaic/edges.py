@@ -103,6 +103,13 @@ CORNER_MIN_SIN = float(np.sin(np.deg2rad(35.0)))
 CORNER_TRY_FIT = 0.05
 CORNER_GAIN = 0.5
 
+#: A window beside an edge that no two-surface model fits is tried between three surfaces (a corner lying on an
+#: edge of what is behind it: a plate on its own shadow): the flat pixels around at three brightness levels (the
+#: brightest, the darkest, and the one farthest from both in ratio, at least
+#: :data:`~omnispectral.mosaic.unmix.EDGE_CONTRAST` from each); a nearby straight edge bounds two of them when
+#: its sides' colours lie within this share of those surfaces' difference from their means.
+THREE_COLOUR_TOL = 0.3
+
 #: Source pixels around an output position that its edge model reads: the nearest pixel (½), its 3 × 3 window
 #: (1), the surfaces' window (:data:`~omnispectral.mosaic.unmix.WINDOW_RADIUS_PX`), their flat test (1), and a
 #: corner's straight edges (:data:`CORNER_RADIUS_PX`).
@@ -171,7 +178,7 @@ def resample_edges(src: np.ndarray, u: np.ndarray, v: np.ndarray, values: np.nda
     model = _edge_models(src, bad)
     if model is None:
         return 0
-    index, centre, wedge, bright, dark = model
+    index, centre, wedge, bright, dark, split, other = model
     # each output pixel's nearest source pixel's model, in one OpenCV pass (positions outside: none)
     k = cv2.remap(index, np.ascontiguousarray(u, np.float32), np.ascontiguousarray(v, np.float32),
                   cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
@@ -184,11 +191,21 @@ def resample_edges(src: np.ndarray, u: np.ndarray, v: np.ndarray, values: np.nda
     if oy.size == 0:
         return 0
     px, py = u[oy, ox] - centre[kk, 1], v[oy, ox] - centre[kk, 0]
-    share = _footprint_shares(px, py, jac, wedge[kk])
-    span = bright[kk] - dark[kk]
     here = values[oy, ox].astype(np.float64)
-    alpha = ((here - dark[kk]) * span).sum(axis=1) / np.maximum((span ** 2).sum(axis=1), 1e-300)
-    values[oy, ox] = (here + (share - alpha)[:, None] * span).astype(values.dtype)
+    three = np.isfinite(split[kk, 2])
+    two = ~three
+    k2 = kk[two]
+    share = _footprint_shares(px[two], py[two], jac[two], wedge[k2])
+    span = bright[k2] - dark[k2]
+    alpha = ((here[two] - dark[k2]) * span).sum(axis=1) / np.maximum((span ** 2).sum(axis=1), 1e-300)
+    here[two] += (share - alpha)[:, None] * span
+    if three.any():
+        # three surfaces: the footprint's shares of each, the surfaces' values mixed in them
+        k3 = kk[three]
+        shares = _footprint_region_shares(px[three], py[three], jac[three], wedge[k3], split[k3])
+        here[three] = (shares[:, :1] * bright[k3] + shares[:, 1:] * dark[k3]
+                       + (1.0 - shares.sum(axis=1, keepdims=True)) * other[k3])
+    values[oy, ox] = here.astype(values.dtype)
     return int(oy.size)
 
 
@@ -217,14 +234,31 @@ def _footprint_shares(px: np.ndarray, py: np.ndarray, jac: np.ndarray, wedge: np
     return share
 
 
+def _footprint_region_shares(px: np.ndarray, py: np.ndarray, jac: np.ndarray, wedge: np.ndarray, split: np.ndarray,
+                             compiled: bool = True) -> np.ndarray:
+    """``(n, 2)``: each output footprint's shares of its three-surface model's regions ``X`` (``wedge``) and
+    ``Y`` (outside ``X``, inside ``split``), by clipping its parallelogram."""
+    args = (np.ascontiguousarray(px, np.float64), np.ascontiguousarray(py, np.float64), np.ascontiguousarray(jac),
+            np.ascontiguousarray(wedge), np.ascontiguousarray(split))
+    kernels = compiled_kernels() if compiled else None
+    out = np.empty((args[0].size, 2))
+    if kernels is not None:
+        kernels.footprint_region_shares(*args, out)
+        return out
+    for i, (x, y, j, w, m) in enumerate(zip(*args, strict=True)):
+        out[i] = _region_shares(x, y, (j[0, 0], j[1, 0]), (j[0, 1], j[1, 1]), w, m)
+    return out
+
+
 def _edge_models(src: np.ndarray, bad: np.ndarray | None, compiled: bool = True):
-    """The straight edge or corner around every source pixel whose 3 × 3 neighbourhood holds one (module
-    docstring): ``(index, centre, wedge, bright, dark)``, ``index`` ``(H, W)`` float32 the row of the pixel's
-    model in the other arrays (−1 where none), ``centre`` its ``(row, column)``, ``wedge`` ``(n, 7)`` its sides
-    ``(m1x, m1y, s1, m2x, m2y, s2, union)`` (bright where ``m1 · x < s1`` and (or, with ``union``)
-    ``m2 · x < s2``, ``x`` in px from the centre; a straight edge has ``s2 = +inf``); or None where no pixel has
-    one.  ``compiled``: the compiled kernels where Numba is installed (else, and with False, the NumPy
-    definitions)."""
+    """The straight edge, corner or three-surface model around every source pixel whose 3 × 3 neighbourhood holds
+    one (module docstring): ``(index, centre, wedge, bright, dark, split, other)``, ``index`` ``(H, W)`` float32
+    the row of the pixel's model in the other arrays (−1 where none), ``centre`` its ``(row, column)``, ``wedge``
+    ``(n, 7)`` its sides ``(m1x, m1y, s1, m2x, m2y, s2, union)`` (bright where ``m1 · x < s1`` and (or, with
+    ``union``) ``m2 · x < s2``, ``x`` in px from the centre; a straight edge has ``s2 = +inf``); ``split``
+    ``(n, 3)`` NaN for a model between two surfaces (``bright`` and ``dark``), else the line ``m3 · x < s3``
+    that holds ``dark`` outside the wedge (``other`` beyond it); or None where no pixel has one.  ``compiled``:
+    the compiled kernels where Numba is installed (else, and with False, the NumPy definitions)."""
     # the bands' sum in one OpenCV pass (NumPy's reduction over a last axis of 3 is ~50x slower); it is finite
     # exactly where every band is
     src = np.ascontiguousarray(src, np.float32)
@@ -237,8 +271,54 @@ def _edge_models(src: np.ndarray, bad: np.ndarray | None, compiled: bool = True)
     zone = _beside_edges(brightness, finite)
     if zone is None:
         return None
-    ys, xs, flat = zone
+    zone_ys, zone_xs, flat = zone
     kernels = compiled_kernels() if compiled else None
+    ys, xs, alpha, bright, dark, normal, offset, fit_error = _two_surface_models(src, brightness, finite, flat,
+                                                                                zone_ys, zone_xs, kernels)
+    straight = fit_error <= MAX_FIT_ERROR
+    wedge = np.column_stack([normal, offset, np.ones(ys.size), np.zeros(ys.size), np.full(ys.size, np.inf),
+                             np.zeros(ys.size)])
+    ok = straight.copy()
+    model_index = np.full(src.shape[:2], -1, np.int64)
+    model_index[ys[straight], xs[straight]] = np.arange(int(straight.sum()))
+    lines = np.ascontiguousarray(wedge[straight, :3])
+    # corners: where no straight edge fits, and where one fits loosely and a wedge better
+    limit = np.where(straight, CORNER_GAIN * fit_error, MAX_FIT_ERROR)
+    ci = np.flatnonzero(~straight | (fit_error > CORNER_TRY_FIT))
+    if straight.any() and ci.size:
+        found, sides = _corner_models(model_index, lines, ys[ci], xs[ci], np.ascontiguousarray(alpha[ci]),
+                                      np.ascontiguousarray(limit[ci]), kernels)
+        wedge[ci[found]] = sides[found]
+        ok[ci[found]] = True
+    line_colours = np.ascontiguousarray(np.hstack([bright[straight], dark[straight]]))
+    ys, xs, wedge, bright, dark = (k[ok] for k in (ys, xs, wedge, bright, dark))
+    split, other = np.full((ys.size, 3), np.nan), np.full((ys.size, 3), np.nan)
+    # three surfaces: the windows beside an edge that no model between two fits
+    modelled = np.zeros(src.shape[:2], bool)
+    modelled[ys, xs] = True
+    rest = np.flatnonzero(~modelled[zone_ys, zone_xs])
+    if lines.shape[0] and rest.size:
+        found, params = _three_surface_models(src, brightness, flat, zone_ys[rest], zone_xs[rest], model_index,
+                                              lines, line_colours, kernels)
+        if found.any():
+            params = params[found]
+            ys, xs = np.concatenate([ys, zone_ys[rest][found]]), np.concatenate([xs, zone_xs[rest][found]])
+            wedge, split = np.concatenate([wedge, params[:, :7]]), np.concatenate([split, params[:, 7:10]])
+            bright, dark = np.concatenate([bright, params[:, 10:13]]), np.concatenate([dark, params[:, 13:16]])
+            other = np.concatenate([other, params[:, 16:19]])
+    if ys.size == 0:
+        return None
+    index = np.full(src.shape[:2], -1.0, np.float32)  # float32 for OpenCV's lookup: exact below 2²⁴ models
+    index[ys, xs] = np.arange(ys.size, dtype=np.float32)
+    return index, np.stack([ys, xs], axis=1), wedge, bright, dark, split, other
+
+
+def _two_surface_models(src: np.ndarray, brightness: np.ndarray, finite: np.ndarray, flat: np.ndarray,
+                        ys: np.ndarray, xs: np.ndarray, kernels):
+    """Of the pixels ``(ys, xs)`` beside an edge, those whose 3 × 3 window lies between two flat surfaces, with
+    the straight edge that best reproduces their nine shares: ``(ys, xs, alpha (n, 9), bright (n, 3),
+    dark (n, 3), normal (n, 2), offset (n,), fit_error (n,))`` (``fit_error`` inf where no straight edge is
+    tried; the compiled kernel, or with ``kernels`` None the NumPy definitions)."""
     if kernels is not None:
         status, params = np.empty(ys.size, np.int8), np.empty((ys.size, 19))
         kernels.edge_models(src, brightness, flat, finite, ys, xs,
@@ -246,36 +326,11 @@ def _edge_models(src: np.ndarray, bad: np.ndarray | None, compiled: bool = True)
                             MIN_SEPARATION, MAX_RESIDUAL, MAX_FIT_ERROR, status, params)
         keep = status > 0
         ys, xs, status, params = ys[keep], xs[keep], status[keep], params[keep]
-        normal, offset, bright, dark = params[:, :2], params[:, 2], params[:, 3:6], params[:, 6:9]
-        alpha = params[:, 9:18]
-        straight = status == 1
-        fit_error = np.where(straight, params[:, 18], np.inf)
-    else:
-        shares = _two_surface_shares(src, brightness, finite, flat, ys, xs)
-        if shares is None:
-            return None
-        ys, xs, alpha, bright, dark = shares
-        normal, offset, fit_error = _straight_edge(alpha)
-        straight = fit_error <= MAX_FIT_ERROR
-    wedge = np.column_stack([normal, offset, np.ones(ys.size), np.zeros(ys.size), np.full(ys.size, np.inf),
-                             np.zeros(ys.size)])
-    ok = straight.copy()
-    # corners: where no straight edge fits, and where one fits loosely and a wedge better
-    limit = np.where(straight, CORNER_GAIN * fit_error, MAX_FIT_ERROR)
-    ci = np.flatnonzero(~straight | (fit_error > CORNER_TRY_FIT))
-    if straight.any() and ci.size:
-        model_index = np.full(src.shape[:2], -1, np.int64)
-        model_index[ys[straight], xs[straight]] = np.arange(int(straight.sum()))
-        lines = np.ascontiguousarray(wedge[straight, :3])
-        found, sides = _corner_models(model_index, lines, ys[ci], xs[ci], np.ascontiguousarray(alpha[ci]),
-                                      np.ascontiguousarray(limit[ci]), kernels)
-        wedge[ci[found]] = sides[found]
-        ok[ci[found]] = True
-    if not ok.any():
-        return None
-    index = np.full(src.shape[:2], -1.0, np.float32)  # float32 for OpenCV's lookup: exact below 2²⁴ models
-    index[ys[ok], xs[ok]] = np.arange(int(ok.sum()), dtype=np.float32)
-    return index, np.stack([ys[ok], xs[ok]], axis=1), wedge[ok], bright[ok], dark[ok]
+        fit_error = np.where(status == 1, params[:, 18], np.inf)
+        return ys, xs, params[:, 9:18], params[:, 3:6], params[:, 6:9], params[:, :2], params[:, 2], fit_error
+    ys, xs, alpha, bright, dark = _two_surface_shares(src, brightness, finite, flat, ys, xs)
+    normal, offset, fit_error = _straight_edge(alpha)
+    return ys, xs, alpha, bright, dark, normal, offset, np.where(fit_error <= MAX_FIT_ERROR, fit_error, np.inf)
 
 
 def _corner_models(model_index: np.ndarray, lines: np.ndarray, ys: np.ndarray, xs: np.ndarray, alpha: np.ndarray,
@@ -330,25 +385,166 @@ def _corner_model(model_index: np.ndarray, lines: np.ndarray, y: int, x: int, al
     return np.array(pick), bool(fit <= limit)
 
 
+def _three_surface_models(src: np.ndarray, brightness: np.ndarray, flat: np.ndarray, ys: np.ndarray, xs: np.ndarray,
+                          model_index: np.ndarray, lines: np.ndarray, line_colours: np.ndarray, kernels
+                          ) -> tuple[np.ndarray, np.ndarray]:
+    """For the windows ``(ys, xs)`` beside an edge that no model between two surfaces fits: the three surfaces
+    around (module docstring), and the surface ``X`` bounded by one or two of the straight edges fitted within
+    :data:`CORNER_RADIUS_PX` (``model_index`` their rows in ``lines`` ``(m, 3)``, whose sides' colours are
+    ``line_colours`` ``(m, 6)``) with the other two split by a third, that best reproduce the nine pixels, kept
+    when every one is within :data:`MAX_FIT_ERROR` of the brightest and darkest surfaces' difference:
+    ``(found (n,), params (n, 19))``, ``params`` ``X``'s wedge (7), the split ``(m3x, m3y, s3)`` holding ``Y``,
+    and the colours of ``X``, ``Y`` and ``Z`` (the compiled kernel, or with ``kernels`` None the NumPy
+    definition)."""
+    found, params = np.zeros(ys.size, bool), np.zeros((ys.size, 19))
+    settings = (CORNER_RADIUS_PX, CORNER_MAX_LINES, SAME_LINE_COS, SAME_LINE_PX, CORNER_MIN_SIN, EDGE_CONTRAST,
+                THREE_COLOUR_TOL, MAX_FIT_ERROR, TIE)
+    if kernels is not None:
+        kernels.three_surface_models(src, brightness, flat, ys, xs, window_offsets(WINDOW_RADIUS_PX), model_index,
+                                     lines, line_colours, *settings, found, params)
+        return found, params
+    for i in range(ys.size):
+        params[i], found[i] = _three_surface_model(src, brightness, flat, int(ys[i]), int(xs[i]), model_index, lines,
+                                                   line_colours)
+    return found, params
+
+
+def _surface_levels(samples: np.ndarray) -> np.ndarray | None:
+    """The three surfaces among the colours ``samples`` ``(k, 3)`` (module docstring): their colours ``(3, 3)``,
+    darkest first, each the mean of the samples nearest its level in ratio; None where they do not hold three
+    levels."""
+    values = samples[:, 0] + samples[:, 1] + samples[:, 2]
+    if values.size == 0:
+        return None
+    top, bottom = values.max(), values.min()
+    if not (bottom > 0.0 and top > EDGE_CONTRAST * EDGE_CONTRAST * bottom):
+        return None
+    ratio = np.minimum(values / bottom, top / values)
+    middle, score = values[np.argmax(ratio)], ratio.max()
+    if not score >= EDGE_CONTRAST:
+        return None
+    nearest = np.abs(np.log(values)[:, None] - np.log([bottom, middle, top])[None]).argmin(axis=1)
+    colours = np.zeros((3, 3))
+    for k, c in enumerate(nearest):  # in the samples' order, as the compiled kernel sums them
+        colours[c] += samples[k]
+    return colours / np.bincount(nearest, minlength=3)[:, None]
+
+
+def _three_surface_model(src: np.ndarray, brightness: np.ndarray, flat: np.ndarray, y: int, x: int,
+                         model_index: np.ndarray, lines: np.ndarray, line_colours: np.ndarray
+                         ) -> tuple[np.ndarray, bool]:
+    """One window of :func:`_three_surface_models` (the NumPy definition of the compiled
+    ``three_surface_models``)."""
+    h, w = model_index.shape
+    r = CORNER_RADIUS_PX
+    near = [(dy, dx, model_index[y + dy, x + dx]) for dy in range(-r, r + 1) for dx in range(-r, r + 1)
+            if 0 <= y + dy < h and 0 <= x + dx < w and model_index[y + dy, x + dx] >= 0
+            and np.isfinite(lines[model_index[y + dy, x + dx], 2])]
+    flats = [src[y + dy, x + dx] for dy, dx in window_offsets(WINDOW_RADIUS_PX)
+             if 0 <= y + dy < h and 0 <= x + dx < w and flat[y + dy, x + dx]]
+    sides = [line_colours[m].reshape(2, 3) for _, _, m in near]
+    colours = _surface_levels(np.concatenate([np.reshape(flats, (-1, 3)), *sides]).astype(np.float64))
+    if colours is None:
+        return np.zeros(19), False
+    spread = float(np.sqrt(((colours[2] - colours[0]) ** 2).sum()))
+    cand: list[tuple[float, float, float, int, int]] = []
+    for dy, dx, m in near:
+        d = ((line_colours[m].reshape(2, 1, 3) - colours[None]) ** 2).sum(axis=2)  # (side, surface)
+        sides = d.argmin(axis=1)
+        if sides[0] == sides[1] or not (np.sqrt(d[[0, 1], sides]) <= THREE_COLOUR_TOL * spread).all():
+            continue
+        mx, my = lines[m, 0], lines[m, 1]
+        c = lines[m, 2] + mx * dx + my * dy
+        if not any(mx * a + my * b > SAME_LINE_COS and abs(c - o) < SAME_LINE_PX and (p, q) == tuple(sides)
+                   for a, b, o, p, q in cand) and len(cand) < CORNER_MAX_LINES:
+            cand.append((mx, my, c, int(sides[0]), int(sides[1])))
+    window = np.array([src[y + q // 3 - 1, x + q % 3 - 1] for q in range(9)], np.float64)
+    if not np.isfinite(window).all():
+        return np.zeros(19), False
+
+    def side_of(line, surface):
+        return 1.0 if line[3] == surface else (-1.0 if line[4] == surface else 0.0)
+
+    def misfit(wedge, split, sx, sy, sz):
+        shares = [_region_shares(q % 3 - 1.0, q // 3 - 1.0, (1.0, 0.0), (0.0, 1.0), wedge, split) for q in range(9)]
+        return np.array([np.sqrt(((a * colours[sx] + b * colours[sy] + (1.0 - a - b) * colours[sz]
+                                   - window[q]) ** 2).sum()) for q, (a, b) in enumerate(shares)])
+
+    best, pick = np.inf, None
+    for sx in range(3):
+        sy, sz = (k for k in range(3) if k != sx)
+        for a in range(len(cand)):
+            ta = side_of(cand[a], sx)
+            if ta == 0.0:
+                continue
+            for bb in range(a, len(cand)):
+                tb = side_of(cand[bb], sx)
+                if tb == 0.0 or (bb > a and abs(cand[a][0] * cand[bb][1] - cand[a][1] * cand[bb][0])
+                                 < CORNER_MIN_SIN):
+                    continue
+                for union in ((0.0,) if bb == a else (0.0, 1.0)):
+                    first = (ta * cand[a][0], ta * cand[a][1], ta * cand[a][2])
+                    wedge = (*first, 1.0, 0.0, np.inf, 0.0) if bb == a else \
+                        (*first, tb * cand[bb][0], tb * cand[bb][1], tb * cand[bb][2], union)
+                    for cc in range(len(cand)):
+                        tc = 1.0 if cand[cc][3:] == (sy, sz) else (-1.0 if cand[cc][3:] == (sz, sy) else 0.0)
+                        if tc == 0.0:
+                            continue
+                        split = (tc * cand[cc][0], tc * cand[cc][1], tc * cand[cc][2])
+                        err = float((misfit(wedge, split, sx, sy, sz) ** 2).sum())
+                        if err < best * (1.0 - TIE) - TIE:
+                            best, pick = err, (wedge, split, sx, sy, sz)
+    if pick is None:
+        return np.zeros(19), False
+    wedge, split, sx, sy, sz = pick
+    params = np.concatenate([wedge, split, colours[sx], colours[sy], colours[sz]])
+    return params, bool(misfit(wedge, split, sx, sy, sz).max() <= MAX_FIT_ERROR * spread)
+
+
 def _wedge_share(cx: float, cy: float, e1: tuple[float, float], e2: tuple[float, float], wedge) -> float:
     """Share of the parallelogram ``c + [-½, ½] e1 + [-½, ½] e2`` on the bright side of ``wedge`` (the sides
     ``m1 · x < s1`` and, or with ``union`` or, ``m2 · x < s2``): the polygon clipped by both half-planes (with
     ``union``, 1 − the share of the dark wedge)."""
     m1x, m1y, s1, m2x, m2y, s2, union = (float(k) for k in wedge)
     sign = -1.0 if union > 0.5 else 1.0
+    share = _clip_share(cx, cy, e1, e2, [(sign * m1x, sign * m1y, sign * s1), (sign * m2x, sign * m2y, sign * s2)])
+    return 1.0 - share if union > 0.5 else share
+
+
+def _region_shares(cx: float, cy: float, e1: tuple[float, float], e2: tuple[float, float], wedge, split
+                   ) -> tuple[float, float]:
+    """Shares of the parallelogram (as in :func:`_wedge_share`) in a three-surface model's regions: ``X`` inside
+    ``wedge``, and ``Y`` outside it and inside ``split`` (``m3 · x < s3``)."""
+    m1x, m1y, s1, m2x, m2y, s2, union = (float(k) for k in wedge)
+    third = tuple(float(k) for k in split)
+    if not np.isfinite(s2):  # X a half-plane
+        return (_clip_share(cx, cy, e1, e2, [(m1x, m1y, s1)]),
+                _clip_share(cx, cy, e1, e2, [(-m1x, -m1y, -s1), third]))
+    sign = -1.0 if union > 0.5 else 1.0
+    sides = [(sign * m1x, sign * m1y, sign * s1), (sign * m2x, sign * m2y, sign * s2)]
+    inside = _clip_share(cx, cy, e1, e2, sides)
+    both = _clip_share(cx, cy, e1, e2, [*sides, third])
+    if union > 0.5:  # X the union: outside it is the wedge of the sides' complements
+        return 1.0 - inside, both
+    return inside, _clip_share(cx, cy, e1, e2, [third]) - both
+
+
+def _clip_share(cx: float, cy: float, e1: tuple[float, float], e2: tuple[float, float],
+                planes: list[tuple[float, float, float]]) -> float:
+    """Share of the parallelogram ``c + [-½, ½] e1 + [-½, ½] e2`` in the half-planes ``a x + b y < s`` of
+    ``planes`` (Sutherland & Hodgman 1974, one clipping edge after another)."""
     poly = [(cx - 0.5 * e1[0] - 0.5 * e2[0], cy - 0.5 * e1[1] - 0.5 * e2[1]),
             (cx + 0.5 * e1[0] - 0.5 * e2[0], cy + 0.5 * e1[1] - 0.5 * e2[1]),
             (cx + 0.5 * e1[0] + 0.5 * e2[0], cy + 0.5 * e1[1] + 0.5 * e2[1]),
             (cx - 0.5 * e1[0] + 0.5 * e2[0], cy - 0.5 * e1[1] + 0.5 * e2[1])]
-    for a, b, s in ((m1x, m1y, s1), (m2x, m2y, s2)):
-        poly = _clip_half_plane(poly, sign * a, sign * b, sign * s)
+    for a, b, s in planes:
+        poly = _clip_half_plane(poly, a, b, s)
     n = len(poly)
     area = 0.0
     for k in range(n):
         area += poly[k][0] * poly[(k + 1) % n][1] - poly[(k + 1) % n][0] * poly[k][1]
     whole = abs(e1[0] * e2[1] - e1[1] * e2[0])
-    share = min(max(0.5 * abs(area) / max(whole, 1e-300), 0.0), 1.0)
-    return 1.0 - share if union > 0.5 else share
+    return min(max(0.5 * abs(area) / max(whole, 1e-300), 0.0), 1.0)
 
 
 def _clip_half_plane(poly: list[tuple[float, float]], a: float, b: float, s: float) -> list[tuple[float, float]]:
@@ -386,8 +582,7 @@ def _two_surface_shares(src: np.ndarray, brightness: np.ndarray, finite: np.ndar
     """Of the pixels ``(ys, xs)``, those whose 3 × 3 window lies between two flat surfaces: ``(ys, xs, alpha,
     bright, dark)`` with ``alpha`` ``(n, 9)`` the nine pixels' shares of the bright surface and ``bright``,
     ``dark`` ``(n, 3)`` the surfaces' values (the nearest flat pixels on each side, within
-    :data:`~omnispectral.mosaic.unmix.WINDOW_RADIUS_PX`); None where there is none (the NumPy definition of the
-    compiled ``edge_models``)."""
+    :data:`~omnispectral.mosaic.unmix.WINDOW_RADIUS_PX`) (the NumPy definition of the compiled ``edge_models``)."""
     (y1, x1), (y2, x2), found = brightest_and_darkest_flat(brightness, flat, ys, xs, WINDOW_RADIUS_PX,
                                                            nearest=True)
     ys, xs, y1, x1, y2, x2 = (k[found] for k in (ys, xs, y1, x1, y2, x2))
@@ -402,8 +597,6 @@ def _two_surface_shares(src: np.ndarray, brightness: np.ndarray, finite: np.ndar
     ok = ((np.sqrt(span_sq) > MIN_SEPARATION * np.linalg.norm(bright, axis=1))
           & (residual <= MAX_RESIDUAL * np.linalg.norm(window, axis=2)).all(axis=1)
           & finite[wy, wx].all(axis=1))
-    if not ok.any():
-        return None
     return ys[ok], xs[ok], alpha[ok], bright[ok], dark[ok]
 
 

@@ -66,7 +66,7 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
     # the inlined helpers are module globals, not closure cells: Numba keys its disk cache on the pickled
     # closure, which differs in every process, and would compile the kernels that call them on every run
     global cubic_weights, spline_taps, tap_grid, keys_weights, keys_rows, half_plane_share, half_plane_offset
-    global clip_half_plane, wedge_share
+    global clip_half_plane, wedge_share, clip_share, region_shares, line_at
 
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False, inline="always")
     def cubic_weights(t):  # pragma: no cover - compiled
@@ -334,30 +334,238 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
         return m
 
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False, inline="always")
-    def wedge_share(cx, cy, e1x, e1y, e2x, e2y, m1x, m1y, s1, m2x, m2y, s2, union, buf):  # pragma: no cover
-        """Share of the parallelogram ``c + [-1/2, 1/2] e1 + [-1/2, 1/2] e2`` in the wedge ``m1 x < s1`` and
-        ``m2 x < s2`` (with ``union``: or); ``buf`` ``(4, 8)`` scratch."""
-        sign = -1.0 if union else 1.0
+    def clip_share(cx, cy, e1x, e1y, e2x, e2y, planes, k, buf):  # pragma: no cover - compiled
+        """Share of the parallelogram ``c + [-1/2, 1/2] e1 + [-1/2, 1/2] e2`` in the first ``k`` half-planes
+        ``planes[j, 0] x + planes[j, 1] y < planes[j, 2]``; ``buf`` ``(4, 8)`` scratch."""
         px, py, qx, qy = buf[0], buf[1], buf[2], buf[3]
         px[0], py[0] = cx - 0.5 * e1x - 0.5 * e2x, cy - 0.5 * e1y - 0.5 * e2y
         px[1], py[1] = cx + 0.5 * e1x - 0.5 * e2x, cy + 0.5 * e1y - 0.5 * e2y
         px[2], py[2] = cx + 0.5 * e1x + 0.5 * e2x, cy + 0.5 * e1y + 0.5 * e2y
         px[3], py[3] = cx - 0.5 * e1x + 0.5 * e2x, cy - 0.5 * e1y + 0.5 * e2y
-        n = clip_half_plane(px, py, 4, sign * m1x, sign * m1y, sign * s1, qx, qy)
-        n = clip_half_plane(qx, qy, n, sign * m2x, sign * m2y, sign * s2, px, py)
+        n = 4
+        for j in range(k):
+            n = clip_half_plane(px, py, n, planes[j, 0], planes[j, 1], planes[j, 2], qx, qy)
+            for v in range(n):
+                px[v], py[v] = qx[v], qy[v]
         area = 0.0
-        for k in range(n):
-            area += px[k] * py[(k + 1) % n] - px[(k + 1) % n] * py[k]
+        for v in range(n):
+            area += px[v] * py[(v + 1) % n] - px[(v + 1) % n] * py[v]
         whole = abs(e1x * e2y - e1y * e2x)
-        share = min(max(0.5 * abs(area) / max(whole, 1e-300), 0.0), 1.0)
+        return min(max(0.5 * abs(area) / max(whole, 1e-300), 0.0), 1.0)
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False, inline="always")
+    def region_shares(cx, cy, e1x, e1y, e2x, e2y, wedge, split, planes, buf):  # pragma: no cover - compiled
+        """Shares of the parallelogram in a three-surface model's regions: ``X`` (the half-plane or wedge
+        ``wedge``, as in ``wedge_share``) and ``Y`` (outside ``X`` and inside ``split``: ``m3 x < s3``)."""
+        for c in range(3):
+            planes[2, c] = split[c]
+        if not np.isfinite(wedge[5]):  # X a half-plane
+            planes[0, 0], planes[0, 1], planes[0, 2] = wedge[0], wedge[1], wedge[2]
+            share_x = clip_share(cx, cy, e1x, e1y, e2x, e2y, planes, 1, buf)
+            planes[1, 0], planes[1, 1], planes[1, 2] = -wedge[0], -wedge[1], -wedge[2]
+            return share_x, clip_share(cx, cy, e1x, e1y, e2x, e2y, planes[1:], 2, buf)
+        sign = -1.0 if wedge[6] > 0.5 else 1.0
+        planes[0, 0], planes[0, 1], planes[0, 2] = sign * wedge[0], sign * wedge[1], sign * wedge[2]
+        planes[1, 0], planes[1, 1], planes[1, 2] = sign * wedge[3], sign * wedge[4], sign * wedge[5]
+        inside = clip_share(cx, cy, e1x, e1y, e2x, e2y, planes, 2, buf)
+        both = clip_share(cx, cy, e1x, e1y, e2x, e2y, planes, 3, buf)
+        if sign < 0.0:  # X the union: outside it is the wedge of the sides' complements
+            return 1.0 - inside, both
+        return inside, clip_share(cx, cy, e1x, e1y, e2x, e2y, planes[2:], 1, buf) - both
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False, inline="always")
+    def wedge_share(cx, cy, e1x, e1y, e2x, e2y, m1x, m1y, s1, m2x, m2y, s2, union, planes, buf):  # pragma: no cover
+        """Share of the parallelogram ``c + [-1/2, 1/2] e1 + [-1/2, 1/2] e2`` in the wedge ``m1 x < s1`` and
+        ``m2 x < s2`` (with ``union``: or); ``planes`` ``(3, 3)`` and ``buf`` ``(4, 8)`` scratch."""
+        sign = -1.0 if union else 1.0
+        planes[0, 0], planes[0, 1], planes[0, 2] = sign * m1x, sign * m1y, sign * s1
+        planes[1, 0], planes[1, 1], planes[1, 2] = sign * m2x, sign * m2y, sign * s2
+        share = clip_share(cx, cy, e1x, e1y, e2x, e2y, planes, 2, buf)
         return 1.0 - share if union else share
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False, inline="always")
+    def line_at(model_index, lines, yy, xx):  # pragma: no cover - compiled
+        """The row in ``lines`` of the straight edge fitted at ``(yy, xx)``, or -1 (outside, none)."""
+        if yy < 0 or yy >= model_index.shape[0] or xx < 0 or xx >= model_index.shape[1]:
+            return -1
+        m = model_index[yy, xx]
+        return m if m >= 0 and np.isfinite(lines[m, 2]) else -1
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
+    def three_surface_models(src, brightness, flat, ys, xs, around, model_index, lines, line_colours, radius,
+                             max_lines, same_cos, same_px, min_sin, contrast, colour_tol, max_fit, tie, ok,
+                             params):  # pragma: no cover - compiled (tested against edges' NumPy path)
+        h, w = flat.shape
+        colours, counts, level = np.empty((3, 3)), np.empty(3), np.empty(3)
+        cand, kind = np.empty((max_lines, 3)), np.empty((max_lines, 2), np.int64)
+        planes, buf = np.empty((3, 3)), np.empty((4, 8))
+        wedge, split, best_wedge, best_split = np.empty(7), np.empty(3), np.empty(7), np.empty(3)
+        window, sides = np.empty((9, 3)), np.empty(2, np.int64)
+        samples = np.empty((around.shape[0] + 2 * (2 * radius + 1) ** 2, 3))
+        for i in range(ys.shape[0]):
+            y, x = ys[i], xs[i]
+            ok[i] = False
+            # the surfaces seen around: the flat pixels, and the sides of the straight edges nearby
+            ns = 0
+            for k in range(around.shape[0]):
+                yy, xx = y + around[k, 0], x + around[k, 1]
+                if 0 <= yy < h and 0 <= xx < w and flat[yy, xx]:
+                    for c in range(3):
+                        samples[ns, c] = src[yy, xx, c]
+                    ns += 1
+            for dy in range(-radius, radius + 1):
+                for dx in range(-radius, radius + 1):
+                    m = line_at(model_index, lines, y + dy, x + dx)
+                    if m >= 0:
+                        for c in range(6):
+                            samples[ns + c // 3, c % 3] = line_colours[m, c]
+                        ns += 2
+            # three brightness levels among them: the brightest, the darkest, and the one farthest from both in
+            # ratio; each surface the mean of the samples nearest its level
+            top, bottom = -np.inf, np.inf
+            for k in range(ns):
+                level[0] = samples[k, 0] + samples[k, 1] + samples[k, 2]
+                top, bottom = max(top, level[0]), min(bottom, level[0])
+            if not (bottom > 0.0 and top > contrast * contrast * bottom):
+                continue
+            middle, score = 0.0, 0.0
+            for k in range(ns):
+                b = samples[k, 0] + samples[k, 1] + samples[k, 2]
+                r = min(b / bottom, top / b)
+                if r > score:
+                    middle, score = b, r
+            if not score >= contrast:
+                continue
+            level[0], level[1], level[2] = np.log(bottom), np.log(middle), np.log(top)
+            colours[:] = 0.0
+            counts[:] = 0.0
+            for k in range(ns):
+                lb = np.log(samples[k, 0] + samples[k, 1] + samples[k, 2])
+                c = 0
+                for j in range(1, 3):
+                    if abs(lb - level[j]) < abs(lb - level[c]):
+                        c = j
+                counts[c] += 1.0
+                for b in range(3):
+                    colours[c, b] += samples[k, b]
+            for c in range(3):
+                for b in range(3):
+                    colours[c, b] /= counts[c]
+            spread = 0.0
+            for b in range(3):
+                spread += (colours[2, b] - colours[0, b]) ** 2
+            spread = np.sqrt(spread)
+            # the straight edges around, each between two of the three surfaces (by its sides' colours)
+            n = 0
+            for dy in range(-radius, radius + 1):
+                for dx in range(-radius, radius + 1):
+                    m = line_at(model_index, lines, y + dy, x + dx)
+                    if m < 0:
+                        continue
+                    near = True
+                    for side in range(2):
+                        best_d, best_c = np.inf, 0
+                        for c in range(3):
+                            d = 0.0
+                            for b in range(3):
+                                d += (line_colours[m, 3 * side + b] - colours[c, b]) ** 2
+                            if d < best_d:
+                                best_d, best_c = d, c
+                        sides[side] = best_c
+                        near &= np.sqrt(best_d) <= colour_tol * spread
+                    if not near or sides[0] == sides[1]:
+                        continue
+                    mx, my = lines[m, 0], lines[m, 1]
+                    c = lines[m, 2] + mx * dx + my * dy
+                    seen = False
+                    for j in range(n):
+                        if (mx * cand[j, 0] + my * cand[j, 1] > same_cos and abs(c - cand[j, 2]) < same_px
+                                and kind[j, 0] == sides[0] and kind[j, 1] == sides[1]):
+                            seen = True
+                            break
+                    if not seen and n < max_lines:
+                        cand[n, 0], cand[n, 1], cand[n, 2] = mx, my, c
+                        kind[n, 0], kind[n, 1] = sides[0], sides[1]
+                        n += 1
+            finite = True
+            for q in range(9):
+                for b in range(3):
+                    window[q, b] = src[y + q // 3 - 1, x + q % 3 - 1, b]
+                    finite &= np.isfinite(window[q, b])
+            if not finite:
+                continue
+            # the surface X bounded by one or two of them, the other two split by a third
+            best, best_x = np.inf, -1
+            for sx in range(3):
+                sy, sz = (1, 2) if sx == 0 else ((0, 2) if sx == 1 else (0, 1))
+                for a in range(n):
+                    ta = 1.0 if kind[a, 0] == sx else (-1.0 if kind[a, 1] == sx else 0.0)
+                    if ta == 0.0:
+                        continue
+                    for bb in range(a, n):
+                        tb = 1.0 if kind[bb, 0] == sx else (-1.0 if kind[bb, 1] == sx else 0.0)
+                        if tb == 0.0 or (bb > a and abs(cand[a, 0] * cand[bb, 1] - cand[a, 1] * cand[bb, 0]) < min_sin):
+                            continue
+                        for u in range(1 if bb == a else 2):
+                            wedge[0], wedge[1], wedge[2] = ta * cand[a, 0], ta * cand[a, 1], ta * cand[a, 2]
+                            if bb == a:
+                                wedge[3], wedge[4], wedge[5], wedge[6] = 1.0, 0.0, np.inf, 0.0
+                            else:
+                                wedge[3], wedge[4], wedge[5] = tb * cand[bb, 0], tb * cand[bb, 1], tb * cand[bb, 2]
+                                wedge[6] = float(u)
+                            for cc in range(n):
+                                if kind[cc, 0] == sy and kind[cc, 1] == sz:
+                                    tc = 1.0
+                                elif kind[cc, 0] == sz and kind[cc, 1] == sy:
+                                    tc = -1.0
+                                else:
+                                    continue
+                                split[0], split[1], split[2] = tc * cand[cc, 0], tc * cand[cc, 1], tc * cand[cc, 2]
+                                err = 0.0
+                                for q in range(9):
+                                    share_x, share_y = region_shares(q % 3 - 1.0, q // 3 - 1.0, 1.0, 0.0, 0.0, 1.0,
+                                                                     wedge, split, planes, buf)
+                                    for b in range(3):
+                                        err += (share_x * colours[sx, b] + share_y * colours[sy, b]
+                                                + (1.0 - share_x - share_y) * colours[sz, b] - window[q, b]) ** 2
+                                if err < best * (1.0 - tie) - tie:
+                                    best, best_x = err, sx
+                                    best_wedge[:] = wedge
+                                    best_split[:] = split
+            if best_x < 0:
+                continue
+            sx = best_x
+            sy, sz = (1, 2) if sx == 0 else ((0, 2) if sx == 1 else (0, 1))
+            worst = 0.0
+            for q in range(9):
+                share_x, share_y = region_shares(q % 3 - 1.0, q // 3 - 1.0, 1.0, 0.0, 0.0, 1.0, best_wedge,
+                                                 best_split, planes, buf)
+                d = 0.0
+                for b in range(3):
+                    d += (share_x * colours[sx, b] + share_y * colours[sy, b]
+                          + (1.0 - share_x - share_y) * colours[sz, b] - window[q, b]) ** 2
+                worst = max(worst, np.sqrt(d))
+            if not worst <= max_fit * spread:
+                continue
+            ok[i] = True
+            params[i, :7] = best_wedge
+            params[i, 7:10] = best_split
+            for b in range(3):
+                params[i, 10 + b], params[i, 13 + b], params[i, 16 + b] = (colours[sx, b], colours[sy, b],
+                                                                          colours[sz, b])
+
+    @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
+    def footprint_region_shares(px, py, jac, wedges, splits, out):  # pragma: no cover - compiled (tested through edges)
+        planes, buf = np.empty((3, 3)), np.empty((4, 8))
+        for i in range(px.shape[0]):
+            out[i, 0], out[i, 1] = region_shares(px[i], py[i], jac[i, 0, 0], jac[i, 1, 0], jac[i, 0, 1], jac[i, 1, 1],
+                                                 wedges[i], splits[i], planes, buf)
 
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
     def corner_models(model_index, lines, ys, xs, alpha, radius, max_lines, same_cos, same_px, min_sin, tie, limits,
                       ok, params):  # pragma: no cover - compiled (tested against edges' NumPy path)
-        h, w = model_index.shape
         cand = np.empty((max_lines, 3))
-        buf = np.empty((4, 8))
+        planes, buf = np.empty((3, 3)), np.empty((4, 8))
         for i in range(ys.shape[0]):
             y, x = ys[i], xs[i]
             ok[i] = False
@@ -365,11 +573,8 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
             n = 0
             for dy in range(-radius, radius + 1):
                 for dx in range(-radius, radius + 1):
-                    yy, xx = y + dy, x + dx
-                    if yy < 0 or yy >= h or xx < 0 or xx >= w or model_index[yy, xx] < 0:
-                        continue
-                    k = model_index[yy, xx]
-                    if not np.isfinite(lines[k, 2]):
+                    k = line_at(model_index, lines, y + dy, x + dx)
+                    if k < 0:
                         continue
                     mx, my = lines[k, 0], lines[k, 1]
                     c = lines[k, 2] + mx * dx + my * dy
@@ -390,7 +595,7 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
                         err = 0.0
                         for q in range(9):
                             share = wedge_share(q % 3 - 1.0, q // 3 - 1.0, 1.0, 0.0, 0.0, 1.0, cand[a, 0], cand[a, 1],
-                                                cand[a, 2], cand[b, 0], cand[b, 1], cand[b, 2], u == 1, buf)
+                                                cand[a, 2], cand[b, 0], cand[b, 1], cand[b, 2], u == 1, planes, buf)
                             err += (share - alpha[i, q]) ** 2
                         if err < best * (1.0 - tie) - tie:
                             best, bi, bj, bu = err, a, b, u == 1
@@ -399,7 +604,7 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
             fit = 0.0
             for q in range(9):
                 share = wedge_share(q % 3 - 1.0, q // 3 - 1.0, 1.0, 0.0, 0.0, 1.0, cand[bi, 0], cand[bi, 1],
-                                    cand[bi, 2], cand[bj, 0], cand[bj, 1], cand[bj, 2], bu, buf)
+                                    cand[bi, 2], cand[bj, 0], cand[bj, 1], cand[bj, 2], bu, planes, buf)
                 fit = max(fit, abs(share - alpha[i, q]))
             if not fit <= limits[i]:
                 continue
@@ -410,11 +615,11 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
 
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
     def footprint_wedge_shares(px, py, jac, wedges, out):  # pragma: no cover - compiled (tested through edges)
-        buf = np.empty((4, 8))
+        planes, buf = np.empty((3, 3)), np.empty((4, 8))
         for i in range(px.shape[0]):
             out[i] = wedge_share(px[i], py[i], jac[i, 0, 0], jac[i, 1, 0], jac[i, 0, 1], jac[i, 1, 1], wedges[i, 0],
                                  wedges[i, 1], wedges[i, 2], wedges[i, 3], wedges[i, 4], wedges[i, 5],
-                                 wedges[i, 6] > 0.5, buf)
+                                 wedges[i, 6] > 0.5, planes, buf)
 
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
     def edge_models(src, brightness, flat, finite, ys, xs, around, turns, tie, min_separation, max_residual,
@@ -523,4 +728,6 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
     return SimpleNamespace(spline=spline, keys=keys, disagreeing=disagreeing, accumulate=accumulate,
                            divide=divide, catmull_rom=catmull_rom, box_average=box_average, feather=feather,
                            nearest_pixels=nearest_pixels, gather_records=gather_records, edge_models=edge_models,
-                           corner_models=corner_models, footprint_wedge_shares=footprint_wedge_shares)
+                           corner_models=corner_models, footprint_wedge_shares=footprint_wedge_shares,
+                           three_surface_models=three_surface_models,
+                           footprint_region_shares=footprint_region_shares)

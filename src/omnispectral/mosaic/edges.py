@@ -109,6 +109,8 @@ CORNER_GAIN = 0.5
 #: :data:`~omnispectral.mosaic.unmix.EDGE_CONTRAST` from each); a nearby straight edge bounds two of them when
 #: its sides' colours lie within this share of those surfaces' difference from their means.
 THREE_COLOUR_TOL = 0.3
+#: At most this many distinct straight edges are tried per three-surface window (the nearest first).
+THREE_MAX_LINES = 8
 
 #: Source pixels around an output position that its edge model reads: the nearest pixel (½), its 3 × 3 window
 #: (1), the surfaces' window (:data:`~omnispectral.mosaic.unmix.WINDOW_RADIUS_PX`), their flat test (1), and a
@@ -397,8 +399,8 @@ def _three_surface_models(src: np.ndarray, brightness: np.ndarray, flat: np.ndar
     and the colours of ``X``, ``Y`` and ``Z`` (the compiled kernel, or with ``kernels`` None the NumPy
     definition)."""
     found, params = np.zeros(ys.size, bool), np.zeros((ys.size, 19))
-    settings = (CORNER_RADIUS_PX, CORNER_MAX_LINES, SAME_LINE_COS, SAME_LINE_PX, CORNER_MIN_SIN, EDGE_CONTRAST,
-                THREE_COLOUR_TOL, MAX_FIT_ERROR, TIE)
+    settings = (_nearest_first(CORNER_RADIUS_PX), THREE_MAX_LINES, SAME_LINE_COS, SAME_LINE_PX, CORNER_MIN_SIN,
+                EDGE_CONTRAST, THREE_COLOUR_TOL, MAX_FIT_ERROR, TIE)
     if kernels is not None:
         kernels.three_surface_models(src, brightness, flat, ys, xs, window_offsets(WINDOW_RADIUS_PX), model_index,
                                      lines, line_colours, *settings, found, params)
@@ -407,6 +409,11 @@ def _three_surface_models(src: np.ndarray, brightness: np.ndarray, flat: np.ndar
         params[i], found[i] = _three_surface_model(src, brightness, flat, int(ys[i]), int(xs[i]), model_index, lines,
                                                    line_colours)
     return found, params
+
+
+def _nearest_first(radius: int) -> np.ndarray:
+    """``(K, 2)``: the ``(dy, dx)`` of a ``(2 radius + 1)²`` window, its centre first, then nearest first."""
+    return np.vstack([np.zeros((1, 2), np.int64), window_offsets(radius)])
 
 
 def _surface_levels(samples: np.ndarray) -> np.ndarray | None:
@@ -436,8 +443,7 @@ def _three_surface_model(src: np.ndarray, brightness: np.ndarray, flat: np.ndarr
     """One window of :func:`_three_surface_models` (the NumPy definition of the compiled
     ``three_surface_models``)."""
     h, w = model_index.shape
-    r = CORNER_RADIUS_PX
-    near = [(dy, dx, model_index[y + dy, x + dx]) for dy in range(-r, r + 1) for dx in range(-r, r + 1)
+    near = [(dy, dx, model_index[y + dy, x + dx]) for dy, dx in _nearest_first(CORNER_RADIUS_PX)
             if 0 <= y + dy < h and 0 <= x + dx < w and model_index[y + dy, x + dx] >= 0
             and np.isfinite(lines[model_index[y + dy, x + dx], 2])]
     flats = [src[y + dy, x + dx] for dy, dx in window_offsets(WINDOW_RADIUS_PX)
@@ -456,7 +462,7 @@ def _three_surface_model(src: np.ndarray, brightness: np.ndarray, flat: np.ndarr
         mx, my = lines[m, 0], lines[m, 1]
         c = lines[m, 2] + mx * dx + my * dy
         if not any(mx * a + my * b > SAME_LINE_COS and abs(c - o) < SAME_LINE_PX and (p, q) == tuple(sides)
-                   for a, b, o, p, q in cand) and len(cand) < CORNER_MAX_LINES:
+                   for a, b, o, p, q in cand) and len(cand) < THREE_MAX_LINES:
             cand.append((mx, my, c, int(sides[0]), int(sides[1])))
     window = np.array([src[y + q // 3 - 1, x + q % 3 - 1] for q in range(9)], np.float64)
     if not np.isfinite(window).all():

@@ -392,7 +392,7 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
         return m if m >= 0 and np.isfinite(lines[m, 2]) else -1
 
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
-    def three_surface_models(src, brightness, flat, ys, xs, around, model_index, lines, line_colours, radius,
+    def three_surface_models(src, brightness, flat, ys, xs, around, model_index, lines, line_colours, reach,
                              max_lines, same_cos, same_px, min_sin, contrast, colour_tol, max_fit, tie, ok,
                              params):  # pragma: no cover - compiled (tested against edges' NumPy path)
         h, w = flat.shape
@@ -401,7 +401,7 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
         planes, buf = np.empty((3, 3)), np.empty((4, 8))
         wedge, split, best_wedge, best_split = np.empty(7), np.empty(3), np.empty(7), np.empty(3)
         window, sides = np.empty((9, 3)), np.empty(2, np.int64)
-        samples = np.empty((around.shape[0] + 2 * (2 * radius + 1) ** 2, 3))
+        samples = np.empty((around.shape[0] + 2 * reach.shape[0], 3))
         for i in range(ys.shape[0]):
             y, x = ys[i], xs[i]
             ok[i] = False
@@ -413,13 +413,12 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
                     for c in range(3):
                         samples[ns, c] = src[yy, xx, c]
                     ns += 1
-            for dy in range(-radius, radius + 1):
-                for dx in range(-radius, radius + 1):
-                    m = line_at(model_index, lines, y + dy, x + dx)
-                    if m >= 0:
-                        for c in range(6):
-                            samples[ns + c // 3, c % 3] = line_colours[m, c]
-                        ns += 2
+            for k in range(reach.shape[0]):
+                m = line_at(model_index, lines, y + reach[k, 0], x + reach[k, 1])
+                if m >= 0:
+                    for c in range(6):
+                        samples[ns + c // 3, c % 3] = line_colours[m, c]
+                    ns += 2
             # three brightness levels among them: the brightest, the darkest, and the one farthest from both in
             # ratio; each surface the mean of the samples nearest its level
             top, bottom = -np.inf, np.inf
@@ -455,38 +454,38 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
             for b in range(3):
                 spread += (colours[2, b] - colours[0, b]) ** 2
             spread = np.sqrt(spread)
-            # the straight edges around, each between two of the three surfaces (by its sides' colours)
+            # the straight edges around, nearest first, each between two of the surfaces (by its sides' colours)
             n = 0
-            for dy in range(-radius, radius + 1):
-                for dx in range(-radius, radius + 1):
-                    m = line_at(model_index, lines, y + dy, x + dx)
-                    if m < 0:
-                        continue
-                    near = True
-                    for side in range(2):
-                        best_d, best_c = np.inf, 0
-                        for c in range(3):
-                            d = 0.0
-                            for b in range(3):
-                                d += (line_colours[m, 3 * side + b] - colours[c, b]) ** 2
-                            if d < best_d:
-                                best_d, best_c = d, c
-                        sides[side] = best_c
-                        near &= np.sqrt(best_d) <= colour_tol * spread
-                    if not near or sides[0] == sides[1]:
-                        continue
-                    mx, my = lines[m, 0], lines[m, 1]
-                    c = lines[m, 2] + mx * dx + my * dy
-                    seen = False
-                    for j in range(n):
-                        if (mx * cand[j, 0] + my * cand[j, 1] > same_cos and abs(c - cand[j, 2]) < same_px
-                                and kind[j, 0] == sides[0] and kind[j, 1] == sides[1]):
-                            seen = True
-                            break
-                    if not seen and n < max_lines:
-                        cand[n, 0], cand[n, 1], cand[n, 2] = mx, my, c
-                        kind[n, 0], kind[n, 1] = sides[0], sides[1]
-                        n += 1
+            for k in range(reach.shape[0]):
+                dy, dx = reach[k, 0], reach[k, 1]
+                m = line_at(model_index, lines, y + dy, x + dx)
+                if m < 0:
+                    continue
+                near = True
+                for side in range(2):
+                    best_d, best_c = np.inf, 0
+                    for c in range(3):
+                        d = 0.0
+                        for b in range(3):
+                            d += (line_colours[m, 3 * side + b] - colours[c, b]) ** 2
+                        if d < best_d:
+                            best_d, best_c = d, c
+                    sides[side] = best_c
+                    near &= np.sqrt(best_d) <= colour_tol * spread
+                if not near or sides[0] == sides[1]:
+                    continue
+                mx, my = lines[m, 0], lines[m, 1]
+                c = lines[m, 2] + mx * dx + my * dy
+                seen = False
+                for j in range(n):
+                    if (mx * cand[j, 0] + my * cand[j, 1] > same_cos and abs(c - cand[j, 2]) < same_px
+                            and kind[j, 0] == sides[0] and kind[j, 1] == sides[1]):
+                        seen = True
+                        break
+                if not seen and n < max_lines:
+                    cand[n, 0], cand[n, 1], cand[n, 2] = mx, my, c
+                    kind[n, 0], kind[n, 1] = sides[0], sides[1]
+                    n += 1
             finite = True
             for q in range(9):
                 for b in range(3):
@@ -521,14 +520,16 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
                                 else:
                                     continue
                                 split[0], split[1], split[2] = tc * cand[cc, 0], tc * cand[cc, 1], tc * cand[cc, 2]
-                                err = 0.0
-                                for q in range(9):
+                                err, bound = 0.0, best * (1.0 - tie) - tie
+                                for q in range(9):  # the sum only grows: stop once it cannot beat the best
                                     share_x, share_y = region_shares(q % 3 - 1.0, q // 3 - 1.0, 1.0, 0.0, 0.0, 1.0,
                                                                      wedge, split, planes, buf)
                                     for b in range(3):
                                         err += (share_x * colours[sx, b] + share_y * colours[sy, b]
                                                 + (1.0 - share_x - share_y) * colours[sz, b] - window[q, b]) ** 2
-                                if err < best * (1.0 - tie) - tie:
+                                    if not err < bound:
+                                        break
+                                if err < bound:
                                     best, best_x = err, sx
                                     best_wedge[:] = wedge
                                     best_split[:] = split

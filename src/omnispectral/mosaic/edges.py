@@ -34,16 +34,30 @@ loosely, :data:`CORNER_TRY_FIT`), the window is tried as a corner: the bright si
 within :data:`CORNER_RADIUS_PX` (each moved into this window's frame; near-duplicates once, sides 35°–145° apart),
 the pair and the join that best reproduce the nine shares, kept when they do within :data:`MAX_FIT_ERROR` (and
 within :data:`CORNER_GAIN` of a loose straight edge's error). A footprint's share of a wedge is its parallelogram
-clipped by both half-planes (Sutherland & Hodgman 1974), exact. Texture, three surfaces and structure narrower than
-the flat test's 3 px fail a test and keep the interpolated value (the square in ``tests/mosaic/test_edges.py``: its
+clipped by both half-planes (Sutherland & Hodgman 1974), exact (the square in ``tests/mosaic/test_edges.py``: its
 corners' error 0.13–0.50× the interpolation's, 0.81–1.18× with straight edges alone).
 
+Three surfaces. Where a window beside an edge has no model between two surfaces (a plate's corner lying on the edge
+of its own shadow: plate, ground and shadow; the ground and the shadow can be of one hue, so colour alone cannot
+tell a pixel's mix), the surfaces are three brightness levels among the flat pixels around and the sides of the
+straight edges within :data:`CORNER_RADIUS_PX` (the brightest, the darkest, and the one farthest from both in
+ratio, at least :data:`~omnispectral.mosaic.unmix.EDGE_CONTRAST` from each; each surface the mean of the samples
+nearest its level). Each of those straight edges (at most :data:`THREE_MAX_LINES`, nearest first) whose sides'
+colours match two of the surfaces within :data:`THREE_COLOUR_TOL` bounds those two. One surface ``X`` is a
+half-plane or a wedge (or a union) of one or two of them, and the rest is split between the other two by a third;
+the choice that best reproduces the nine pixels' values is kept when each is within :data:`MAX_FIT_ERROR` of the
+brightest and darkest surfaces' difference. An output pixel then gets its footprint's share of each region (the
+parallelogram clipped by up to three half-planes) in each surface's value. Texture and structure narrower than the
+flat test's 3 px (a plate's one-pixel side face) fail a test and keep the interpolated value (the plate on its
+shadow in ``tests/mosaic/test_edges.py``: the junction's error 0.03–0.45× the interpolation's, 0.45–0.98× with
+two-surface models alone).
+
 Measured. On that session camera A's edge error fell to 0.033 and B's to 0.073 (smooth surfaces 0.0043 and 0.0058);
-with corners A's reads 0.0328 (the scene has few). On the ``small`` preset's 09:30 scene, whose plate lies on its
-shadow, corners took A's edge error from 0.030 to 0.023 and B's from 0.043 to 0.036 (against a 32 × 32-ray truth;
-docs/benchmarks.md, "Registration across conditions"). Against a truth rendered on another grid and area-resampled
-onto the panorama's, which blurs its edges by up to one of its pixels, the model reads worse than interpolation
-(docs/benchmarks.md, "Processing").
+with corners and three surfaces A's reads 0.0328 (the scene has few). On the ``small`` preset's 09:30 scene, whose
+plate lies on its shadow, corners took A's edge error from 0.030 to 0.023 and B's from 0.043 to 0.036, three
+surfaces to 0.019 and 0.033 (against a 32 × 32-ray truth; docs/benchmarks.md, "Registration across
+conditions"). Against a truth rendered on another grid and area-resampled onto the panorama's, which blurs its
+edges by up to one of its pixels, the model reads worse than interpolation (docs/benchmarks.md, "Processing").
 
 References
 ----------

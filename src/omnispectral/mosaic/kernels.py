@@ -39,6 +39,11 @@ are the same, to float32 rounding where they are not):
     the wedge of two nearby straight edges that best reproduces such a window's shares, and a footprint's share
     of a wedge by clipping its parallelogram (:mod:`omnispectral.mosaic.edges`; the same float64 arithmetic as
     the NumPy definitions, to their rounding);
+``three_surface_models(src, brightness, flat, ys, xs, around, model_index, lines, line_colours, …, ok, params)`` /
+``footprint_region_shares(px, py, jac, wedges, splits, out)``
+    the three surfaces around a window that no two-surface model fits, and the regions bounded by nearby straight
+    edges that best reproduce its nine pixels; a footprint's shares of those regions by clipping
+    (:mod:`omnispectral.mosaic.edges`; the same float64 arithmetic as the NumPy definitions, to their rounding);
 ``box_average(src, out)``
     the pyramid's 2 × 2 means ignoring NaN (:func:`omnispectral.mosaic.store.box_average_2x2`; float64
     sums of float32 values, exact for all but extreme dynamic ranges, so the same result).

@@ -114,7 +114,7 @@ CORNER_MIN_SIN = float(np.sin(np.deg2rad(35.0)))
 #: A window that a straight edge fits only to more than this (its largest share error) is tried as a corner
 #: too, and the wedge kept where its largest error is at most :data:`CORNER_GAIN` of the straight edge's: a window
 #: holding a corner's tip can fit a straight edge within :data:`MAX_FIT_ERROR` and misplace the tip.
-CORNER_TRY_FIT = 0.05
+CORNER_TRY_FIT = 0.03
 CORNER_GAIN = 0.5
 
 #: A window beside an edge that no two-surface model fits is tried between three surfaces (a corner lying on an

@@ -118,10 +118,10 @@ CORNER_TRY_FIT = 0.03
 CORNER_GAIN = 0.5
 
 #: A window beside an edge that no two-surface model fits is tried between three surfaces (a corner lying on an
-#: edge of what is behind it: a plate on its own shadow): the flat pixels around at three brightness levels (the
-#: brightest, the darkest, and the one farthest from both in ratio, at least
+#: edge of what is behind it: a plate on its own shadow): three brightness levels among the flat pixels around and
+#: the nearby straight edges' sides (the brightest, the darkest, and the one farthest from both in ratio, at least
 #: :data:`~omnispectral.mosaic.unmix.EDGE_CONTRAST` from each); a nearby straight edge bounds two of them when
-#: its sides' colours lie within this share of those surfaces' difference from their means.
+#: its sides' colours lie within this share of the brightest and darkest surfaces' difference from their means.
 THREE_COLOUR_TOL = 0.3
 #: At most this many distinct straight edges are tried per three-surface window (the nearest first).
 THREE_MAX_LINES = 8
@@ -462,8 +462,8 @@ def _three_surface_model(src: np.ndarray, brightness: np.ndarray, flat: np.ndarr
             and np.isfinite(lines[model_index[y + dy, x + dx], 2])]
     flats = [src[y + dy, x + dx] for dy, dx in window_offsets(WINDOW_RADIUS_PX)
              if 0 <= y + dy < h and 0 <= x + dx < w and flat[y + dy, x + dx]]
-    sides = [line_colours[m].reshape(2, 3) for _, _, m in near]
-    colours = _surface_levels(np.concatenate([np.reshape(flats, (-1, 3)), *sides]).astype(np.float64))
+    edge_sides = [line_colours[m].reshape(2, 3) for _, _, m in near]
+    colours = _surface_levels(np.concatenate([np.reshape(flats, (-1, 3)), *edge_sides]).astype(np.float64))
     if colours is None:
         return np.zeros(19), False
     spread = float(np.sqrt(((colours[2] - colours[0]) ** 2).sum()))

@@ -314,7 +314,7 @@ def _edge_models(src: np.ndarray, bad: np.ndarray | None, compiled: bool = True)
     modelled[ys, xs] = True
     rest = np.flatnonzero(~modelled[zone_ys, zone_xs])
     if lines.shape[0] and rest.size:
-        found, params = _three_surface_models(src, brightness, flat, zone_ys[rest], zone_xs[rest], model_index,
+        found, params = _three_surface_models(src, flat, zone_ys[rest], zone_xs[rest], model_index,
                                               lines, line_colours, kernels)
         if found.any():
             params = params[found]
@@ -401,7 +401,7 @@ def _corner_model(model_index: np.ndarray, lines: np.ndarray, y: int, x: int, al
     return np.array(pick), bool(fit <= limit)
 
 
-def _three_surface_models(src: np.ndarray, brightness: np.ndarray, flat: np.ndarray, ys: np.ndarray, xs: np.ndarray,
+def _three_surface_models(src: np.ndarray, flat: np.ndarray, ys: np.ndarray, xs: np.ndarray,
                           model_index: np.ndarray, lines: np.ndarray, line_colours: np.ndarray, kernels
                           ) -> tuple[np.ndarray, np.ndarray]:
     """For the windows ``(ys, xs)`` beside an edge that no model between two surfaces fits: the three surfaces
@@ -416,11 +416,11 @@ def _three_surface_models(src: np.ndarray, brightness: np.ndarray, flat: np.ndar
     settings = (_nearest_first(CORNER_RADIUS_PX), THREE_MAX_LINES, SAME_LINE_COS, SAME_LINE_PX, CORNER_MIN_SIN,
                 EDGE_CONTRAST, THREE_COLOUR_TOL, MAX_FIT_ERROR, TIE)
     if kernels is not None:
-        kernels.three_surface_models(src, brightness, flat, ys, xs, window_offsets(WINDOW_RADIUS_PX), model_index,
+        kernels.three_surface_models(src, flat, ys, xs, window_offsets(WINDOW_RADIUS_PX), model_index,
                                      lines, line_colours, *settings, found, params)
         return found, params
     for i in range(ys.size):
-        params[i], found[i] = _three_surface_model(src, brightness, flat, int(ys[i]), int(xs[i]), model_index, lines,
+        params[i], found[i] = _three_surface_model(src, flat, int(ys[i]), int(xs[i]), model_index, lines,
                                                    line_colours)
     return found, params
 
@@ -451,7 +451,7 @@ def _surface_levels(samples: np.ndarray) -> np.ndarray | None:
     return colours / np.bincount(nearest, minlength=3)[:, None]
 
 
-def _three_surface_model(src: np.ndarray, brightness: np.ndarray, flat: np.ndarray, y: int, x: int,
+def _three_surface_model(src: np.ndarray, flat: np.ndarray, y: int, x: int,
                          model_index: np.ndarray, lines: np.ndarray, line_colours: np.ndarray
                          ) -> tuple[np.ndarray, bool]:
     """One window of :func:`_three_surface_models` (the NumPy definition of the compiled

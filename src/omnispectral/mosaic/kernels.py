@@ -39,7 +39,7 @@ are the same, to float32 rounding where they are not):
     the wedge of two nearby straight edges that best reproduces such a window's shares, and a footprint's share
     of a wedge by clipping its parallelogram (:mod:`omnispectral.mosaic.edges`; the same float64 arithmetic as
     the NumPy definitions, to their rounding);
-``three_surface_models(src, brightness, flat, ys, xs, around, model_index, lines, line_colours, …, ok, params)`` /
+``three_surface_models(src, flat, ys, xs, around, model_index, lines, line_colours, …, ok, params)`` /
 ``footprint_region_shares(px, py, jac, wedges, splits, out)``
     the three surfaces around a window that no two-surface model fits, and the regions bounded by nearby straight
     edges that best reproduce its nine pixels; a footprint's shares of those regions by clipping
@@ -397,7 +397,7 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
         return m if m >= 0 and np.isfinite(lines[m, 2]) else -1
 
     @numba.njit(nogil=True, cache=True, error_model="numpy", boundscheck=False)
-    def three_surface_models(src, brightness, flat, ys, xs, around, model_index, lines, line_colours, reach,
+    def three_surface_models(src, flat, ys, xs, around, model_index, lines, line_colours, reach,
                              max_lines, same_cos, same_px, min_sin, contrast, colour_tol, max_fit, tie, ok,
                              params):  # pragma: no cover - compiled (tested against edges' NumPy path)
         h, w = flat.shape
@@ -428,8 +428,8 @@ def compiled_kernels(numba) -> SimpleNamespace | None:
             # ratio; each surface the mean of the samples nearest its level
             top, bottom = -np.inf, np.inf
             for k in range(ns):
-                level[0] = samples[k, 0] + samples[k, 1] + samples[k, 2]
-                top, bottom = max(top, level[0]), min(bottom, level[0])
+                b = samples[k, 0] + samples[k, 1] + samples[k, 2]
+                top, bottom = max(top, b), min(bottom, b)
             if not (bottom > 0.0 and top > contrast * contrast * bottom):
                 continue
             middle, score = 0.0, 0.0

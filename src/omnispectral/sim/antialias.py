@@ -17,20 +17,32 @@ So pixels whose first ``s²`` rays spread by more than :data:`REFINE_RELATIVE_RA
 border between two pixels straddles neither pixel's first rays, and would keep an error of up to a quarter of a
 pixel) are rendered again with :data:`REFINE_RAYS_PER_SIDE` ² rays (Whitted's adaptive supersampling, "An
 improved illumination model for shaded display", CACM 23(6), 1980; Mitchell, "Generating antialiased images at
-low sampling densities", SIGGRAPH 1987, for the contrast test), and those rays' mean replaces theirs.  An edge
-then carries a coverage error of at most about ``1 / 8`` of a pixel's width.
+low sampling densities", SIGGRAPH 1987, for the contrast test), and those rays' mean replaces theirs.
+
+The refined rays are the points of a rank-1 lattice (:func:`lattice_offsets`), not a square grid: a grid of
+``n × n`` points has only ``n`` distinct columns and rows, so an edge along a row or column (a wall, a post, the
+horizon, a chart's border: most of the scenes' edges) gets its share in steps of ``1 / n``, while the lattice's
+``n²`` points all lie in different columns and rows, and steps of ``1 / n²``.  The same 64 rays put the truth
+within 0.0078 band NRMSE of a 4096-point lattice within 2 px of depth edges instead of 0.0143 (09:30 seed 0,
+the demo's 952-px grid; elsewhere 9·10⁻⁷ and 3·10⁻⁶); 128 points give 0.0041, 256 points 0.0027.
 """
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["REFINE_RAYS_PER_SIDE", "REFINE_RELATIVE_RANGE", "differs_from_neighbours", "pixels_to_refine",
-           "refined_mean", "subpixel_offsets", "unlike_pairs", "with_neighbours"]
+__all__ = ["REFINE_RAYS_PER_SIDE", "REFINE_RELATIVE_RANGE", "differs_from_neighbours", "lattice_generator",
+           "lattice_offsets", "pixels_to_refine", "refined_mean", "subpixel_offsets", "unlike_pairs",
+           "with_neighbours"]
 
-#: Rays per pixel side where a pixel is refined.
+#: Where a pixel is refined it gets ``REFINE_RAYS_PER_SIDE ** 2`` rays (the points of :func:`lattice_offsets`).
 REFINE_RAYS_PER_SIDE = 8
+#: Up to this many points the lattice's generator is the best of all candidates; beyond, of those near the
+#: golden section (:func:`lattice_generator`).
+EXHAUSTIVE_LATTICE_POINTS = 4096
 #: A pixel is refined when, in some band, its rays' range exceeds this fraction of their mean.
 REFINE_RELATIVE_RANGE = 0.05
 
@@ -107,14 +119,64 @@ def differs_from_neighbours(means: np.ndarray, height: int, width: int,
     return marked.ravel()
 
 
+def _lattice_min_distance_sq(n: int, generator: int) -> float:
+    """Squared smallest distance between two points of the rank-1 lattice ``(i / n, i·g / n mod 1)`` on the unit
+    torus."""
+    i = np.arange(1, n)
+    x = i / n
+    y = (i * generator % n) / n
+    x = np.minimum(x, 1.0 - x)
+    y = np.minimum(y, 1.0 - y)
+    return float(np.min(x * x + y * y))
+
+
+@lru_cache(maxsize=32)
+def lattice_generator(n_points: int) -> int:
+    """The generator ``g`` of the ``n_points``-point rank-1 lattice :func:`lattice_offsets` uses: coprime with
+    ``n_points``, its points' smallest distance on the torus the largest (Dammertz & Keller, "Image synthesis by
+    rank-1 lattices", Monte Carlo and Quasi-Monte Carlo Methods 2006, Springer 2008: such lattices give the
+    lowest error on pixels an edge crosses).  Every candidate is tried up to
+    :data:`EXHAUSTIVE_LATTICE_POINTS` points, beyond that the 256 nearest ``n / φ`` (the Fibonacci lattices'
+    choice); ties go to the smallest."""
+    n = int(n_points)
+    if n < 3:
+        return 1
+    if n <= EXHAUSTIVE_LATTICE_POINTS:
+        candidates = range(1, n // 2 + 1)  # g and n − g mirror each other
+    else:
+        centre = round(n * (np.sqrt(5.0) - 1.0) / 2.0)
+        candidates = range(max(1, centre - 128), min(n - 1, centre + 128) + 1)
+    best, best_g = -1.0, 1
+    for g in candidates:
+        if np.gcd(g, n) != 1:
+            continue
+        d = _lattice_min_distance_sq(n, g)
+        if d > best:
+            best, best_g = d, g
+    return best_g
+
+
+def lattice_offsets(n_points: int) -> np.ndarray:
+    """``(n_points, 2)`` offsets ``(x, y)`` from a pixel's centre (px) of the points of a rank-1 lattice:
+    ``x = (i + ½) / n − ½``, ``y = ((i·g mod n) + ½) / n − ½`` with :func:`lattice_generator`'s ``g``.
+
+    Every point lies in a column and a row of its own, so a pixel's share of an edge along a row or a column
+    is counted in steps of ``1 / n``, and one at another angle within about as much (module docstring).
+    """
+    n = max(1, int(n_points))
+    i = np.arange(n)
+    g = lattice_generator(n)
+    return np.stack([(i + 0.5) / n - 0.5, ((i * g) % n + 0.5) / n - 0.5], axis=-1)
+
+
 def refined_mean(render, positions: np.ndarray, per_side: int) -> np.ndarray:
-    """``(P, c)`` mean of ``render(points)`` over ``per_side²`` points spread over each of ``P`` pixels.
+    """``(P, c)`` mean of ``render(points)`` over the ``per_side²`` points of :func:`lattice_offsets` in each of
+    ``P`` pixels.
 
     ``positions (P, 2)``: the pixels' centres (``x, y`` in pixels); ``render(points (P·per_side², 2))`` returns
     ``(P·per_side², c)`` values, pixel-major.
     """
-    sub = subpixel_offsets(per_side)
-    dy, dx = np.meshgrid(sub, sub, indexing="ij")
-    points = positions[:, None, :] + np.stack([dx.ravel(), dy.ravel()], axis=-1)[None]
+    offsets = lattice_offsets(per_side * per_side)
+    points = positions[:, None, :] + offsets[None]
     values = np.asarray(render(points.reshape(-1, 2)))
-    return values.reshape(positions.shape[0], per_side * per_side, -1).mean(axis=1)
+    return values.reshape(positions.shape[0], offsets.shape[0], -1).mean(axis=1)

@@ -67,7 +67,7 @@ def write_ground_truth(directory: str | Path, renderer, width: int, spectral_wid
     ``bands.npy`` ``(H, W, m)``: noise-free response of the rig's bands (``A:R … B:B``, or ``A:R, A:G, A:B`` for
     a one-camera rig) in DN per second of exposure
     (what the HDR merge of a noise-free capture gives), seen from the head's rotation centre, averaged
-    over each pixel's area (2 × 2 points, 8 × 8 where they disagree, like the sensor's pixels:
+    over each pixel's area (2 × 2 points, 64 lattice points where they disagree, like the sensor's pixels:
     :mod:`omnispectral.sim.antialias`); a scene's analytic sun is not
     point-sampled but added exactly (:func:`add_sun_disk_equirect`: every pixel gets the visible part of
     the disk it covers, so the truth holds the sun's energy on any grid).
@@ -176,8 +176,8 @@ def patch_radiance_spread(scene, lon_deg: float, lat_deg: float, half_size_deg: 
 def render_equirect_bands(scene, matrix: np.ndarray, width: int, row_start: int = 0, row_stop: int | None = None,
                           rows_per_chunk: int = 64) -> np.ndarray:
     """Band radiance ``(rows, W, m)`` float32 (scene units) of rows ``row_start:row_stop`` of the W × W/2 truth grid,
-    as :func:`write_ground_truth` renders it (2 × 2 points per pixel, 8 × 8 where they disagree, the analytic
-    sun added exactly), unscaled."""
+    as :func:`write_ground_truth` renders it (2 × 2 points per pixel, 64 lattice points where they disagree,
+    the analytic sun added exactly), unscaled."""
     height = width // 2
     row_stop = height if row_stop is None else row_stop
     sun = scene_sun_disk(scene)

@@ -241,3 +241,23 @@ def test_a_patch_b_sees_unlike_its_look_alikes_in_a_keeps_its_measured_b():
     img[10:13, 28:30, 3:] = 3.0 * img[10:13, 28:30, :3]
     prior = BandPredictor(np.eye(3), np.full(3, 0.3))
     assert not contaminated_beside(img, missing, prior)[10:13, 28:30].any()
+
+
+def test_a_partly_hidden_patch_brighter_in_b_than_anything_around_keeps_its_measured_b():
+    """A 3-px patch whose right column B cannot see (a chart's yellow patch beside the hidden pixels), with a
+    look-alike in A nearby that is another colour in B: the prediction from it is 3 times below what B
+    measured, and below every other surface around, so the measurement took in nothing around it and stands;
+    a sky pixel darkened by the post beside the same hidden pixels is still flagged."""
+    from omnispectral.mosaic.predict import contaminated_beside
+
+    img, missing = _sky_with_a_post()
+    img[5:18, 20:25, :3] = (4.0, 2.0, 2.0)
+    img[5:18, 20:25, 3:] = img[5:18, 20:25, :3]
+    img[10:13, 28:31, :3] = (4.0, 2.0, 2.0)
+    img[10:13, 28:31, 3:] = 3.0 * img[10:13, 28:31, :3]
+    post_b = img[0, 35, 3:].copy()
+    img[30, 29, 3:] = 0.4 * img[30, 29, 3:] + 0.6 * post_b
+    prior = BandPredictor(np.eye(3), np.full(3, 0.3))
+    flagged = contaminated_beside(img, missing, prior)
+    assert not flagged[10:13, 28:30].any()
+    assert flagged[30, 29]

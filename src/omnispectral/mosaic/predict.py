@@ -59,6 +59,9 @@ MIN_NEAR_SUPPORT = 0.5
 #: ... and the pixel must look like a hidden pixel within BESIDE_MISSING_PX in A: this near in the joint
 #: bilateral guide's units (σ of chromaticity and of log brightness; :func:`_looks_like_a_hidden_pixel`).
 SAME_SURFACE_DISTANCE = 3.0
+#: ... and where its B is brighter than the prediction, a measured B at least as bright within this reach (px)
+#: on the occluder's side of the hidden pixels (:func:`_a_mix_with_a_neighbour`).
+MIX_REACH_PX = 8
 
 
 def tile_predictor(a: np.ndarray, b: np.ndarray) -> BandPredictor | None:
@@ -266,11 +269,14 @@ def contaminated_beside(values: np.ndarray, missing: np.ndarray, predictor: Band
     looks like one of those hidden pixels in A (:func:`_looks_like_a_hidden_pixel`: the same surface, not
     the occluder) is predicted as if missing, from the measured pixels beyond the reach
     (:func:`fill_missing_b`); it is contaminated when some band's measured value is more than
-    :data:`CONTAMINATION_SIGMAS` times that prediction's relative error off it (in log) and the prediction
+    :data:`CONTAMINATION_SIGMAS` times that prediction's relative error off it (in log), the prediction
     rests on neighbours of its own surface within the first radius (joint-bilateral weight at least
-    :data:`MIN_NEAR_SUPPORT`).  The occluder's own pixels are left as measured: where the occluder is a
-    chart, its small patches' look-alikes in A may be other colours in B, and a prediction would replace
-    a right measurement with a wrong one.  Without a predictor nothing is flagged."""
+    :data:`MIN_NEAR_SUPPORT`), and the measurement can be a mix with the occluder: where it is brighter than
+    the prediction, B measured something at least as bright on the occluder's side
+    (:func:`_a_mix_with_a_neighbour`).
+    The occluder's own pixels are left as measured: where the occluder is a chart, its small patches'
+    look-alikes in A may be other colours in B, and a prediction would replace a right measurement with a
+    wrong one.  Without a predictor nothing is flagged."""
     h, w = missing.shape
     out = np.zeros((h, w), bool)
     if predictor is None or not missing.any():
@@ -282,7 +288,10 @@ def contaminated_beside(values: np.ndarray, missing: np.ndarray, predictor: Band
     if not beside.any():
         return out
     ys, xs = np.nonzero(beside)
-    hidden_side = _looks_like_a_hidden_pixel(_guide_features(values[..., :3]), missing, ys, xs)
+    guide = _guide_features(values[..., :3])
+    hidden_side = _looks_like_a_hidden_pixel(guide, missing, ys, xs)
+    occluder_side = np.zeros((h, w), bool)
+    occluder_side[ys[~hidden_side], xs[~hidden_side]] = True
     ys, xs = ys[hidden_side], xs[hidden_side]
     if ys.size == 0:
         return out
@@ -291,8 +300,45 @@ def contaminated_beside(values: np.ndarray, missing: np.ndarray, predictor: Band
     with np.errstate(all="ignore"):
         off = np.abs(np.log(b / pred))
     bad = (support >= MIN_NEAR_SUPPORT) & np.any(np.nan_to_num(off, nan=0.0) > CONTAMINATION_SIGMAS * rel, axis=1)
+    bad[bad] = _a_mix_with_a_neighbour(values[..., 3:6], guide, occluder_side, ys[bad], xs[bad], pred[bad],
+                                       rel[bad])
     out[ys[bad], xs[bad]] = True
     return out
+
+
+def _a_mix_with_a_neighbour(b: np.ndarray, guide: tuple[np.ndarray, np.ndarray], others: np.ndarray, ys: np.ndarray,
+                            xs: np.ndarray, pred: np.ndarray, rel: np.ndarray) -> np.ndarray:
+    """``(n,)`` bool: B's measurement ``b[ys, xs]`` can be the hidden surface mixed with what hid it: it is nowhere
+    brighter than its prediction ``pred (n, 3)`` allows (its relative error ``rel``), or, in the bands where it is,
+    one of the ``others`` (the measured pixels beside the hidden ones that do not look like them: the occluder's
+    side) within :data:`MIX_REACH_PX` that is another surface in A (farther than :data:`SAME_SURFACE_DISTANCE` in
+    the joint bilateral ``guide``, :func:`_guide_features`) is at least as bright.
+
+    A sample that took in the occluder holds a share of the occluder's B.  A darker occluder may have filled it
+    (the post by the low sun hides the sky from one of B's views, whose B there is 1/140 of the sky's), so a
+    measurement below the prediction stays a candidate.  One brighter than the prediction must have taken in
+    something brighter, which B measured on the far side of the hidden pixels; where nothing around is, the
+    prediction is what is wrong (a chart's 3-px patch, part of it hidden, predicted from a patch that looks
+    alike in A and is another colour in B: the yellow patch, 3× brighter in B than the prediction from the
+    orange yellow above it)."""
+    h, w = others.shape
+    meas = b[ys, xs].astype(np.float64)
+    brighter = meas > pred * np.exp(rel)
+    found = ~brighter.any(axis=1)
+    if found.all():
+        return found
+    chroma, log_bright = guide
+    r = MIX_REACH_PX
+    for dy in range(-r, r + 1):
+        for dx in range(-r, r + 1):
+            if (dy == 0 and dx == 0) or dy * dy + dx * dx > r * r:
+                continue
+            yy, xx = np.clip(ys + dy, 0, h - 1), np.clip(xs + dx, 0, w - 1)
+            brighter_still = np.where(brighter, b[yy, xx] >= meas, True).all(axis=1)
+            unlike = (((chroma[yy, xx] - chroma[ys, xs]) / SIGMA_CHROMA) ** 2).sum(axis=1) \
+                + ((log_bright[yy, xx] - log_bright[ys, xs]) / SIGMA_LOG_BRIGHTNESS) ** 2 > SAME_SURFACE_DISTANCE ** 2
+            found |= others[yy, xx] & unlike & brighter_still
+    return found
 
 
 def _guide_features(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -709,3 +709,39 @@ def test_settle_pairs_lets_camera_a_choose_between_two_views_of_two_surfaces():
     third = [sky, other, sky * 1.02]
     out3 = settle_pairs(third, [*weights, np.full(shape, 0.003, np.float32)], [(0, 0)] * 3, shape, expected)
     assert out3[1][0, 0] == weights[1][0, 0]
+
+
+def test_a_view_whose_sample_reaches_across_an_edge_others_do_not_show_is_dropped():
+    """Two camera-B views of a flat sky: one's samples beside a post read the sky 30 % dark (its kernel reaches
+    the post's edge half a pixel away, in its own frame) and then the post itself. The dark sample is dropped
+    where the other view and A's expectation are flat, which the ratio test (2x) leaves to their blend. Left
+    as they are: the same where A's expectation steps too (an edge A sees), where the other view steps as
+    well, and where the two differ by less than 15 %."""
+    from omnispectral.mosaic.blending import EDGE_PAIR_RATIO, reject_inconsistent
+
+    shape = (3, 7)
+    flat = np.full((3, 7, 3), 1.0e6, np.float32)
+    reach = flat.copy()
+    reach[:, 3] = 0.7e6  # reaches the post's edge
+    reach[:, 4:] = 0.02e6  # the post
+    weights = [np.full(shape, 0.002, np.float32), np.full(shape, 0.005, np.float32)]
+    expected = np.full(shape, 3.0e6, np.float32)
+    expected[:, 1::2] *= 1.12  # the linear prediction's wobble on a smooth sky
+    kept = reject_inconsistent([flat, reach], weights, [(0, 0)] * 2, shape, expected=expected)
+    assert (kept[1][:, 3:] == 0).all() and (kept[1][:, :3] > 0).all()
+    assert (kept[0] > 0).all()
+    blend = (0.002 * 1.0 + 0.005 * 0.7) / 0.007
+    assert blend < 0.8  # what the two views' blend read at column 3
+
+    edge_in_a = expected.copy()
+    edge_in_a[:, 4:] = 0.1e6
+    kept = reject_inconsistent([flat, reach], weights, [(0, 0)] * 2, shape, expected=edge_in_a)
+    assert kept[1][1, 3] > 0
+    both = flat.copy()
+    both[:, 2] = 0.5e6  # the other view steps too
+    kept = reject_inconsistent([both, reach], weights, [(0, 0)] * 2, shape, expected=expected)
+    assert kept[1][1, 3] > 0
+    near = reach.copy()
+    near[:, 3] = 1.01e6 / EDGE_PAIR_RATIO  # within the ratio of the flat view
+    kept = reject_inconsistent([flat, near], weights, [(0, 0)] * 2, shape, expected=expected)
+    assert kept[1][1, 3] > 0

@@ -140,7 +140,8 @@ def reject_inconsistent(values: list[np.ndarray], weights: list[np.ndarray], off
     two of three right views sit at their image's edge).  Two disagreeing sources are left as they are:
     nothing among them says which is right, unless camera A's ``expected (h, w)`` band sum for these sources is
     given: then two that see two surfaces are settled by it (:func:`settle_pairs`, on what the median vote
-    left).  Returns new weight arrays, same shapes as ``weights``.
+    left), and of two that differ less, one whose values step across an edge that A and the other view do not
+    show is dropped (:func:`edge_beside_flat`).  Returns new weight arrays, same shapes as ``weights``.
     """
     n = len(values)
     if n < (3 if expected is None else 2):
@@ -149,8 +150,11 @@ def reject_inconsistent(values: list[np.ndarray], weights: list[np.ndarray], off
     disagree = _median_disagreement(s, wt, tol) if n >= 3 else None
     if expected is not None:
         kept = wt if disagree is None else np.where(disagree, np.float32(0.0), wt)
-        pairs = _pair_disagreement(s, kept, expected)
-        disagree = pairs if disagree is None else (disagree if pairs is None else disagree | pairs)
+        for settle in (_pair_disagreement, edge_beside_flat):
+            pairs = settle(s, kept, expected)
+            if pairs is not None:
+                disagree = pairs if disagree is None else disagree | pairs
+                kept = np.where(pairs, np.float32(0.0), kept)
     return [np.asarray(x) for x in weights] if disagree is None else _without(weights, offsets, disagree)
 
 
@@ -215,6 +219,65 @@ def _pair_disagreement(s: np.ndarray, wt: np.ndarray, expected: np.ndarray) -> n
     # dropped only when A's expectation is decisive: the farther source at least PAIR_RATIO farther (a saturated
     # colour's expectation can be twice off, and a blend of the two is then the safer value)
     return np.isfinite(distance) & (distance > nearer + np.float32(np.log(PAIR_RATIO)))
+
+
+#: Two views of a pixel this far apart (band sums) whose one changes by more than :data:`EDGE_STEP` to a
+#: 4-neighbour where the other changes by less than :data:`FLAT_STEP` and A's expectation by less than
+#: :data:`A_FLAT_STEP`: the first one's sample reached across an edge that is not there
+#: (:func:`edge_beside_flat`; A's expectation, a linear prediction, moves up to 16 % between neighbours of a
+#: smooth blue sky).
+EDGE_PAIR_RATIO = 1.15
+EDGE_STEP = 1.5
+FLAT_STEP = 1.1
+A_FLAT_STEP = 1.25
+
+
+def edge_beside_flat(s: np.ndarray, wt: np.ndarray, expected: np.ndarray) -> np.ndarray | None:
+    """``(n, h, w)`` the sources to drop where exactly two vote, their band sums ``s (n, h, w)`` differ by more
+    than :data:`EDGE_PAIR_RATIO`, and one of them steps by more than :data:`EDGE_STEP` to one of its
+    4-neighbours while the other steps by less than :data:`FLAT_STEP` to every one, and A's ``expected (h, w)``
+    band sum by less than :data:`A_FLAT_STEP`; None where there are none.
+
+    A view whose interpolation kernel reaches across an edge in its own frame (another surface in front of the
+    one A sees, half a pixel beyond the sample: the post by the low sun, in one of two B views of the sky
+    beside it) reads a blend of the two surfaces, 20–30 % off, where A and the other view see one flat
+    surface: too little apart for :data:`PAIR_RATIO`, and the blend of the two views kept a third of that error
+    over 16 rows.  The step shows in the view's own values beside the pixel, which its neighbours' samples
+    carry across the edge.  Voters as in :func:`reject_inconsistent`."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        voting = (wt > np.float32(1e-3) * wt.max(axis=0, keepdims=True)) & (s > 0)
+        exp = np.asarray(expected, np.float32)
+        pair = (voting.sum(axis=0) == 2) & (exp > 0)
+        if not pair.any():
+            return None
+        votes = np.where(voting, s, np.nan)
+        apart = pair & (np.nanmax(np.where(pair, votes, 1.0), axis=0)
+                        > np.float32(EDGE_PAIR_RATIO) * np.nanmin(np.where(pair, votes, 1.0), axis=0))
+    ys, xs = np.nonzero(apart)
+    if ys.size == 0:
+        return None
+    n, h, w = s.shape
+    steps = np.zeros((n, ys.size))
+    step_a = np.zeros(ys.size)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        here = np.where(voting[:, ys, xs], np.log(s[:, ys, xs].astype(np.float64)), np.nan)
+        a_here = np.log(exp[ys, xs].astype(np.float64))
+        for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+            yy, xx = np.clip(ys + dy, 0, h - 1), np.clip(xs + dx, 0, w - 1)
+            # the view's own value beside the pixel, voting there or not (dropped beside the edge it reached)
+            there = np.log(s[:, yy, xx].astype(np.float64))
+            steps = np.fmax(steps, np.abs(there - here))
+            a_there = exp[yy, xx].astype(np.float64)
+            step_a = np.fmax(step_a, np.where(a_there > 0, np.abs(np.log(a_there) - a_here), np.nan))
+    voters = np.isfinite(here)
+    steps = np.where(voters, steps, 0.0)
+    other = np.where(voters, steps.sum(axis=0) - steps, np.inf)  # the other voter's step (two voters)
+    drop = voters & (steps > np.log(EDGE_STEP)) & (other < np.log(FLAT_STEP)) & (step_a < np.log(A_FLAT_STEP))
+    if not drop.any():
+        return None
+    out = np.zeros((n, h, w), bool)
+    out[:, ys, xs] = drop
+    return out
 
 
 def _vote_arrays(values: list[np.ndarray], weights: list[np.ndarray], offsets: list[tuple[int, int]],

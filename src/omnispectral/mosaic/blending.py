@@ -202,23 +202,41 @@ def settle_pairs(values: list[np.ndarray], weights: list[np.ndarray], offsets: l
     return [np.asarray(x) for x in weights] if dropped is None else _without(weights, offsets, dropped)
 
 
+def _two_voters(s: np.ndarray, wt: np.ndarray, expected: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The pixels where exactly two sources vote (as in :func:`reject_inconsistent`) and ``expected`` is known:
+    ``(rows, cols, voting (n, k), votes (n, k))``, the votes NaN where a source does not vote."""
+    with np.errstate(invalid="ignore"):
+        voting = (wt > np.float32(1e-3) * wt.max(axis=0, keepdims=True)) & (s > 0)
+        ys, xs = np.nonzero((voting.sum(axis=0) == 2) & (np.asarray(expected) > 0))
+    at = voting[:, ys, xs]
+    return ys, xs, at, np.where(at, s[:, ys, xs], np.float32(np.nan))
+
+
+def _at_pixels(shape: tuple[int, ...], ys: np.ndarray, xs: np.ndarray, drop: np.ndarray) -> np.ndarray | None:
+    """``(n, h, w)`` bool, ``drop (n, k)`` at pixels ``ys, xs``; None where nothing is dropped."""
+    if not drop.any():
+        return None
+    out = np.zeros(shape, bool)
+    out[:, ys, xs] = drop
+    return out
+
+
 def _pair_disagreement(s: np.ndarray, wt: np.ndarray, expected: np.ndarray) -> np.ndarray | None:
     """``(n, h, w)`` the sources :func:`settle_pairs` drops, None where none is."""
+    ys, xs, voting, votes = _two_voters(s, wt, expected)
+    if ys.size == 0:
+        return None
     with np.errstate(invalid="ignore", divide="ignore"):
-        voting = (wt > np.float32(1e-3) * wt.max(axis=0, keepdims=True)) & (s > 0)
-        pair = (voting.sum(axis=0) == 2) & (np.asarray(expected) > 0)
-        if not pair.any():
-            return None
-        votes = np.where(voting, s, np.nan)
-        apart = pair & (np.nanmax(np.where(pair, votes, 1.0), axis=0)
-                        > np.float32(PAIR_RATIO) * np.nanmin(np.where(pair, votes, 1.0), axis=0))
+        apart = np.nanmax(votes, axis=0) > np.float32(PAIR_RATIO) * np.nanmin(votes, axis=0)
         if not apart.any():
             return None
-        distance = np.where(voting & apart, np.abs(np.log(votes / np.asarray(expected, np.float32))), -np.inf)
+        exp = np.asarray(expected, np.float32)[ys, xs]
+        distance = np.where(voting & apart, np.abs(np.log(votes / exp)), -np.inf)
     nearer = np.where(np.isfinite(distance), distance, np.inf).min(axis=0, keepdims=True)
     # dropped only when A's expectation is decisive: the farther source at least PAIR_RATIO farther (a saturated
     # colour's expectation can be twice off, and a blend of the two is then the safer value)
-    return np.isfinite(distance) & (distance > nearer + np.float32(np.log(PAIR_RATIO)))
+    return _at_pixels(s.shape, ys, xs, np.isfinite(distance) & (distance > nearer + np.float32(np.log(PAIR_RATIO))))
 
 
 #: Two views of a pixel this far apart (band sums) whose one changes by more than :data:`EDGE_STEP` to a
@@ -244,23 +262,20 @@ def edge_beside_flat(s: np.ndarray, wt: np.ndarray, expected: np.ndarray) -> np.
     surface: too little apart for :data:`PAIR_RATIO`, and the blend of the two views kept a third of that error
     over 16 rows.  The step shows in the view's own values beside the pixel, which its neighbours' samples
     carry across the edge.  Voters as in :func:`reject_inconsistent`."""
+    ys, xs, voting, votes = _two_voters(s, wt, expected)
+    if ys.size == 0:
+        return None
     with np.errstate(invalid="ignore", divide="ignore"):
-        voting = (wt > np.float32(1e-3) * wt.max(axis=0, keepdims=True)) & (s > 0)
-        exp = np.asarray(expected, np.float32)
-        pair = (voting.sum(axis=0) == 2) & (exp > 0)
-        if not pair.any():
-            return None
-        votes = np.where(voting, s, np.nan)
-        apart = pair & (np.nanmax(np.where(pair, votes, 1.0), axis=0)
-                        > np.float32(EDGE_PAIR_RATIO) * np.nanmin(np.where(pair, votes, 1.0), axis=0))
-    ys, xs = np.nonzero(apart)
+        apart = np.nanmax(votes, axis=0) > np.float32(EDGE_PAIR_RATIO) * np.nanmin(votes, axis=0)
+    ys, xs, voting = ys[apart], xs[apart], voting[:, apart]
     if ys.size == 0:
         return None
     n, h, w = s.shape
+    exp = np.asarray(expected, np.float32)
     steps = np.zeros((n, ys.size))
     step_a = np.zeros(ys.size)
     with np.errstate(invalid="ignore", divide="ignore"):
-        here = np.where(voting[:, ys, xs], np.log(s[:, ys, xs].astype(np.float64)), np.nan)
+        here = np.where(voting, np.log(s[:, ys, xs].astype(np.float64)), np.nan)
         a_here = np.log(exp[ys, xs].astype(np.float64))
         for dy, dx in ((-1, 0), (1, 0), (0, -1), (0, 1)):
             yy, xx = np.clip(ys + dy, 0, h - 1), np.clip(xs + dx, 0, w - 1)
@@ -273,11 +288,7 @@ def edge_beside_flat(s: np.ndarray, wt: np.ndarray, expected: np.ndarray) -> np.
     steps = np.where(voters, steps, 0.0)
     other = np.where(voters, steps.sum(axis=0) - steps, np.inf)  # the other voter's step (two voters)
     drop = voters & (steps > np.log(EDGE_STEP)) & (other < np.log(FLAT_STEP)) & (step_a < np.log(A_FLAT_STEP))
-    if not drop.any():
-        return None
-    out = np.zeros((n, h, w), bool)
-    out[:, ys, xs] = drop
-    return out
+    return _at_pixels(s.shape, ys, xs, drop)
 
 
 def _vote_arrays(values: list[np.ndarray], weights: list[np.ndarray], offsets: list[tuple[int, int]],

@@ -60,7 +60,7 @@ MIN_NEAR_SUPPORT = 0.5
 #: bilateral guide's units (σ of chromaticity and of log brightness; :func:`_looks_like_a_hidden_pixel`).
 SAME_SURFACE_DISTANCE = 3.0
 #: ... and where its B is brighter than the prediction, a measured B at least as bright within this reach (px)
-#: on the occluder's side of the hidden pixels (:func:`_a_mix_with_a_neighbour`).
+#: on the occluder's side of the hidden pixels (:func:`_may_hold_the_occluder`).
 MIX_REACH_PX = 8
 
 
@@ -273,7 +273,7 @@ def contaminated_beside(values: np.ndarray, missing: np.ndarray, predictor: Band
     rests on neighbours of its own surface within the first radius (joint-bilateral weight at least
     :data:`MIN_NEAR_SUPPORT`), and the measurement can be a mix with the occluder: where it is brighter than
     the prediction, B measured something at least as bright on the occluder's side
-    (:func:`_a_mix_with_a_neighbour`).
+    (:func:`_may_hold_the_occluder`).
     The occluder's own pixels are left as measured: where the occluder is a chart, its small patches'
     look-alikes in A may be other colours in B, and a prediction would replace a right measurement with a
     wrong one.  Without a predictor nothing is flagged."""
@@ -300,14 +300,14 @@ def contaminated_beside(values: np.ndarray, missing: np.ndarray, predictor: Band
     with np.errstate(all="ignore"):
         off = np.abs(np.log(b / pred))
     bad = (support >= MIN_NEAR_SUPPORT) & np.any(np.nan_to_num(off, nan=0.0) > CONTAMINATION_SIGMAS * rel, axis=1)
-    bad[bad] = _a_mix_with_a_neighbour(values[..., 3:6], guide, occluder_side, ys[bad], xs[bad], pred[bad],
+    bad[bad] = _may_hold_the_occluder(values[..., 3:6], guide, occluder_side, ys[bad], xs[bad], pred[bad],
                                        rel[bad])
     out[ys[bad], xs[bad]] = True
     return out
 
 
-def _a_mix_with_a_neighbour(b: np.ndarray, guide: tuple[np.ndarray, np.ndarray], others: np.ndarray, ys: np.ndarray,
-                            xs: np.ndarray, pred: np.ndarray, rel: np.ndarray) -> np.ndarray:
+def _may_hold_the_occluder(b: np.ndarray, guide: tuple[np.ndarray, np.ndarray], others: np.ndarray, ys: np.ndarray,
+                           xs: np.ndarray, pred: np.ndarray, rel: np.ndarray) -> np.ndarray:
     """``(n,)`` bool: B's measurement ``b[ys, xs]`` can be the hidden surface mixed with what hid it: it is nowhere
     brighter than its prediction ``pred (n, 3)`` allows (its relative error ``rel``), or, in the bands where it is,
     one of the ``others`` (the measured pixels beside the hidden ones that do not look like them: the occluder's
@@ -327,17 +327,9 @@ def _a_mix_with_a_neighbour(b: np.ndarray, guide: tuple[np.ndarray, np.ndarray],
     found = ~brighter.any(axis=1)
     if found.all():
         return found
-    chroma, log_bright = guide
-    r = MIX_REACH_PX
-    for dy in range(-r, r + 1):
-        for dx in range(-r, r + 1):
-            if (dy == 0 and dx == 0) or dy * dy + dx * dx > r * r:
-                continue
-            yy, xx = np.clip(ys + dy, 0, h - 1), np.clip(xs + dx, 0, w - 1)
-            brighter_still = np.where(brighter, b[yy, xx] >= meas, True).all(axis=1)
-            unlike = (((chroma[yy, xx] - chroma[ys, xs]) / SIGMA_CHROMA) ** 2).sum(axis=1) \
-                + ((log_bright[yy, xx] - log_bright[ys, xs]) / SIGMA_LOG_BRIGHTNESS) ** 2 > SAME_SURFACE_DISTANCE ** 2
-            found |= others[yy, xx] & unlike & brighter_still
+    for yy, xx in _within(ys, xs, MIX_REACH_PX, (h, w)):  # the pixel itself is no occluder: not in ``others``
+        brighter_still = np.where(brighter, b[yy, xx] >= meas, True).all(axis=1)
+        found |= others[yy, xx] & ~_alike(guide, ys, xs, yy, xx) & brighter_still
     return found
 
 
@@ -355,16 +347,27 @@ def _looks_like_a_hidden_pixel(guide: tuple[np.ndarray, np.ndarray], missing: np
     """``(n,)`` bool: a ``missing`` pixel within :data:`BESIDE_MISSING_PX` looks like the pixel in A (within
     :data:`SAME_SURFACE_DISTANCE` in the units of the joint bilateral ``guide``, :func:`_guide_features`): the
     pixel is of the surface hidden there, not of the one that hides it."""
-    h, w = missing.shape
-    chroma, log_bright = guide
     found = np.zeros(ys.size, bool)
-    r = BESIDE_MISSING_PX
-    for dy in range(-r, r + 1):
-        for dx in range(-r, r + 1):
-            if dy * dy + dx * dx > r * r:
-                continue
-            yy, xx = np.clip(ys + dy, 0, h - 1), np.clip(xs + dx, 0, w - 1)
-            guide = (((chroma[yy, xx] - chroma[ys, xs]) / SIGMA_CHROMA) ** 2).sum(axis=1) \
-                + ((log_bright[yy, xx] - log_bright[ys, xs]) / SIGMA_LOG_BRIGHTNESS) ** 2
-            found |= missing[yy, xx] & (guide <= SAME_SURFACE_DISTANCE ** 2)
+    for yy, xx in _within(ys, xs, BESIDE_MISSING_PX, missing.shape):
+        found |= missing[yy, xx] & _alike(guide, ys, xs, yy, xx)
     return found
+
+
+def _within(ys: np.ndarray, xs: np.ndarray, radius: int, shape: tuple[int, int]):
+    """For each offset within ``radius`` px (the disk, its centre included): the pixels ``(yy, xx)`` that far from
+    ``(ys, xs)``, clipped to an image of ``shape``."""
+    h, w = shape
+    for dy in range(-radius, radius + 1):
+        for dx in range(-radius, radius + 1):
+            if dy * dy + dx * dx <= radius * radius:
+                yield np.clip(ys + dy, 0, h - 1), np.clip(xs + dx, 0, w - 1)
+
+
+def _alike(guide: tuple[np.ndarray, np.ndarray], ys: np.ndarray, xs: np.ndarray, yy: np.ndarray,
+           xx: np.ndarray) -> np.ndarray:
+    """``(n,)`` bool: pixels ``(yy, xx)`` look like ``(ys, xs)`` in A: within :data:`SAME_SURFACE_DISTANCE` in the
+    units of the joint bilateral ``guide`` (:func:`_guide_features`)."""
+    chroma, log_bright = guide
+    distance_sq = (((chroma[yy, xx] - chroma[ys, xs]) / SIGMA_CHROMA) ** 2).sum(axis=1) \
+        + ((log_bright[yy, xx] - log_bright[ys, xs]) / SIGMA_LOG_BRIGHTNESS) ** 2
+    return distance_sq <= SAME_SURFACE_DISTANCE ** 2
